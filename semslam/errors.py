@@ -1,0 +1,37 @@
+"""Exceptions per area, so the CLI can print one clear line instead of a traceback.
+
+Every error a user can cause (a bad file, a bad option) is one of these; anything else
+escaping the CLI is a bug.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class SemslamError(Exception):
+    """Base of all errors a user can cause."""
+
+
+class DataError(SemslamError):
+    """A dataset file or folder is missing, unreadable or inconsistent.
+
+    The message always names the file and the problem.
+    """
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        self.path = Path(path)
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")
+
+
+class TrajectoryError(DataError):
+    """A trajectory file cannot be read or two trajectories cannot be compared."""
+
+
+class EvalError(SemslamError):
+    """Metrics cannot be computed on the given input (too few poses, no overlap, ...)."""
+
+
+class ConfigError(SemslamError):
+    """A preset, a --set override or a command-line option is invalid."""

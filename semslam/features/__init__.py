@@ -1,0 +1,1 @@
+"""Keypoint extractors and matchers, each registered by name."""

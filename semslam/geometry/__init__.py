@@ -1,0 +1,1 @@
+"""Pure geometry: functions of arrays, no I/O and no SLAM state."""

@@ -1,0 +1,54 @@
+"""Pinhole camera with optional Brown-Conrady distortion (OpenCV's k1 k2 p1 p2 k3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """Intrinsics of one camera; ``dist`` is all zeros when the images are undistorted."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    source: str = field(default="", compare=False)
+
+    @property
+    def K(self) -> NDArray[np.float64]:  # noqa: N802 - the usual name of the matrix
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def dist_coeffs(self) -> NDArray[np.float64]:
+        return np.asarray(self.dist, dtype=np.float64)
+
+    @property
+    def is_distorted(self) -> bool:
+        return any(abs(d) > 0.0 for d in self.dist)
+
+    def undistort_points(self, xy: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Pixel coordinates as an ideal pinhole camera with the same K would see them."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        if not self.is_distorted or len(xy) == 0:
+            return xy.copy()
+        und = cv2.undistortPoints(xy.reshape(-1, 1, 2), self.K, self.dist_coeffs, P=self.K)
+        return und.reshape(-1, 2)
+
+    def backproject(self, xy: NDArray[np.floating], depth: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Camera-frame 3D points from undistorted pixels ``(N, 2)`` and depths ``(N,)``."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        z = np.asarray(depth, dtype=np.float64).reshape(-1)
+        x = (xy[:, 0] - self.cx) / self.fx * z
+        y = (xy[:, 1] - self.cy) / self.fy * z
+        return np.stack([x, y, z], axis=1)
+
+    def project(self, pts_c: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Undistorted pixels ``(N, 2)`` of camera-frame points ``(N, 3)`` (z must be > 0)."""
+        p = np.asarray(pts_c, dtype=np.float64).reshape(-1, 3)
+        return np.stack([self.fx * p[:, 0] / p[:, 2] + self.cx, self.fy * p[:, 1] / p[:, 2] + self.cy], axis=1)

@@ -1,0 +1,1 @@
+"""Everything that touches files: sequence readers, calibration, trajectory files."""

@@ -1,0 +1,107 @@
+"""Where a sequence's intrinsics come from, in order of precedence.
+
+1. ``--camera fx,fy,cx,cy[,k1,k2,p1,p2,k3]`` on the command line;
+2. a ``calib.txt`` in the sequence folder (one line ``fx fy cx cy [k1 k2 p1 p2 k3]``);
+3. the published calibration recognised from the folder name (TUM freiburg1/2/3,
+   Bonn RGB-D Dynamic, ICL-NUIM);
+4. the Kinect defaults 525 525 319.5 239.5, with a warning.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+from semslam.errors import ConfigError, DataError
+from semslam.geometry.camera import PinholeCamera
+
+log = logging.getLogger(__name__)
+
+# Published calibrations of the RGB cameras (TUM: "File Formats" page of the benchmark;
+# Bonn: the dataset page; ICL-NUIM: its TUM-compatible release, fy sign folded in).
+KNOWN_CAMERAS: dict[str, tuple[float, ...]] = {
+    "freiburg1": (517.3, 516.5, 318.6, 255.3, 0.2624, -0.9531, -0.0054, 0.0026, 1.1633),
+    "freiburg2": (520.9, 521.0, 325.1, 249.7, 0.2312, -0.7849, -0.0033, -0.0001, 0.9172),
+    "freiburg3": (535.4, 539.2, 320.1, 247.6),
+    "bonn": (542.822841, 542.576870, 315.593520, 237.756098, 0.039903, -0.099343, -0.000730, -0.000144, 0.0),
+    "icl": (481.20, 480.00, 319.50, 239.50),
+}
+DEFAULT_CAMERA = (525.0, 525.0, 319.5, 239.5)
+
+_NAME_PATTERNS: list[tuple[str, str]] = [
+    (r"freiburg1|fr1", "freiburg1"),
+    (r"freiburg2|fr2", "freiburg2"),
+    (r"freiburg3|fr3", "freiburg3"),
+    (r"bonn", "bonn"),
+    (r"icl|living_?room|office_?room|lr_?kt|of_?kt", "icl"),
+]
+
+
+def camera_from_values(values: list[float] | tuple[float, ...], source: str) -> PinholeCamera:
+    """Build a camera from 4 (pinhole) or 9 (with k1 k2 p1 p2 k3) numbers."""
+    if len(values) not in (4, 9):
+        raise ConfigError(f"{source}: expected 4 numbers (fx fy cx cy) or 9 (with k1 k2 p1 p2 k3), got {len(values)}")
+    fx, fy, cx, cy = (float(v) for v in values[:4])
+    if fx <= 0 or fy <= 0:
+        raise ConfigError(f"{source}: focal lengths must be positive, got fx={fx} fy={fy}")
+    dist = tuple(float(v) for v in values[4:9]) if len(values) == 9 else (0.0,) * 5
+    return PinholeCamera(fx, fy, cx, cy, dist, source=source)  # type: ignore[arg-type]
+
+
+def parse_camera_option(text: str) -> PinholeCamera:
+    """Parse ``--camera fx,fy,cx,cy[,k1,k2,p1,p2,k3]``."""
+    try:
+        values = [float(v) for v in re.split(r"[,\s]+", text.strip()) if v]
+    except ValueError:
+        raise ConfigError(f"--camera {text!r}: not a list of numbers") from None
+    return camera_from_values(values, "--camera")
+
+
+def read_calib_file(path: Path) -> PinholeCamera:
+    """Read the first non-comment line of a ``calib.txt``."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise DataError(path, f"cannot read calibration file ({exc.strerror})") from None
+    for line in lines:
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        try:
+            values = [float(v) for v in re.split(r"[,\s]+", line) if v]
+        except ValueError:
+            raise DataError(path, f"not a list of numbers: {line!r}") from None
+        try:
+            return camera_from_values(values, str(path))
+        except ConfigError as exc:
+            raise DataError(path, str(exc).split(": ", 1)[-1]) from None
+    raise DataError(path, "no calibration line (expected 'fx fy cx cy [k1 k2 p1 p2 k3]')")
+
+
+def camera_from_folder_name(folder: Path) -> PinholeCamera | None:
+    """The published calibration if the folder name says which dataset/camera it is."""
+    name = folder.resolve().name.lower()
+    for pattern, key in _NAME_PATTERNS:
+        if re.search(pattern, name):
+            return camera_from_values(KNOWN_CAMERAS[key], f"{key} calibration (from folder name)")
+    return None
+
+
+def resolve_camera(folder: Path, camera_option: str | PinholeCamera | None = None) -> PinholeCamera:
+    """Intrinsics for a sequence folder, following the precedence in the module docstring."""
+    if isinstance(camera_option, PinholeCamera):
+        return camera_option
+    if camera_option:
+        return parse_camera_option(camera_option)
+    calib = folder / "calib.txt"
+    if calib.exists():
+        return read_calib_file(calib)
+    cam = camera_from_folder_name(folder)
+    if cam is not None:
+        return cam
+    log.warning(
+        "%s: no --camera, no calib.txt and no known dataset name; using Kinect defaults 525 525 319.5 239.5",
+        folder,
+    )
+    return camera_from_values(DEFAULT_CAMERA, "default Kinect intrinsics")

@@ -1,0 +1,352 @@
+"""Sequence readers: TUM RGB-D (and the datasets that share its layout) and image folders.
+
+A sequence is a list of frames with timestamps, a camera and, where it exists, a ground
+truth file. Frames are decoded on demand. Iterating skips a few unreadable frames with a
+warning and counts them in ``skipped``; too many, or an unreadable first frame, is an error.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.errors import DataError
+from semslam.geometry.camera import PinholeCamera
+from semslam.io.calibration import resolve_camera
+from semslam.io.images import FrameReadError, read_depth, read_rgb
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
+
+
+@dataclass
+class Frame:
+    """One time step: colour image (RGB, uint8), depth in metres (0 = none) and timestamp."""
+
+    index: int
+    timestamp: float
+    rgb: NDArray[np.uint8]
+    depth: NDArray[np.float32] | None = None
+    rgb_path: Path | None = None
+    depth_path: Path | None = None
+    _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
+
+    @property
+    def gray(self) -> NDArray[np.uint8]:
+        if self._gray is None:
+            self._gray = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
+        return self._gray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rgb.shape[0], self.rgb.shape[1]
+
+
+@dataclass(frozen=True)
+class ListEntry:
+    timestamp: float
+    path: Path
+    line: int
+
+
+def read_file_list(path: Path, root: Path | None = None) -> list[ListEntry]:
+    """Parse a TUM list file (``timestamp path`` per line, ``#`` comments).
+
+    Timestamps must increase strictly: a list out of order means a broken file, and
+    associating it would silently pair the wrong images.
+    """
+    if not path.is_file():
+        raise DataError(path, "file not found")
+    root = root or path.parent
+    entries: list[ListEntry] = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(path, f"cannot read ({exc})") from None
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = re.split(r"[,\s]+", line)
+        if len(parts) < 2:
+            raise DataError(path, f"line {lineno}: expected 'timestamp filename', got {line!r}")
+        try:
+            stamp = float(parts[0])
+        except ValueError:
+            raise DataError(path, f"line {lineno}: timestamp {parts[0]!r} is not a number") from None
+        if not np.isfinite(stamp):
+            raise DataError(path, f"line {lineno}: timestamp is not finite")
+        if entries and stamp <= entries[-1].timestamp:
+            raise DataError(
+                path,
+                f"line {lineno}: timestamp {parts[0]} is not after the previous one "
+                f"({entries[-1].timestamp:.6f}); timestamps must increase",
+            )
+        entries.append(ListEntry(stamp, root / parts[1], lineno))
+    if not entries:
+        raise DataError(path, "no entries (only comments or blank lines)")
+    return entries
+
+
+def _read_associations(path: Path, root: Path) -> tuple[list[ListEntry], list[ListEntry]]:
+    """Read an associations file (4 columns; the column whose path says 'depth' is depth)."""
+    rgb: list[ListEntry] = []
+    depth: list[ListEntry] = []
+    for lineno, raw in enumerate(path.read_text().splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) < 4:
+            raise DataError(path, f"line {lineno}: expected 't_rgb rgb_file t_depth depth_file', got {line!r}")
+        try:
+            t1, t2 = float(parts[0]), float(parts[2])
+        except ValueError:
+            raise DataError(path, f"line {lineno}: timestamps are not numbers") from None
+        first_is_depth = "depth" in parts[1].lower() and "depth" not in parts[3].lower()
+        a, b = ListEntry(t1, root / parts[1], lineno), ListEntry(t2, root / parts[3], lineno)
+        rgb_e, depth_e = (b, a) if first_is_depth else (a, b)
+        if rgb and rgb_e.timestamp <= rgb[-1].timestamp:
+            raise DataError(path, f"line {lineno}: timestamp is not after the previous one; timestamps must increase")
+        rgb.append(rgb_e)
+        depth.append(depth_e)
+    if not rgb:
+        raise DataError(path, "no associations (only comments or blank lines)")
+    return rgb, depth
+
+
+def find_groundtruth(root: Path) -> Path | None:
+    """``groundtruth.txt`` (TUM, Bonn) or ``*.gt.freiburg`` (ICL-NUIM's TUM release)."""
+    gt = root / "groundtruth.txt"
+    if gt.is_file():
+        return gt
+    found = sorted(root.glob("*.gt.freiburg"))
+    return found[0] if found else None
+
+
+class Sequence:
+    """Base of all readers: frames by index, iteration with skipping, camera, ground truth."""
+
+    name: str
+    root: Path
+    camera: PinholeCamera
+    groundtruth_path: Path | None
+    has_depth: bool
+    max_skip_fraction: float = 0.05
+
+    def __init__(self) -> None:
+        self.skipped: list[tuple[int, str]] = []
+
+    @property
+    def timestamps(self) -> NDArray[np.float64]:
+        raise NotImplementedError
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def load(self, index: int) -> Frame:
+        """Decode frame ``index``; raises FrameReadError if its image cannot be used."""
+        raise NotImplementedError
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield readable frames, skipping a few unreadable ones with a warning."""
+        stop = len(self) if stop is None else min(stop, len(self))
+        allowed = max(3, int(self.max_skip_fraction * max(stop - start, 1)))
+        for i in range(start, stop):
+            try:
+                frame = self.load(i)
+            except FrameReadError as exc:
+                if i == start:
+                    raise DataError(exc.path, f"first frame unreadable: {exc.problem}") from None
+                self.skipped.append((i, str(exc)))
+                log.warning("skipping frame %d: %s", i, exc)
+                if len(self.skipped) > allowed:
+                    raise DataError(
+                        self.root, f"{len(self.skipped)} unreadable frames (more than {allowed} allowed); last: {exc}"
+                    ) from None
+                continue
+            yield frame
+
+    def __iter__(self) -> Iterator[Frame]:
+        return self.frames()
+
+
+class TumRgbdSequence(Sequence):
+    """A TUM RGB-D folder as published (rgb.txt, depth.txt, groundtruth.txt).
+
+    Also reads the datasets that use its layout: Bonn RGB-D Dynamic, ICL-NUIM's TUM
+    release (associations file + ``*.gt.freiburg``) and semslam's own synthetic sequences.
+    rgb and depth are paired by nearest timestamp within ``max_diff`` seconds as TUM's
+    associate.py does, unless an associations file is given or is the only list present.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        camera: str | PinholeCamera | None = None,
+        depth_scale: float = 5000.0,
+        max_diff: float = 0.02,
+        associations: str | Path | None = None,
+    ) -> None:
+        super().__init__()
+        from semslam.eval.association import match_timestamps
+
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise DataError(self.root, "sequence folder not found")
+        self.name = self.root.resolve().name
+        self.depth_scale = float(depth_scale)
+        self.has_depth = True
+        rgb_txt, depth_txt = self.root / "rgb.txt", self.root / "depth.txt"
+        assoc = Path(associations) if associations else None
+        if assoc is None and not rgb_txt.is_file():
+            candidates = sorted(self.root.glob("assoc*.txt"))
+            assoc = candidates[0] if candidates else None
+        if assoc is not None:
+            if not assoc.is_file():
+                raise DataError(assoc, "associations file not found")
+            self._rgb, self._depth = _read_associations(assoc, self.root)
+        else:
+            if not rgb_txt.is_file():
+                raise DataError(rgb_txt, "file not found (not a TUM RGB-D folder?)")
+            if not depth_txt.is_file():
+                raise DataError(depth_txt, "file not found (RGB-D needs depth; use an image folder for monocular)")
+            rgb_all, depth_all = read_file_list(rgb_txt), read_file_list(depth_txt)
+            t_rgb = np.array([e.timestamp for e in rgb_all])
+            t_depth = np.array([e.timestamp for e in depth_all])
+            i_rgb, i_depth = match_timestamps(t_rgb, t_depth, max_diff=max_diff)
+            if len(i_rgb) == 0:
+                raise DataError(
+                    self.root,
+                    f"no rgb/depth pairs within {max_diff} s: rgb.txt spans "
+                    f"{t_rgb[0]:.3f}-{t_rgb[-1]:.3f}, depth.txt {t_depth[0]:.3f}-{t_depth[-1]:.3f}",
+                )
+            order = np.argsort(i_rgb)
+            self._rgb = [rgb_all[i] for i in np.asarray(i_rgb)[order]]
+            self._depth = [depth_all[i] for i in np.asarray(i_depth)[order]]
+            if len(self._rgb) < 0.5 * len(rgb_all):
+                log.warning("%s: only %d of %d rgb images have a depth image within %.3f s",
+                            self.root, len(self._rgb), len(rgb_all), max_diff)
+        self._drop_missing_files()
+        self._timestamps = np.array([e.timestamp for e in self._rgb])
+        self.camera = resolve_camera(self.root, camera)
+        self.groundtruth_path = find_groundtruth(self.root)
+
+    def _drop_missing_files(self) -> None:
+        """Listed files that do not exist: a few are skipped, many mean a broken download."""
+        missing = [k for k, (r, d) in enumerate(zip(self._rgb, self._depth)) if not (r.path.is_file() and d.path.is_file())]
+        if not missing:
+            return
+        allowed = max(3, int(self.max_skip_fraction * len(self._rgb)))
+        first = self._rgb[missing[0]].path if not self._rgb[missing[0]].path.is_file() else self._depth[missing[0]].path
+        if len(missing) > allowed or len(missing) == len(self._rgb):
+            raise DataError(first, f"file not found, and {len(missing) - 1} more listed images are missing")
+        for k in missing:
+            log.warning("skipping frame at t=%.6f: listed image missing", self._rgb[k].timestamp)
+            self.skipped.append((k, f"{first}: file not found"))
+        keep = [k for k in range(len(self._rgb)) if k not in set(missing)]
+        self._rgb = [self._rgb[k] for k in keep]
+        self._depth = [self._depth[k] for k in keep]
+
+    @property
+    def timestamps(self) -> NDArray[np.float64]:
+        return self._timestamps
+
+    def load(self, index: int) -> Frame:
+        rgb_e, depth_e = self._rgb[index], self._depth[index]
+        rgb = read_rgb(rgb_e.path)
+        depth = read_depth(depth_e.path, self.depth_scale)
+        if depth.shape != rgb.shape[:2]:
+            raise DataError(depth_e.path, f"depth is {depth.shape[1]}x{depth.shape[0]} but rgb is {rgb.shape[1]}x{rgb.shape[0]}")
+        return Frame(index, rgb_e.timestamp, rgb, depth, rgb_e.path, depth_e.path)
+
+
+def _natural_key(path: Path) -> list[object]:
+    return [int(tok) if tok.isdigit() else tok for tok in re.split(r"(\d+)", path.name)]
+
+
+class ImageFolderSequence(Sequence):
+    """Monocular images in one folder (or its ``rgb/``, ``image_0/``, ``cam0/data/`` child).
+
+    Timestamps come from, in order: ``rgb.txt`` (TUM list), ``times.txt`` (one per line,
+    KITTI/EuRoC), numeric file names (EuRoC nanoseconds are converted), else index / fps.
+    """
+
+    def __init__(self, root: str | Path, camera: str | PinholeCamera | None = None, fps: float = 30.0) -> None:
+        super().__init__()
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise DataError(self.root, "image folder not found")
+        self.name = self.root.resolve().name
+        self.has_depth = False
+        if (self.root / "rgb.txt").is_file():
+            entries = read_file_list(self.root / "rgb.txt")
+            self._paths = [e.path for e in entries]
+            self._timestamps = np.array([e.timestamp for e in entries])
+        else:
+            folder = next((self.root / s for s in ("rgb", "image_0", "cam0/data", "images") if (self.root / s).is_dir()), self.root)
+            self._paths = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), key=_natural_key)
+            if not self._paths:
+                raise DataError(folder, f"no images ({', '.join(IMAGE_SUFFIXES)}) in folder")
+            self._timestamps = self._folder_timestamps(fps)
+        self.camera = resolve_camera(self.root, camera)
+        self.groundtruth_path = find_groundtruth(self.root)
+
+    def _folder_timestamps(self, fps: float) -> NDArray[np.float64]:
+        times = self.root / "times.txt"
+        if times.is_file():
+            try:
+                values = np.loadtxt(times, comments="#", ndmin=1, usecols=0)
+            except ValueError as exc:
+                raise DataError(times, f"not a column of numbers ({exc})") from None
+            if len(values) != len(self._paths):
+                raise DataError(times, f"{len(values)} timestamps for {len(self._paths)} images")
+        else:
+            try:
+                values = np.array([float(p.stem) for p in self._paths])
+                if values.max() > 1e12:  # EuRoC names images by nanoseconds
+                    values = values / 1e9
+            except ValueError:
+                return np.arange(len(self._paths)) / fps
+        bad = np.nonzero(np.diff(values) <= 0)[0]
+        if len(bad):
+            raise DataError(times if times.is_file() else self._paths[bad[0] + 1],
+                            f"timestamps must increase; entry {bad[0] + 2} is not after entry {bad[0] + 1}")
+        return values.astype(np.float64)
+
+    @property
+    def timestamps(self) -> NDArray[np.float64]:
+        return self._timestamps
+
+    def load(self, index: int) -> Frame:
+        path = self._paths[index]
+        return Frame(index, float(self._timestamps[index]), read_rgb(path), None, path, None)
+
+
+def open_sequence(
+    path: str | Path,
+    camera: str | PinholeCamera | None = None,
+    kind: str = "auto",
+    depth_scale: float = 5000.0,
+    max_diff: float = 0.02,
+) -> Sequence:
+    """Open a sequence folder; ``kind`` is ``auto``, ``rgbd`` (TUM layout) or ``mono``."""
+    root = Path(path)
+    if not root.exists():
+        raise DataError(root, "sequence not found")
+    if not root.is_dir():
+        raise DataError(root, "not a folder (give the sequence folder, e.g. rgbd_dataset_freiburg3_walking_xyz/)")
+    if kind not in ("auto", "rgbd", "mono"):
+        raise DataError(root, f"unknown sequence kind {kind!r} (auto, rgbd, mono)")
+    is_rgbd = (root / "depth.txt").is_file() or any(root.glob("assoc*.txt"))
+    if kind == "rgbd" or (kind == "auto" and is_rgbd):
+        return TumRgbdSequence(root, camera=camera, depth_scale=depth_scale, max_diff=max_diff)
+    return ImageFolderSequence(root, camera=camera)

@@ -1,0 +1,1 @@
+"""Stateful SLAM objects: frames, keyframes, tracking and the System that runs them."""
