@@ -312,10 +312,12 @@ class ImageFolderSequence(Sequence):
         else:
             try:
                 values = np.array([float(p.stem) for p in self._paths])
-                if values.max() > 1e12:  # EuRoC names images by nanoseconds
-                    values = values / 1e9
             except ValueError:
                 return np.arange(len(self._paths)) / fps
+            if values.max() > 1e12:  # EuRoC names images by nanoseconds
+                values = values / 1e9
+            elif all(p.stem.isdigit() for p in self._paths) and values.max() < 1e9:
+                return np.arange(len(self._paths)) / fps  # KITTI-style frame numbers
         bad = np.nonzero(np.diff(values) <= 0)[0]
         if len(bad):
             raise DataError(times if times.is_file() else self._paths[bad[0] + 1],
