@@ -32,24 +32,17 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return the process exit code (2 for user errors)."""
     _register_commands()
     try:
-        app(args=argv, standalone_mode=False)
+        # Typer/click handle usage errors themselves (message + exit code 2) and end with
+        # SystemExit; only our own errors need catching.
+        app(args=argv, prog_name="semslam")
     except SemslamError as exc:
         typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
         return 2
     except KeyboardInterrupt:
         typer.echo("interrupted", err=True)
         return 130
-    except typer.Exit as exc:  # pragma: no cover - typer's own exits
-        return exc.exit_code
-    except Exception as exc:  # click usage errors carry their own message
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            return exc.exit_code
-        if isinstance(exc, click.exceptions.Abort):
-            return 1
-        raise
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     return 0
 
 
