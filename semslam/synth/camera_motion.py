@@ -1,0 +1,178 @@
+"""Camera trajectories like the TUM fr3 ones (static, xyz, rpy, halfsphere) plus a loop.
+
+Every trajectory is a smooth (C2) function of time built from sinusoids of a warped time
+that starts at rest, so it starts at rest and the finite-difference speed is bounded;
+trackers then see realistic frame-to-frame motion. Poses are camera-to-world (``T_wc``)
+with the camera x right, y down, z forward and the world z axis up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.geometry.se3 import look_at, make_pose, so3_exp
+
+#: Where the camera stands at rest and what it looks at (a desk against the back wall,
+#: about 3.3 m away), like the tripod/handheld view in fr3 walking/sitting.
+BASE_EYE = np.array([3.0, 1.45, 1.40])
+BASE_TARGET = np.array([3.0, 4.75, 0.95])
+
+#: Upper bounds the tests check (the loop is scaled to respect them).
+MAX_SPEED = 0.6  # m/s
+MAX_ANGULAR_SPEED = np.deg2rad(45.0)  # rad/s
+
+
+def _warp(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """Warped time whose rate rises smoothly from 0 to 1 over the first 1.5 s (or quarter).
+
+    Sinusoids of warped time start at rest yet never move faster than their steady-state
+    peak (an amplitude ramp instead would add speed while it rises).
+    """
+    rise = max(min(1.5, duration / 4.0), 1e-3)
+    x = np.clip(t / rise, 0.0, 1.0)
+    head = rise * x**4 * (x * (x - 3.0) + 2.5)  # integral of the smootherstep
+    return np.where(t < rise, head, t - rise / 2.0)
+
+
+def base_pose() -> NDArray[np.float64]:
+    """The rest pose every motion starts from."""
+    return look_at(BASE_EYE, BASE_TARGET)
+
+
+def camera_trajectory(
+    motion: str, times: NDArray[np.float64], duration: float
+) -> NDArray[np.float64]:
+    """Poses ``(N, 4, 4)`` (T_wc) at ``times`` (seconds from the first frame)."""
+    t = np.asarray(times, dtype=np.float64)
+    fn = {
+        "static": _static,
+        "xyz": _xyz,
+        "rpy": _rpy,
+        "halfsphere": _halfsphere,
+        "loop": _loop,
+    }[motion]
+    return fn(t, duration)
+
+
+def _offset_poses(
+    t: NDArray[np.float64], trans_cam: NDArray[np.float64], rotvec_cam: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Base pose moved by camera-frame translations and rotation vectors per time."""
+    t0 = base_pose()
+    poses = np.empty((len(t), 4, 4))
+    for i in range(len(t)):
+        r = t0[:3, :3] @ so3_exp(rotvec_cam[i])
+        c = t0[:3, 3] + t0[:3, :3] @ trans_cam[i]
+        poses[i] = make_pose(r, c)
+    return poses
+
+
+def _static(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """Tripod: sub-millimetre tremor so that the images are not bit-identical."""
+    tr = np.stack(
+        [
+            0.00030 * np.sin(2 * np.pi * 1.3 * t),
+            0.00020 * np.sin(2 * np.pi * 0.9 * t + 1.0),
+            0.00025 * np.sin(2 * np.pi * 0.7 * t + 2.0),
+        ],
+        axis=1,
+    )
+    rv = np.deg2rad(0.02) * np.stack(
+        [
+            np.sin(2 * np.pi * 1.1 * t),
+            np.sin(2 * np.pi * 0.8 * t + 0.5),
+            np.sin(2 * np.pi * 0.6 * t + 1.5),
+        ],
+        axis=1,
+    )
+    return _offset_poses(t, tr, rv)
+
+
+def _xyz(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """Translation along the camera axes (about +-0.3 m sideways), orientation kept."""
+    t = _warp(t, duration)
+    tr = np.stack(
+        [
+            0.30 * np.sin(2 * np.pi * t / 7.0),  # right
+            0.15 * np.sin(2 * np.pi * t / 5.0),  # down
+            0.20 * np.sin(2 * np.pi * t / 9.0),  # forward
+        ],
+        axis=1,
+    )
+    rv = np.deg2rad(1.0) * np.stack(
+        [np.sin(2 * np.pi * t / 6.0), np.sin(2 * np.pi * t / 8.0), np.zeros_like(t)], axis=1
+    )
+    return _offset_poses(t, tr, rv)
+
+
+def _rpy(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """Rotation about the camera axes (pitch +-12, yaw +-18, roll +-15 degrees)."""
+    t = _warp(t, duration)
+    rv = np.deg2rad(
+        np.stack(
+            [
+                12.0 * np.sin(2 * np.pi * t / 6.0),  # pitch (about x)
+                18.0 * np.sin(2 * np.pi * t / 8.0),  # yaw (about y)
+                15.0 * np.sin(2 * np.pi * t / 7.0),  # roll (about z)
+            ],
+            axis=1,
+        )
+    )
+    tr = 0.02 * np.stack(
+        [np.sin(2 * np.pi * t / 5.0), np.sin(2 * np.pi * t / 4.0), np.sin(2 * np.pi * t / 6.0)],
+        axis=1,
+    )
+    return _offset_poses(t, tr, rv)
+
+
+def _halfsphere(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """On a half sphere of 1 m diameter (the half facing the scene), looking at a point
+    1.6 m ahead of the rest position, so that the view turns by up to ~20 degrees."""
+    t = _warp(t, duration)
+    radius = 0.5
+    t0 = base_pose()
+    right, fwd = t0[:3, 0], t0[:3, 2]
+    up = np.array([0.0, 0.0, 1.0])
+    centre = BASE_EYE + radius * fwd
+    az = np.deg2rad(55.0) * np.sin(2 * np.pi * t / 9.0)
+    el = np.deg2rad(35.0) * (0.5 - 0.5 * np.cos(2 * np.pi * t / 6.5))
+    poses = np.empty((len(t), 4, 4))
+    for i in range(len(t)):
+        ce = np.cos(el[i])
+        d = ce * (np.sin(az[i]) * right - np.cos(az[i]) * fwd) + np.sin(el[i]) * up
+        eye = centre + radius * d
+        poses[i] = look_at(eye, BASE_EYE + 1.6 * fwd)
+    return poses
+
+
+def loop_scale(duration: float) -> float:
+    """Size factor of the loop so that its peak speed stays under ~0.45 m/s."""
+    a, b = 1.0, 0.45
+    perimeter = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))  # Ramanujan
+    # s(t) = 2*pi*(x - sin(2*pi*x)/(2*pi)) peaks at twice the mean speed.
+    return float(min(1.0, 0.45 * duration / (2.0 * perimeter)))
+
+
+def _loop(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """A closed horizontal ellipse (up to 2 m x 0.9 m) that ends exactly at the start pose."""
+    k = loop_scale(duration)
+    x = np.clip(t / max(duration - 1e-9, 1e-9), 0.0, 1.0)
+    # Phase from 0 to 2*pi with zero speed and acceleration at both ends.
+    s = 2 * np.pi * (x - np.sin(2 * np.pi * x) / (2 * np.pi))
+    t0 = base_pose()
+    right = t0[:3, 0]
+    fwd_h = np.array([t0[0, 2], t0[1, 2], 0.0])
+    fwd_h /= np.linalg.norm(fwd_h)
+    up = np.array([0.0, 0.0, 1.0])
+    poses = np.empty((len(t), 4, 4))
+    for i in range(len(t)):
+        eye = (
+            BASE_EYE
+            + k * 1.0 * (np.cos(s[i]) - 1.0) * right
+            + k * 0.45 * np.sin(s[i]) * fwd_h
+            + k * 0.08 * np.sin(2 * s[i]) * up
+        )
+        target = BASE_TARGET + k * 0.9 * np.sin(s[i]) * right + 0.15 * k * (np.cos(s[i]) - 1.0) * up
+        poses[i] = look_at(eye, target)
+    return poses

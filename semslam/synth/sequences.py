@@ -1,0 +1,113 @@
+"""Synthetic sequence parameters and the named presets.
+
+A :class:`SynthConfig` fully determines a rendered sequence (together with the package
+version and, for people, the person photos used), so it is written to ``sequence.json``
+and the same config renders byte-identical images.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from semslam.errors import ConfigError
+
+MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop")
+PEOPLE_MODES = ("walking", "idle")
+
+#: TUM freiburg3 RGB intrinsics at 640x480 (fx, fy, cx, cy); fr3 images are undistorted.
+FR3_INTRINSICS = (535.4, 539.2, 320.1, 247.6)
+#: First timestamp, like the fr3 recordings of July 2012.
+DEFAULT_START_TIME = 1341846647.0
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """Everything that defines one synthetic TUM-style sequence.
+
+    ``noise=False`` gives exact images and depth (no sensor noise, no depth holes) for
+    tests that check that poses, depth and intrinsics agree exactly.
+    """
+
+    motion: str = "xyz"
+    frames: int = 300
+    people: int = 2
+    mover: bool = False
+    seed: int = 0
+    noise: bool = True
+    fps: float = 30.0
+    width: int = 640
+    height: int = 480
+    people_mode: str = "walking"
+    people_dir: str | None = None
+    start_time: float = DEFAULT_START_TIME
+
+    def validate(self) -> SynthConfig:
+        """Raise :class:`ConfigError` naming the first bad field; return self."""
+        if self.motion not in MOTIONS:
+            raise ConfigError(
+                f"synth: unknown motion {self.motion!r} (choose from {', '.join(MOTIONS)})"
+            )
+        if self.people_mode not in PEOPLE_MODES:
+            raise ConfigError(
+                f"synth: unknown people_mode {self.people_mode!r} "
+                f"(choose from {', '.join(PEOPLE_MODES)})"
+            )
+        if self.frames < 1:
+            raise ConfigError(f"synth: frames must be >= 1, got {self.frames}")
+        if not 0 <= self.people <= 8:
+            raise ConfigError(f"synth: people must be between 0 and 8, got {self.people}")
+        if not 1.0 <= self.fps <= 120.0:
+            raise ConfigError(f"synth: fps must be between 1 and 120, got {self.fps}")
+        if not (32 <= self.width <= 4096 and 32 <= self.height <= 4096):
+            raise ConfigError(f"synth: image size {self.width}x{self.height} out of range")
+        if self.seed < 0:
+            raise ConfigError(f"synth: seed must be >= 0, got {self.seed}")
+        return self
+
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """fr3 intrinsics scaled to this image size (exact for 640x480)."""
+        sx, sy = self.width / 640.0, self.height / 480.0
+        fx, fy, cx, cy = FR3_INTRINSICS
+        return (fx * sx, fy * sy, cx * sx, cy * sy)
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to one period after the last frame."""
+        return self.frames / self.fps
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def replace(self, **changes: Any) -> SynthConfig:
+        """A copy with some fields changed (``None`` values are ignored, for CLI overrides)."""
+        return dataclasses.replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+
+#: Named presets, modelled on the TUM fr3 sitting/walking sequences the methods are
+#: evaluated on. ``demo`` is what ``semslam demo`` and the README use.
+SEQUENCES: dict[str, SynthConfig] = {
+    "demo": SynthConfig(motion="xyz", frames=300, people=2),
+    "walking_xyz": SynthConfig(motion="xyz", frames=450, people=2, seed=1),
+    "walking_static": SynthConfig(motion="static", frames=450, people=2, seed=2),
+    "walking_rpy": SynthConfig(motion="rpy", frames=450, people=2, seed=3),
+    "walking_halfsphere": SynthConfig(motion="halfsphere", frames=450, people=2, seed=4),
+    "sitting_static": SynthConfig(
+        motion="static", frames=300, people=1, people_mode="idle", seed=5
+    ),
+    "sitting_xyz": SynthConfig(motion="xyz", frames=300, people=1, people_mode="idle", seed=6),
+    "static_xyz": SynthConfig(motion="xyz", frames=300, people=0, seed=7),
+    "loop": SynthConfig(motion="loop", frames=600, people=0, seed=8),
+    "mover_xyz": SynthConfig(motion="xyz", frames=300, people=0, mover=True, seed=9),
+}
+
+
+def get_sequence(name: str) -> SynthConfig:
+    """The preset called ``name``; :class:`ConfigError` listing the names otherwise."""
+    try:
+        return SEQUENCES[name]
+    except KeyError:
+        raise ConfigError(
+            f"synth: unknown sequence {name!r} (choose from {', '.join(sorted(SEQUENCES))})"
+        ) from None

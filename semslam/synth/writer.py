@@ -1,0 +1,76 @@
+"""Writing a rendered sequence as a TUM RGB-D folder.
+
+The layout is exactly that of the TUM benchmark (plus ``semantic/`` and ``calib.txt``), so
+the same loader reads real and synthetic data.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.errors import DataError
+from semslam.geometry.se3 import pose_to_tum
+
+LABELS = {"0": "background", "15": "person", "21": "moving_object"}
+
+
+def stamp(t: float) -> str:
+    """Timestamp as written in TUM file names and lists (6 decimals)."""
+    return f"{t:.6f}"
+
+
+def prepare_dir(out: Path) -> None:
+    """Create ``out`` and its image folders; remove PNGs of an earlier rendering there."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for sub in ("rgb", "depth", "semantic"):
+            d = out / sub
+            d.mkdir(exist_ok=True)
+            for old in d.glob("*.png"):
+                old.unlink()
+    except OSError as exc:
+        raise DataError(out, f"cannot create the output folder: {exc.strerror or exc}") from exc
+
+
+def write_png(path: Path, img: NDArray[Any]) -> None:
+    """Write a PNG (RGB input is converted to OpenCV's BGR first); raise DataError on failure."""
+    data = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+    if not cv2.imwrite(str(path), data):
+        raise DataError(path, "cannot write PNG")
+
+
+def write_list(path: Path, kind: str, stamps: list[str], folder: str) -> None:
+    """``rgb.txt``/``depth.txt``: three comment lines, then ``timestamp folder/timestamp.png``."""
+    lines = [
+        f"# {kind} images",
+        f"# file: '{path.parent.name}' (semslam synth)",
+        "# timestamp filename",
+    ]
+    lines += [f"{s} {folder}/{s}.png" for s in stamps]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def write_groundtruth(path: Path, stamps: list[str], poses: NDArray[np.float64]) -> None:
+    """Camera-to-world poses of the RGB camera, exactly those used to render each frame."""
+    rows = pose_to_tum(poses)
+    lines = [
+        "# ground truth trajectory",
+        f"# file: '{path.parent.name}' (semslam synth, exact)",
+        "# timestamp tx ty tz qx qy qz qw",
+    ]
+    lines += [s + " " + " ".join(f"{v:.9f}" for v in row) for s, row in zip(stamps, rows)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def write_calib(path: Path, intrinsics: tuple[float, float, float, float]) -> None:
+    path.write_text(" ".join(f"{v:.6g}" for v in intrinsics) + "\n")
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    path.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
