@@ -4,7 +4,9 @@ PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-APT_PACKAGES := libgl1 libglib2.0-0
+# Debian packages the Python wheels need at run time (none yet: opencv is the headless
+# build; open3d will need libusb-1.0-0). Installed with apt-get when running as root.
+APT_PACKAGES :=
 
 .PHONY: demo test bench setup clean
 
