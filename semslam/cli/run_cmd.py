@@ -83,7 +83,7 @@ def register(app: typer.Typer) -> None:
         synth_cfg = SEQUENCES[sequence_name]
         if frames is not None:
             synth_cfg = replace(synth_cfg, frames=frames)
-        seq_dir = out / "sequence"
+        seq_dir = out / sequence_name
         if _needs_render(seq_dir, synth_cfg):
             console.print(f"rendering synthetic sequence {sequence_name!r} ({synth_cfg.frames} frames) to {seq_dir}")
             render_sequence(synth_cfg, seq_dir, progress=not quiet)

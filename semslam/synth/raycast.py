@@ -131,7 +131,8 @@ def cast_box(
     # entering (outside) through the - face when moving along +; leaving the room through +
     neg = dax < 0 if box.inside else dax > 0
     face = (is1.view(np.uint8) << 1) + (is2.view(np.uint8) << 2) + neg.view(np.uint8)
-    p = [o[k] + t * d[k] for k in range(3)]
+    with np.errstate(invalid="ignore"):  # t is inf where nothing is hit; masked below
+        p = [o[k] + t * d[k] for k in range(3)]
     # texture coordinates: horizontal from y on x-faces else x; vertical from y on z-faces else z
     pa = np.where(is0, p[1], p[0])
     pb = np.where(is2, p[1], p[2])
