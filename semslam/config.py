@@ -62,6 +62,34 @@ class TrackingConfig:
 
 
 @dataclass
+class SlamConfig:
+    """ORB-SLAM2-class core (tracking.method = orb_slam). Defaults are ORB-SLAM2's TUM RGB-D settings."""
+
+    # Virtual stereo baseline x fx (ORB-SLAM TUM yaml Camera.bf = 40): ur = u - bf / z.
+    bf: float = 40.0
+    # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
+    th_depth: float = 40.0
+    # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).
+    min_frames: int = 0
+    max_frames: int = 30
+    min_init_keypoints: int = 500
+    local_mapping: bool = True
+    local_ba: bool = True
+    triangulation: bool = True
+    keyframe_culling: bool = True
+    loop_closing: bool = True
+    global_ba: bool = True
+    # Loop detection: keyframes since the last loop before a new one is searched.
+    loop_min_keyframes: int = 10
+    loop_consistency: int = 3
+    loop_min_matches: int = 40
+    vocabulary: str = "default"
+    # Run local mapping and loop closing as threads (ORB-SLAM) or inline (deterministic).
+    sequential: bool = False
+    localization_only: bool = False
+
+
+@dataclass
 class SystemConfig:
     """Root of the config tree."""
 
@@ -71,6 +99,7 @@ class SystemConfig:
     depth_scale: float = 5000.0
     features: FeatureConfig = field(default_factory=FeatureConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    slam: SlamConfig = field(default_factory=SlamConfig)
 
 
 def available_presets() -> list[str]:

@@ -65,11 +65,13 @@ def run_slam(
     max_frames: int | None = None,
     progress: bool = True,
     report: bool = True,
+    save_map: str | Path | None = None,
+    load_map: str | Path | None = None,
 ) -> RunSummary:
     """Track every frame of ``sequence``, write outputs, evaluate against ground truth."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    system = System(config, sequence.camera)
+    system = System(config, sequence.camera, Path(load_map) if load_map else None)
     n_total = len(sequence) if max_frames is None else min(max_frames, len(sequence))
     frame_ms: list[float] = []
     stage_ms: dict[str, list[float]] = {}
@@ -95,13 +97,19 @@ def run_slam(
             bar.close()
         system.shutdown()
     wall_s = time.perf_counter() - t_start
+    if save_map:
+        system.save_map(Path(save_map))
 
     traj = system.trajectory()
     write_tum(out / "trajectory.txt", traj)
+    kf_traj = system.keyframe_trajectory()
+    if kf_traj is not None:
+        write_tum(out / "keyframes.txt", kf_traj)
     stats: dict[str, Any] = {
         "sequence": str(sequence.root),
         "preset": config.preset,
         **system.counts(),
+        **system.extra_stats(),
         "skipped_frames": len(sequence.skipped),
         "ms_per_frame": _timing_stats(frame_ms),
         "stages_ms_median": {k: float(np.median(v)) for k, v in stage_ms.items()},

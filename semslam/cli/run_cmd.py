@@ -29,6 +29,9 @@ def print_summary(summary: RunSummary) -> None:
     if s.get("skipped_frames"):
         table.add_row("skipped unreadable frames", str(s["skipped_frames"]))
     table.add_row("keyframes", str(s["keyframes"]))
+    for key, label in (("map_points", "map points"), ("loops", "loops closed"), ("relocalisations", "relocalisations")):
+        if key in s:
+            table.add_row(label, str(s[key]))
     if "ate" in s:
         table.add_row(f"ATE RMSE ({s['ate_alignment']})", f"{s['ate']['rmse'] * 100:.2f} cm")
         table.add_row("RPE trans RMSE (1 s)", f"{s['rpe_trans_1s']['rmse'] * 100:.2f} cm")
@@ -52,6 +55,10 @@ def register(app: typer.Typer) -> None:
         depth_scale: Optional[float] = typer.Option(None, "--depth-scale", help="depth units per metre (TUM 5000)"),
         set_: list[str] = typer.Option([], "--set", help="override a config field: section.key=value"),
         no_report: bool = typer.Option(False, "--no-report", help="skip the HTML report"),
+        save_map: Optional[Path] = typer.Option(None, "--save-map", help="write the map here (.npz) at the end"),
+        load_map: Optional[Path] = typer.Option(None, "--load-map", help="start from a saved map (relocalise in it)"),
+        localization_only: bool = typer.Option(False, "--localization-only", help="track against the map without extending it"),
+        sequential: bool = typer.Option(False, "--sequential", help="run local mapping and loop closing inline (deterministic)"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
         verbose: bool = typer.Option(False, "--verbose", "-v"),
     ) -> None:
@@ -60,8 +67,13 @@ def register(app: typer.Typer) -> None:
         cfg = load_config(preset, set_)
         if depth_scale is not None:
             cfg.depth_scale = depth_scale
+        if sequential:
+            cfg.slam.sequential = True
+        if localization_only:
+            cfg.slam.localization_only = True
         seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
-        summary = run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report)
+        summary = run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
+                           save_map=save_map, load_map=load_map)
         print_summary(summary)
 
     @app.command("demo")

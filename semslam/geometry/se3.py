@@ -122,3 +122,19 @@ def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) 
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_pose(np.stack([x, y, z], axis=1), eye)
+
+
+def orthonormalize(pose: ArrayLike) -> Array:
+    """Project the rotation block of a 4x4 pose back onto SO(3) (nearest, via SVD).
+
+    Products of poses accumulate rounding; a motion model that composes them every frame
+    amplifies it unless it is removed.
+    """
+    p = np.array(pose, dtype=np.float64)
+    u, _, vt = np.linalg.svd(p[:3, :3])
+    r = u @ vt
+    if np.linalg.det(r) < 0:
+        u[:, -1] *= -1
+        r = u @ vt
+    p[:3, :3] = r
+    return p

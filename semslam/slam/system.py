@@ -8,6 +8,7 @@ mapping and loop closing behind the same call).
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -25,20 +26,34 @@ def _frame_to_keyframe(config: SystemConfig, camera: PinholeCamera):  # type: ig
     return FrameToKeyframeTracker(config, camera)
 
 
-TRACKERS: dict[str, Callable] = {"frame_to_keyframe": _frame_to_keyframe}  # type: ignore[type-arg]
+def _orb_slam(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None):  # type: ignore[no-untyped-def]
+    from semslam.slam.orb_slam import OrbSlam
+
+    slam_map = None
+    if map_path is not None:
+        from semslam.slam.frame_state import PyramidInfo
+        from semslam.slam.map_io import load_map
+
+        slam_map = load_map(map_path, PyramidInfo(config.features.scale_factor, config.features.n_levels).scales)
+    return OrbSlam(config, camera, slam_map)
+
+
+TRACKERS: dict[str, Callable] = {"frame_to_keyframe": _frame_to_keyframe, "orb_slam": _orb_slam}  # type: ignore[type-arg]
 
 
 class System:
     """Runs one tracker over frames and records every result."""
 
-    def __init__(self, config: SystemConfig, camera: PinholeCamera) -> None:
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None) -> None:
         if config.tracking.method not in TRACKERS:
             raise ConfigError(f"tracking.method: unknown tracker {config.tracking.method!r} (known: {', '.join(TRACKERS)})")
         if config.sensor != "rgbd":
             raise ConfigError(f"sensor: {config.sensor!r} is not supported yet (rgbd only)")
         self.config = config
         self.camera = camera
-        self.tracker = TRACKERS[config.tracking.method](config, camera)
+        if map_path is not None and config.tracking.method != "orb_slam":
+            raise ConfigError("--load-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+        self.tracker = TRACKERS[config.tracking.method](config, camera, *([map_path] if map_path else []))
         self.results: list[TrackResult] = []
 
     def track(self, frame: Frame) -> TrackResult:
@@ -51,7 +66,10 @@ class System:
         return int(getattr(self.tracker, "n_keyframes", 0))
 
     def trajectory(self) -> Trajectory:
-        """Poses of every frame that has one (all frames after initialisation)."""
+        """Poses of every frame that has one (all frames after initialisation); for trackers
+        with a map, after their final optimisation."""
+        if hasattr(self.tracker, "trajectory"):
+            return self.tracker.trajectory()
         rows = [r for r in self.results if r.pose_wc is not None]
         if not rows:
             return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
@@ -67,5 +85,22 @@ class System:
             "keyframes": self.n_keyframes,
         }
 
+    def keyframe_trajectory(self) -> Trajectory | None:
+        fn = getattr(self.tracker, "keyframe_trajectory", None)
+        return fn() if fn else None
+
+    def extra_stats(self) -> dict[str, object]:
+        fn = getattr(self.tracker, "extra_stats", None)
+        return fn() if fn else {}
+
+    def save_map(self, path: Path) -> None:
+        fn = getattr(self.tracker, "save_map", None)
+        if fn is None:
+            raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+        fn(path)
+
     def shutdown(self) -> None:
-        """Stop background work (none yet; local mapping and loop closing threads later)."""
+        """Stop background work: let local mapping and loop closing finish their queues."""
+        fn = getattr(self.tracker, "shutdown", None)
+        if fn:
+            fn()

@@ -1,0 +1,80 @@
+"""A tracked frame: features with depth, their map points and the pose being estimated."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.features.base import Keypoints
+from semslam.geometry.camera import PinholeCamera
+from semslam.slam.frame_to_keyframe import sample_depth
+from semslam.slam.map import KeyFrame, MapPoint
+
+
+@dataclass
+class PyramidInfo:
+    """Per-level scale factors and observation weights (ORB-SLAM mvScaleFactor, mvInvLevelSigma2)."""
+
+    scale_factor: float
+    n_levels: int
+
+    def __post_init__(self) -> None:
+        self.scales = self.scale_factor ** np.arange(self.n_levels)
+        self.inv_sigma2 = 1.0 / self.scales**2
+        self.log_scale = float(np.log(self.scale_factor))
+
+
+@dataclass(eq=False)
+class FrameState:
+    index: int
+    timestamp: float
+    keypoints: Keypoints
+    xy: NDArray[np.float64]
+    depth: NDArray[np.float32]
+    ur: NDArray[np.float64]
+    points: list[MapPoint | None]
+    outlier: NDArray[np.bool_]
+    T_cw: NDArray[np.float64] | None = None
+    ref_kf: KeyFrame | None = None
+    bow: Any = None
+    featvec: dict[int, Any] | None = None
+    _tree: Any = field(default=None, repr=False)
+
+    @classmethod
+    def create(cls, index: int, timestamp: float, kps: Keypoints, depth_img: NDArray[np.float32] | None,
+               camera: PinholeCamera, bf: float) -> "FrameState":
+        xy = camera.undistort_points(kps.xy)
+        if depth_img is not None:
+            z = sample_depth(depth_img, kps.xy).astype(np.float32)
+        else:
+            z = np.zeros(len(kps), np.float32)
+        ur = np.where(z > 0, xy[:, 0] - bf / np.maximum(z, 1e-6), -1.0)
+        n = len(kps)
+        return cls(index, timestamp, kps, xy, z, ur, [None] * n, np.zeros(n, bool))
+
+    def __len__(self) -> int:
+        return len(self.keypoints)
+
+    def tree(self) -> Any:
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(self.xy)
+        return self._tree
+
+    def matched_indices(self) -> NDArray[np.intp]:
+        return np.array([i for i, p in enumerate(self.points) if p is not None and not p.bad], np.intp)
+
+    def free_mask(self) -> NDArray[np.bool_]:
+        """Keypoints without a (good, observed) map point."""
+        return np.array([p is None or p.bad or len(p.observations) == 0 for p in self.points], bool)
+
+    def world_points(self, idx: NDArray[np.intp], camera: PinholeCamera) -> NDArray[np.float64]:
+        """World positions of keypoints ``idx`` from their depth and the frame pose."""
+        assert self.T_cw is not None
+        pc = camera.backproject(self.xy[idx], self.depth[idx])
+        r, t = self.T_cw[:3, :3], self.T_cw[:3, 3]
+        return (pc - t) @ r

@@ -1,0 +1,428 @@
+"""ORB-SLAM2 local mapping: new keyframe processing, recent point culling, new points by
+triangulation, duplicate fusion with neighbours, local bundle adjustment (GTSAM) and
+redundant keyframe culling. Runs as a thread, or inline when ``slam.sequential`` is set.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.bundle_adjustment import BAProblem, bundle_adjust
+from semslam.config import SystemConfig
+from semslam.features.matching import match_candidates
+from semslam.geometry.camera import PinholeCamera
+from semslam.slam.frame_state import PyramidInfo
+from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
+from semslam.slam.search import TH_LOW, project
+
+if TYPE_CHECKING:
+    from semslam.place.vocabulary import Vocabulary
+
+log = logging.getLogger(__name__)
+
+
+def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points: list[MapPoint],
+                     camera: PinholeCamera, pyr: PyramidInfo, bf: float) -> tuple[BAProblem, list[tuple[MapPoint, KeyFrame]]]:
+    """Arrays of a bundle adjustment over the given keyframes and points (observations of
+    the points by keyframes outside both lists are left out)."""
+    kfs = kfs_free + kfs_fixed
+    kf_index = {kf: i for i, kf in enumerate(kfs)}
+    obs_pose, obs_point, uv, ur, inv_s2 = [], [], [], [], []
+    obs_ref: list[tuple[MapPoint, KeyFrame]] = []
+    for j, p in enumerate(points):
+        for kf, idx in p.observations.items():
+            k = kf_index.get(kf)
+            if k is None:
+                continue
+            obs_pose.append(k)
+            obs_point.append(j)
+            uv.append(kf.xy[idx])
+            ur.append(kf.ur[idx])
+            inv_s2.append(pyr.inv_sigma2[kf.keypoints.octave[idx]])
+            obs_ref.append((p, kf))
+    problem = BAProblem(
+        poses_cw=np.stack([kf.T_cw for kf in kfs]),
+        pose_fixed=np.array([False] * len(kfs_free) + [True] * len(kfs_fixed)),
+        points_w=np.array([p.pos for p in points]).reshape(-1, 3),
+        obs_pose=np.asarray(obs_pose, np.intp),
+        obs_point=np.asarray(obs_point, np.intp),
+        uv=np.asarray(uv, np.float64).reshape(-1, 2),
+        ur=np.asarray(ur, np.float64),
+        inv_sigma2=np.asarray(inv_s2, np.float64),
+        fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, bf=bf,
+    )
+    return problem, obs_ref
+
+
+class LocalMapping:
+    """Processes keyframes from tracking; hands them on to loop closing."""
+
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary") -> None:
+        self.cfg = config.slam
+        self.camera = camera
+        self.map = slam_map
+        self.voc = vocabulary
+        self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
+        self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
+        self.recent_points: list[MapPoint] = []
+        self.queue: "queue.Queue[KeyFrame | None]" = queue.Queue()
+        self.on_keyframe_done: Callable[[KeyFrame], None] = lambda kf: None
+        self._busy = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.stats = {"local_ba": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0, "fused": 0}
+        self.error: BaseException | None = None
+
+    # ---------------------------------------------------------------- thread control
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="local-mapping", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            kf = self.queue.get()
+            if kf is None:
+                return
+            self._busy.set()
+            try:
+                self.process(kf)
+            except BaseException as exc:  # pragma: no cover - surfaced by the System
+                log.exception("local mapping failed")
+                self.error = exc
+                return
+            finally:
+                if self.queue.empty():
+                    self._busy.clear()
+
+    def insert(self, kf: KeyFrame) -> None:
+        if self._thread is None:
+            self.process(kf)
+        else:
+            self._busy.set()
+            self.queue.put(kf)
+
+    def idle(self) -> bool:
+        return not self._busy.is_set() and self.queue.empty()
+
+    def queue_size(self) -> int:
+        return self.queue.qsize()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self.queue.put(None)
+            self._thread.join()
+            self._thread = None
+
+    def wait_idle(self, timeout: float = 60.0) -> None:
+        end = time.time() + timeout
+        while not self.idle() and time.time() < end and self._thread is not None and self._thread.is_alive():
+            time.sleep(0.002)
+
+    # ---------------------------------------------------------------- one keyframe
+    def process(self, kf: KeyFrame) -> None:
+        with self.map.lock:
+            if kf.bad:
+                return
+            self._process_new_keyframe(kf)
+            self._cull_points(kf)
+            if self.cfg.triangulation:
+                self._create_new_points(kf)
+        if self.queue.empty():
+            with self.map.lock:
+                self._search_in_neighbours(kf)
+            if self.cfg.local_ba and len(self.map.keyframes) > 2:
+                self._local_bundle_adjustment(kf)
+            if self.cfg.keyframe_culling:
+                with self.map.lock:
+                    self._cull_keyframes(kf)
+        self.on_keyframe_done(kf)
+
+    def _process_new_keyframe(self, kf: KeyFrame) -> None:
+        if kf.bow is None:
+            kf.bow, kf.featvec = self.voc.transform(kf.keypoints.descriptors)
+        matched = []
+        for i, p in enumerate(kf.points):
+            if p is None or p.bad:
+                continue
+            if kf not in p.observations:
+                p.add_observation(kf, i)
+                p.compute_distinctive_descriptor()
+                matched.append(p)
+            else:  # created by tracking for this keyframe
+                self.recent_points.append(p)
+        update_normals_and_depths(matched, self.pyr.scales)
+        kf.update_connections()
+
+    def _cull_points(self, kf: KeyFrame) -> None:
+        """Recent points seen in < 25 % of the frames that should see them, or by < 3
+        keyframes two keyframes after creation, are removed (ORB-SLAM MapPointCulling)."""
+        keep = []
+        for p in self.recent_points:
+            if p.bad:
+                continue
+            age = kf.id - p.first_kf_id
+            # Observations count twice where the keyframe has depth (ORB-SLAM's stereo rule),
+            # so "<= 3" means: seen by fewer than two RGB-D keyframes.
+            if p.found_ratio < 0.25 or (age >= 2 and p.n_obs <= 3):
+                self.map.set_bad_point(p)
+                continue
+            if age >= 3:
+                continue
+            keep.append(p)
+        self.recent_points = keep
+
+    # ---------------------------------------------------------------- triangulation
+    def _create_new_points(self, kf: KeyFrame) -> None:
+        """Triangulate unmatched keypoints with the best covisible keyframes (epipolar-guided)."""
+        fx, fy, cx, cy = self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy
+        baseline = self.cfg.bf / fx
+        free1 = np.array([p is None or p.bad for p in kf.points], bool)
+        for nb in kf.best_covisibles(10):
+            if not free1.any():
+                break
+            if np.linalg.norm(nb.center - kf.center) < baseline:
+                continue
+            free2 = np.array([p is None or p.bad for p in nb.points], bool)
+            i1, i2 = self._epipolar_matches(kf, nb, free1, free2)
+            if len(i1) == 0:
+                continue
+            pts, ok = self._triangulate(kf, nb, i1, i2)
+            for a, b, pw in zip(i1[ok], i2[ok], pts[ok]):
+                if not free1[a] or not (nb.points[b] is None or nb.points[b].bad):
+                    continue
+                p = self.map.new_point(pw, kf.keypoints.descriptors[a].copy(), kf)
+                p.add_observation(kf, int(a))
+                p.add_observation(nb, int(b))
+                kf.points[a] = p
+                nb.points[b] = p
+                p.compute_distinctive_descriptor()
+                p.update_normal_and_depth(self.pyr.scales)
+                self.recent_points.append(p)
+                free1[a] = False
+                self.stats["triangulated"] += 1
+        del fy, cx, cy
+
+    def _epipolar_matches(self, kf1: KeyFrame, kf2: KeyFrame, free1: NDArray[np.bool_], free2: NDArray[np.bool_]
+                          ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        qa, qb = [], []
+        for node, ia in kf1.featvec.items():
+            ib = kf2.featvec.get(node)
+            if ib is None or len(ib) == 0:
+                continue
+            a = np.asarray(ia, np.intp)
+            b = np.asarray(ib, np.intp)
+            a, b = a[free1[a]], b[free2[b]]
+            if len(a) and len(b):
+                qa.append(np.repeat(a, len(b)))
+                qb.append(np.tile(b, len(a)))
+        if not qa:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        ca, cb = np.concatenate(qa), np.concatenate(qb)
+        # Fundamental matrix F12 with x1^T F12 x2 = 0 (pixels, undistorted).
+        T12 = kf1.T_cw @ kf2.T_wc
+        R12, t12 = T12[:3, :3], T12[:3, 3]
+        tx = np.array([[0, -t12[2], t12[1]], [t12[2], 0, -t12[0]], [-t12[1], t12[0], 0]])
+        Kinv = np.linalg.inv(self.camera.K)
+        F12 = Kinv.T @ tx @ R12 @ Kinv
+        x1 = np.c_[kf1.xy[ca], np.ones(len(ca))]
+        x2 = np.c_[kf2.xy[cb], np.ones(len(cb))]
+        line = x1 @ F12  # epipolar lines in image 2
+        num = np.einsum("ij,ij->i", line, x2)
+        den = line[:, 0] ** 2 + line[:, 1] ** 2
+        dsqr = num**2 / np.maximum(den, 1e-12)
+        sigma2 = 1.0 / self.pyr.inv_sigma2[kf2.keypoints.octave[cb]]
+        # Also skip keypoints too close to the epipole (no parallax).
+        ok = dsqr < 3.84 * sigma2
+        qi, ti, _ = match_candidates(kf1.keypoints.descriptors, kf2.keypoints.descriptors, ca[ok], cb[ok], TH_LOW, 0.6)
+        return qi, ti
+
+    def _triangulate(self, kf1: KeyFrame, kf2: KeyFrame, i1: NDArray[np.intp], i2: NDArray[np.intp]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        K = self.camera.K
+        P1 = K @ kf1.T_cw[:3]
+        P2 = K @ kf2.T_cw[:3]
+        u1, u2 = kf1.xy[i1], kf2.xy[i2]
+        A = np.stack([u1[:, :1] * P1[2] - P1[0], u1[:, 1:2] * P1[2] - P1[1],
+                      u2[:, :1] * P2[2] - P2[0], u2[:, 1:2] * P2[2] - P2[1]], axis=1)
+        _, _, vt = np.linalg.svd(A)
+        X = vt[:, -1]
+        w = X[:, 3:4]
+        good = np.abs(w[:, 0]) > 1e-12
+        pts = X[:, :3] / np.where(good[:, None], w, 1.0)
+        # Parallax: rays must not be (near) parallel.
+        r1 = pts - kf1.center
+        r2 = pts - kf2.center
+        cosp = np.einsum("ij,ij->i", r1, r2) / np.maximum(np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1), 1e-12)
+        ok = good & (cosp < 0.9998)
+        fx, fy, cx, cy = self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy
+        for kf, idx, uv in ((kf1, i1, u1), (kf2, i2, u2)):
+            proj, z = project(kf.T_cw, pts, fx, fy, cx, cy)
+            err2 = ((proj - uv) ** 2).sum(1) * self.pyr.inv_sigma2[kf.keypoints.octave[idx]]
+            ok &= (z > 0) & (err2 < 5.991)
+        d1 = np.linalg.norm(r1, axis=1)
+        d2 = np.linalg.norm(r2, axis=1)
+        ratio_dist = d2 / np.maximum(d1, 1e-12)
+        ratio_oct = self.pyr.scales[kf1.keypoints.octave[i1]] / self.pyr.scales[kf2.keypoints.octave[i2]]
+        factor = 1.5 * self.pyr.scale_factor
+        ok &= (ratio_dist * factor >= ratio_oct) & (ratio_dist <= ratio_oct * factor)
+        return pts, ok
+
+    # ---------------------------------------------------------------- fusion
+    def _search_in_neighbours(self, kf: KeyFrame) -> None:
+        targets: dict[KeyFrame, None] = {}
+        for nb in kf.best_covisibles(10):
+            targets.setdefault(nb)
+            for nb2 in nb.best_covisibles(5):
+                if nb2 is not kf:
+                    targets.setdefault(nb2)
+        pts = kf.valid_points()
+        touched: dict[int, MapPoint] = {}
+        for t in targets:
+            self._fuse(t, pts, touched=touched)
+        cand: dict[int, MapPoint] = {}
+        for t in targets:
+            for p in t.valid_points():
+                cand.setdefault(p.id, p)
+        self._fuse(kf, list(cand.values()), touched=touched)
+        changed = [p for p in touched.values() if not p.bad]
+        for p in changed:
+            p.compute_distinctive_descriptor()
+        update_normals_and_depths(changed, self.pyr.scales)
+        kf.update_connections()
+
+    def _fuse(self, kf: KeyFrame, points: list[MapPoint], th: float = 3.0, touched: dict[int, MapPoint] | None = None) -> int:
+        """Project points into ``kf``; merge with the point already at the matched keypoint
+        (keep the one with more observations) or add the observation (ORB-SLAM Fuse)."""
+        cand = [p for p in points if not p.bad and kf not in p.observations]
+        if not cand:
+            return 0
+        fx, fy, cx, cy = self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy
+        pos = np.array([p.pos for p in cand])
+        uv, z = project(kf.T_cw, pos, fx, fy, cx, cy)
+        dist = np.linalg.norm(pos - kf.center, axis=1)
+        max_d = np.array([p.max_dist for p in cand])
+        min_d = np.array([p.min_dist for p in cand])
+        normals = np.array([p.normal for p in cand])
+        view_cos = np.einsum("ij,ij->i", pos - kf.center, normals) / np.maximum(dist, 1e-9)
+        ok = (z > 0) & (dist >= 0.8 * min_d) & (dist <= 1.2 * max_d) & (view_cos >= 0.5)
+        ok &= (uv[:, 0] >= 0) & (uv[:, 0] < 2 * cx + 1) & (uv[:, 1] >= 0) & (uv[:, 1] < 2 * cy + 1)
+        sel = np.nonzero(ok)[0]
+        if len(sel) == 0:
+            return 0
+        level = np.clip(np.ceil(np.log(np.maximum(max_d[sel] / dist[sel], 1e-9)) / self.pyr.log_scale), 0,
+                        self.pyr.n_levels - 1).astype(np.intp)
+        lists = kf.tree().query_ball_point(uv[sel], r=th * self.pyr.scales[level])
+        counts = np.fromiter((len(x) for x in lists), np.intp, len(lists))
+        if counts.sum() == 0:
+            return 0
+        cq = np.repeat(np.arange(len(lists)), counts)
+        ct = np.fromiter((j for x in lists for j in x), np.intp, int(counts.sum()))
+        lvl = kf.keypoints.octave[ct]
+        good = (lvl >= level[cq] - 1) & (lvl <= level[cq])
+        # Reprojection check (chi2 with 3 dof where the keypoint has depth, 2 otherwise).
+        e = ((uv[sel][cq] - kf.xy[ct]) ** 2).sum(1)
+        ur_pred = uv[sel][cq, 0] - self.cfg.bf / np.maximum(z[sel][cq], 1e-9)
+        has_r = kf.ur[ct] >= 0
+        e = e + np.where(has_r, (ur_pred - kf.ur[ct]) ** 2, 0.0)
+        e = e * self.pyr.inv_sigma2[lvl]
+        good &= np.where(has_r, e < 7.8, e < 5.99)
+        cq, ct = cq[good], ct[good]
+        desc = np.stack([cand[s].descriptor for s in sel])
+        qi, ti, _ = match_candidates(desc, kf.keypoints.descriptors, cq, ct, TH_LOW, 1.0)
+        n = 0
+        for q, t in zip(qi, ti):
+            p = cand[sel[q]]
+            if p.bad:
+                continue
+            existing = kf.points[t]
+            if existing is not None and not existing.bad:
+                keep, drop = (existing, p) if len(existing.observations) > len(p.observations) else (p, existing)
+                self.map.replace_point(drop, keep)
+            else:
+                p.add_observation(kf, int(t))
+                kf.points[t] = p
+                keep = p
+            if touched is not None:
+                touched[keep.id] = keep
+            n += 1
+        self.stats["fused"] += n
+        return n
+
+    # ---------------------------------------------------------------- local BA
+    def _local_bundle_adjustment(self, kf: KeyFrame) -> None:
+        t0 = time.perf_counter()
+        with self.map.lock:
+            local = [kf] + [k for k in kf.ordered_covis if not k.bad]
+            local_set = set(local)
+            pts: dict[int, MapPoint] = {}
+            for k in local:
+                for p in k.valid_points():
+                    pts.setdefault(p.id, p)
+            points = list(pts.values())
+            fixed: dict[KeyFrame, None] = {}
+            for p in points:
+                for k in p.observations:
+                    if k not in local_set and not k.bad:
+                        fixed.setdefault(k)
+            free = [k for k in local if k.id != 0]
+            fixed_list = list(fixed) + [k for k in local if k.id == 0]
+            if not points or not free:
+                return
+            problem, obs_ref = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)
+            gen = self.map.generation
+        result = bundle_adjust(problem)
+        with self.map.lock:
+            if self.map.generation != gen:
+                return
+            for k, T in zip(free, result.poses_cw[: len(free)]):
+                if not k.bad:
+                    k.set_pose(T)
+            for (p, k), inlier in zip(obs_ref, result.inlier_obs):
+                if not inlier and not p.bad and k in p.observations:
+                    idx = p.observations[k]
+                    if k.points[idx] is p:
+                        k.points[idx] = None
+                    p.erase_observation(k)
+            for p, pos in zip(points, result.points_w):
+                if not p.bad:
+                    p.pos = pos
+            update_normals_and_depths([p for p in points if not p.bad], self.pyr.scales)
+        self.stats["local_ba"] += 1
+        self.stats["local_ba_ms"].append((time.perf_counter() - t0) * 1e3)
+
+    # ---------------------------------------------------------------- keyframe culling
+    def _cull_keyframes(self, kf: KeyFrame) -> None:
+        """A keyframe whose close points are 90 % seen by >= 3 other keyframes at the same
+        or a finer scale is redundant (ORB-SLAM KeyFrameCulling)."""
+        for cand in kf.ordered_covis:
+            if cand.id == 0 or cand.bad or cand is kf:
+                continue
+            n_points = redundant = 0
+            for i, p in enumerate(cand.points):
+                if p is None or p.bad:
+                    continue
+                if cand.depth[i] > self.th_depth_m or cand.depth[i] <= 0:
+                    continue
+                n_points += 1
+                if p.n_obs > 3:
+                    level = cand.keypoints.octave[i]
+                    n_obs = 0
+                    for other, j in p.observations.items():
+                        if other is cand:
+                            continue
+                        if other.keypoints.octave[j] <= level + 1:
+                            n_obs += 1
+                            if n_obs >= 3:
+                                break
+                    if n_obs >= 3:
+                        redundant += 1
+            if n_points and redundant > 0.9 * n_points:
+                self.map.set_bad_keyframe(cand)
+                self.stats["culled_keyframes"] += 1

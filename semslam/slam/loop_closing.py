@@ -1,0 +1,377 @@
+"""ORB-SLAM2 loop closing for RGB-D: bag-of-words candidates with covisibility-group
+consistency, SE(3) RANSAC on matched map points, verification by projection, loop
+correction (pose propagation + point fusion), essential-graph optimisation and global BA.
+
+RGB-D fixes the scale, so ORB-SLAM's Sim3 becomes SE(3) here.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.bundle_adjustment import bundle_adjust
+from semslam.backend.pose_graph import optimize_pose_graph
+from semslam.config import SystemConfig
+from semslam.geometry.alignment import umeyama
+from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.se3 import invert, make_pose
+from semslam.slam.frame_state import PyramidInfo
+from semslam.slam.local_mapping import LocalMapping, build_ba_problem
+from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
+from semslam.slam.search import TH_HIGH, project, search_by_bow, search_by_projection
+
+if TYPE_CHECKING:
+    from semslam.place.database import KeyframeDatabase
+
+log = logging.getLogger(__name__)
+
+
+def ransac_se3(x1: NDArray[np.float64], x2: NDArray[np.float64], uv1: NDArray[np.float64], uv2: NDArray[np.float64],
+               inv_s2_1: NDArray[np.float64], inv_s2_2: NDArray[np.float64], camera: PinholeCamera,
+               rng: np.random.Generator, iterations: int = 300, min_inliers: int = 20
+               ) -> tuple[NDArray[np.float64] | None, NDArray[np.bool_]]:
+    """T_12 with x1 = T_12 x2 (camera-frame points of matched map points), hypotheses from
+    3 correspondences (Horn/Umeyama), inliers by reprojection in both images (chi2 9.21,
+    ORB-SLAM's Sim3Solver)."""
+    n = len(x1)
+    best_inl = np.zeros(n, bool)
+    best_T = None
+    if n < max(3, min_inliers):
+        return None, best_inl
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+
+    def inliers_of(T: NDArray[np.float64]) -> NDArray[np.bool_]:
+        p1, z1 = project(T, x2, fx, fy, cx, cy)
+        p2, z2 = project(invert(T), x1, fx, fy, cx, cy)
+        e1 = ((p1 - uv1) ** 2).sum(1) * inv_s2_1
+        e2 = ((p2 - uv2) ** 2).sum(1) * inv_s2_2
+        return (z1 > 0) & (z2 > 0) & (e1 < 9.21) & (e2 < 9.21)
+
+    for _ in range(iterations):
+        s = rng.choice(n, 3, replace=False)
+        try:
+            R, t, _ = umeyama(x2[s], x1[s], with_scale=False)
+        except Exception:
+            continue
+        T = make_pose(R, t)
+        inl = inliers_of(T)
+        if inl.sum() > best_inl.sum():
+            best_inl, best_T = inl, T
+            if inl.sum() > 0.9 * n:
+                break
+    if best_T is None or best_inl.sum() < min_inliers:
+        return None, best_inl
+    R, t, _ = umeyama(x2[best_inl], x1[best_inl], with_scale=False)
+    T = make_pose(R, t)
+    return T, inliers_of(T)
+
+
+class LoopClosing:
+    """Detects and corrects loops; runs global BA after each correction."""
+
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, database: "KeyframeDatabase",
+                 mapper: LocalMapping) -> None:
+        self.cfg = config.slam
+        self.camera = camera
+        self.map = slam_map
+        self.db = database
+        self.mapper = mapper
+        self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
+        self.rng = np.random.default_rng(config.seed)
+        self.last_loop_kf_id = 0
+        self.consistent_groups: list[tuple[set[KeyFrame], int]] = []
+        self.queue: "queue.Queue[KeyFrame | None]" = queue.Queue()
+        self._thread: threading.Thread | None = None
+        self._busy = threading.Event()
+        self.loops: list[tuple[int, int]] = []
+        self.stats = {"loops": 0, "global_ba": 0, "global_ba_ms": [], "pose_graph_ms": []}
+        self.error: BaseException | None = None
+
+    # ---------------------------------------------------------------- thread control
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="loop-closing", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            kf = self.queue.get()
+            if kf is None:
+                return
+            try:
+                self.process(kf)
+            except BaseException as exc:  # pragma: no cover - surfaced by the System
+                log.exception("loop closing failed")
+                self.error = exc
+                return
+            finally:
+                if self.queue.empty():
+                    self._busy.clear()
+
+    def insert(self, kf: KeyFrame) -> None:
+        if self._thread is None:
+            self.process(kf)
+        else:
+            self._busy.set()
+            self.queue.put(kf)
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self.queue.put(None)
+            self._thread.join()
+            self._thread = None
+
+    def idle(self) -> bool:
+        return not self._busy.is_set() and self.queue.empty()
+
+    # ---------------------------------------------------------------- per keyframe
+    def process(self, kf: KeyFrame) -> None:
+        if kf.bad:
+            return
+        found = self._detect_loop(kf)
+        self.db.add(kf.id, kf.bow)
+        if found is None:
+            return
+        cand, T12, matched = found
+        self._correct_loop(kf, cand, T12, matched)
+
+    def _detect_loop(self, kf: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        from semslam.place.database import detect_loop_candidates
+        from semslam.place.vocabulary import l1_score
+
+        if kf.id < self.last_loop_kf_id + self.cfg.loop_min_keyframes or len(self.map.keyframes) < self.cfg.loop_min_keyframes:
+            return None
+        with self.map.lock:
+            covis = kf.covisibles_with_weight(0)
+            min_score = min((l1_score(kf.bow, c.bow) for c in covis if c.bow is not None), default=0.0)
+            covis_ids = {c.id for c in covis}
+
+            def covisibles(kf_id: int, n: int) -> list[int]:
+                other = self.map.keyframes.get(kf_id)
+                return [] if other is None else [c.id for c in other.best_covisibles(n)]
+
+            cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, covisibles)
+            candidates = [self.map.keyframes[i] for i in cand_ids if i in self.map.keyframes]
+            # Consistency: a candidate's covisibility group must connect with groups that
+            # were candidates for the previous keyframes (ORB-SLAM DetectLoop, 3 in a row).
+            enough: list[KeyFrame] = []
+            new_groups: list[tuple[set[KeyFrame], int]] = []
+            for c in candidates:
+                group = {c, *c.covisibles_with_weight(0)}
+                best = 0
+                for prev_group, prev_count in self.consistent_groups:
+                    if group & prev_group:
+                        count = prev_count + 1
+                        best = max(best, count)
+                        new_groups.append((group, count))
+                if best == 0:
+                    new_groups.append((group, 0))
+                if best >= self.cfg.loop_consistency and c not in enough:
+                    enough.append(c)
+            self.consistent_groups = new_groups
+            for c in enough:
+                res = self._compute_se3(kf, c)
+                if res is not None:
+                    return res
+        return None
+
+    def _compute_se3(self, kf: KeyFrame, cand: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        valid1 = np.array([p is not None and not p.bad for p in kf.points], bool)
+        valid2 = np.array([p is not None and not p.bad for p in cand.points], bool)
+        i1, i2 = search_by_bow(kf.featvec, kf.keypoints.descriptors, cand.featvec, cand.keypoints.descriptors,
+                               valid1, valid2, ratio=0.75)
+        if len(i1) < 20:
+            return None
+        p1 = np.array([kf.points[i].pos for i in i1])  # type: ignore[union-attr]
+        p2 = np.array([cand.points[i].pos for i in i2])  # type: ignore[union-attr]
+        x1 = p1 @ kf.T_cw[:3, :3].T + kf.T_cw[:3, 3]
+        x2 = p2 @ cand.T_cw[:3, :3].T + cand.T_cw[:3, 3]
+        T12, inl = ransac_se3(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
+                              self.pyr.inv_sigma2[cand.keypoints.octave[i2]], self.camera, self.rng)
+        if T12 is None:
+            return None
+        T_cw_corr = T12 @ cand.T_cw
+        # Verify: project the loop keyframe's neighbourhood into the current keyframe.
+        loop_points: dict[int, MapPoint] = {}
+        for k in [cand, *cand.covisibles_with_weight(0)]:
+            for p in k.valid_points():
+                loop_points.setdefault(p.id, p)
+        pts = list(loop_points.values())
+        pos = np.array([p.pos for p in pts])
+        uv, z = project(T_cw_corr, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < 2 * self.camera.cx + 1) & (uv[:, 1] >= 0) & (uv[:, 1] < 2 * self.camera.cy + 1)
+        sel = np.nonzero(inside)[0]
+        if len(sel) == 0:
+            return None
+        dist = np.linalg.norm(pos[sel] - invert(T_cw_corr)[:3, 3], axis=1)
+        max_d = np.array([pts[s].max_dist for s in sel])
+        level = np.clip(np.ceil(np.log(np.maximum(max_d / np.maximum(dist, 1e-9), 1e-9)) / self.pyr.log_scale), 0,
+                        self.pyr.n_levels - 1).astype(np.intp)
+        qi, ti = search_by_projection(uv[sel], 10.0 * self.pyr.scales[level], level - 1, level + 1,
+                                      np.stack([pts[s].descriptor for s in sel]), kf.xy, kf.keypoints.octave,
+                                      kf.keypoints.descriptors, np.ones(len(kf.points), bool), kf.tree(), TH_HIGH, 0.9)
+        n_matched = int(inl.sum()) + len(qi)
+        if len(qi) < self.cfg.loop_min_matches and n_matched < self.cfg.loop_min_matches:
+            return None
+        return cand, T12, {int(t): pts[sel[q]] for q, t in zip(qi, ti)}
+
+    # ---------------------------------------------------------------- correction
+    def _correct_loop(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]) -> None:
+        t0 = time.perf_counter()
+        self.mapper.wait_idle()
+        with self.map.lock:
+            self.map.generation += 1
+            kf.update_connections()
+            connected = [kf, *kf.covisibles_with_weight(0)]
+            T_wc_old = kf.T_wc
+            T_cw_corr = T12 @ cand.T_cw
+            old = {k: k.T_cw.copy() for k in self.map.all_keyframes()}
+            corrected = {kf: T_cw_corr}
+            for k in connected[1:]:
+                corrected[k] = (k.T_cw @ T_wc_old) @ T_cw_corr
+            moved: set[int] = set()
+            for k in connected:
+                T_corr = corrected[k]
+                delta = invert(T_corr) @ old[k]
+                for p in k.valid_points():
+                    if p.id in moved:
+                        continue
+                    p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
+                    p.ref_kf = k if p.ref_kf not in corrected else p.ref_kf
+                    moved.add(p.id)
+                k.set_pose(T_corr)
+            update_normals_and_depths(list({q.id: q for k in connected for q in k.valid_points()}.values()), self.pyr.scales)
+            # Fuse: the loop's points replace the current keyframe's duplicates.
+            for idx, lp in matched.items():
+                if lp.bad:
+                    continue
+                cur = kf.points[idx]
+                if cur is not None and not cur.bad:
+                    self.map.replace_point(cur, lp)
+                elif kf not in lp.observations:
+                    lp.add_observation(kf, idx)
+                    kf.points[idx] = lp
+            loop_pts = list({p.id: p for k in [cand, *cand.covisibles_with_weight(0)] for p in k.valid_points()}.values())
+            for k in connected:
+                self.mapper._fuse(k, loop_pts, th=4.0)
+            before = {k: set(k.covis) for k in connected}
+            for k in connected:
+                k.update_connections()
+            new_links = {k: set(k.covis) - before[k] - set(connected) for k in connected}
+            kf.loop_edges.add(cand)
+            cand.loop_edges.add(kf)
+            cand.not_erase = True
+            kf.not_erase = True
+            self._optimize_essential_graph(cand, old, corrected, new_links)
+            self.map.n_loops += 1
+            self.last_loop_kf_id = kf.id
+        self.loops.append((kf.id, cand.id))
+        self.stats["loops"] += 1
+        self.stats["pose_graph_ms"].append((time.perf_counter() - t0) * 1e3)
+        log.info("loop closed: keyframe %d <-> %d", kf.id, cand.id)
+        if self.cfg.global_ba:
+            self.global_bundle_adjustment()
+
+    def _optimize_essential_graph(self, loop_kf: KeyFrame, old: dict[KeyFrame, NDArray[np.float64]],
+                                  corrected: dict[KeyFrame, NDArray[np.float64]],
+                                  new_links: dict[KeyFrame, set[KeyFrame]]) -> None:
+        """Pose graph over spanning tree, loop and strong covisibility edges (weight >= 100),
+        with measurements from the poses before correction, new loop links from after it."""
+        kfs = self.map.all_keyframes()
+        index = {k: i for i, k in enumerate(kfs)}
+        # Reference (measurement) poses: non-corrected ones where a correction happened.
+        ref_wc = {k: invert(old.get(k, k.T_cw)) for k in kfs}
+        init_wc = np.stack([invert(corrected.get(k, k.T_cw)) for k in kfs])
+        edges, meas = [], []
+        seen: set[tuple[int, int]] = set()
+
+        def add(a: KeyFrame, b: KeyFrame, T_ab: NDArray[np.float64]) -> None:
+            i, j = index.get(a), index.get(b)
+            if i is None or j is None or i == j:
+                return
+            key = (min(i, j), max(i, j))
+            if key in seen:
+                return
+            seen.add(key)
+            edges.append((i, j))
+            meas.append(T_ab)
+
+        for k, links in new_links.items():
+            for l in links:
+                Twk, Twl = invert(corrected.get(k, k.T_cw)), invert(corrected.get(l, l.T_cw))
+                add(k, l, invert(Twk) @ Twl)
+        for k in kfs:
+            if k.parent is not None and not k.parent.bad:
+                add(k, k.parent, invert(ref_wc[k]) @ ref_wc[k.parent])
+            for l in k.loop_edges:
+                if l is loop_kf and k in corrected:  # the new loop edge: measured after correction
+                    add(k, l, corrected[k] @ invert(l.T_cw))
+                else:
+                    add(k, l, invert(ref_wc[k]) @ ref_wc[l])
+            for l in k.covisibles_with_weight(100):
+                add(k, l, invert(ref_wc[k]) @ ref_wc[l])
+        if not edges:
+            return
+        weights = np.ones(len(edges))
+        fixed = [index[loop_kf]] + ([index[kfs[0]]] if kfs[0] is not loop_kf else [])
+        poses_wc = optimize_pose_graph(init_wc, np.asarray(edges, np.intp), np.stack(meas), weights, fixed)
+        # Move each point with its reference keyframe (from its pre-graph pose).
+        for k, T_wc_new in zip(kfs, poses_wc):
+            delta = T_wc_new @ invert(init_wc[index[k]])
+            for p in k.valid_points():
+                if p.ref_kf is k:
+                    p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
+            k.set_pose(invert(T_wc_new))
+        update_normals_and_depths(list(self.map.points.values()), self.pyr.scales)
+
+    def global_bundle_adjustment(self) -> None:
+        """Full BA over all keyframes and points (first keyframe fixed); keyframes and points
+        added while it ran are moved with their parent / reference keyframe."""
+        t0 = time.perf_counter()
+        with self.map.lock:
+            gen = self.map.generation
+            kfs = self.map.all_keyframes()
+            if len(kfs) < 2:
+                return
+            points = [p for p in self.map.points.values() if not p.bad and p.observations]
+            free, fixed = kfs[1:], kfs[:1]
+            problem, _ = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)
+            before = {k: k.T_cw.copy() for k in kfs}
+        result = bundle_adjust(problem, remove_outliers=False)
+        with self.map.lock:
+            if self.map.generation != gen:
+                log.info("global BA discarded: map corrected meanwhile")
+                return
+            self.map.generation += 1
+            after = {k: T for k, T in zip(free, result.poses_cw[: len(free)])}
+            after[kfs[0]] = kfs[0].T_cw
+            for p, pos in zip(points, result.points_w):
+                if not p.bad:
+                    p.pos = pos
+            # Keyframes created during BA: follow their parent's correction.
+            for k in self.map.all_keyframes():
+                if k in after:
+                    k.set_pose(after[k])
+                    continue
+                par = k.parent
+                chain = []
+                while par is not None and par not in after:
+                    chain.append(par)
+                    par = par.parent
+                if par is not None:
+                    delta = invert(after[par]) @ before[par]  # T_w_new <- T_w_old for the parent
+                    k.set_pose(k.T_cw @ invert(delta))
+            new_pts = {p.id for p in points}
+            for p in list(self.map.points.values()):
+                if p.id not in new_pts and not p.bad and p.ref_kf in before and p.ref_kf in after:
+                    delta = invert(after[p.ref_kf]) @ before[p.ref_kf]
+                    p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
+            update_normals_and_depths(list(self.map.points.values()), self.pyr.scales)
+        self.stats["global_ba"] += 1
+        self.stats["global_ba_ms"].append((time.perf_counter() - t0) * 1e3)

@@ -1,0 +1,322 @@
+"""The map: keyframes, map points and the covisibility graph (ORB-SLAM2's Map, KeyFrame,
+MapPoint), shared by tracking, local mapping and loop closing under one lock.
+
+Keyframes and points are small Python objects; arrays are gathered from them where a
+stage needs vectorised work (projection of the local map, bundle adjustment).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.features.base import Keypoints
+from semslam.features.matching import hamming_pairs
+from semslam.geometry.se3 import invert
+
+Array = NDArray[np.float64]
+
+
+class MapPoint:
+    """A 3D point with the keyframes that observe it (ORB-SLAM2 MapPoint)."""
+
+    __slots__ = ("id", "pos", "descriptor", "observations", "normal", "min_dist", "max_dist", "n_visible",
+                 "n_found", "ref_kf", "first_kf_id", "bad", "replaced_by", "__weakref__")
+
+    def __init__(self, pid: int, pos: Array, descriptor: NDArray[np.uint8], ref_kf: "KeyFrame") -> None:
+        self.id = pid
+        self.pos = np.asarray(pos, dtype=np.float64)
+        self.descriptor = descriptor
+        self.observations: dict[KeyFrame, int] = {}
+        self.normal = np.zeros(3)
+        self.min_dist = 0.0
+        self.max_dist = 0.0
+        self.n_visible = 1
+        self.n_found = 1
+        self.ref_kf = ref_kf
+        self.first_kf_id = ref_kf.id
+        self.bad = False
+        self.replaced_by: MapPoint | None = None
+
+    def __repr__(self) -> str:
+        return f"MapPoint({self.id}, obs={len(self.observations)})"
+
+    @property
+    def n_obs(self) -> int:
+        """Observation count with RGB-D/stereo observations counted twice (ORB-SLAM's nObs)."""
+        return sum(2 if kf.ur[i] >= 0 else 1 for kf, i in self.observations.items())
+
+    @property
+    def found_ratio(self) -> float:
+        return self.n_found / max(self.n_visible, 1)
+
+    def add_observation(self, kf: "KeyFrame", idx: int) -> None:
+        self.observations[kf] = idx
+
+    def erase_observation(self, kf: "KeyFrame") -> None:
+        if kf in self.observations:
+            del self.observations[kf]
+            if self.ref_kf is kf and self.observations:
+                self.ref_kf = next(iter(self.observations))
+            if len(self.observations) <= 1 and kf.map is not None:
+                kf.map.set_bad_point(self)
+
+    def update_normal_and_depth(self, scale_factors: Array) -> None:
+        update_normals_and_depths([self], scale_factors)
+
+    def compute_distinctive_descriptor(self) -> None:
+        """The observation descriptor with the least median distance to the others."""
+        descs = [kf.keypoints.descriptors[i] for kf, i in self.observations.items() if not kf.bad]
+        if len(descs) < 2:
+            if descs:
+                self.descriptor = descs[0]
+            return
+        d = np.stack(descs)
+        n = len(d)
+        ii, jj = np.triu_indices(n, 1)
+        dist = np.zeros((n, n), np.int32)
+        dist[ii, jj] = dist[jj, ii] = hamming_pairs(d[ii], d[jj])
+        self.descriptor = d[int(np.argmin(np.median(dist, axis=1)))].copy()
+
+    def predict_scale(self, dist: float, log_scale: float, n_levels: int) -> int:
+        ratio = self.max_dist / max(dist, 1e-9)
+        level = int(np.ceil(np.log(max(ratio, 1e-9)) / log_scale))
+        return min(max(level, 0), n_levels - 1)
+
+
+def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> None:
+    """Mean viewing direction of each point and the distance range it can be matched at
+    (ORB-SLAM UpdateNormalAndDepth), for many points at once."""
+    rows: list[int] = []
+    centers: list[Array] = []
+    ref_rows: list[int] = []
+    ref_centers: list[Array] = []
+    ref_levels: list[int] = []
+    for j, p in enumerate(points):
+        if p.bad or not p.observations:
+            continue
+        for kf in p.observations:
+            rows.append(j)
+            centers.append(kf.center)
+        idx = p.observations.get(p.ref_kf)
+        if idx is not None:
+            ref_rows.append(j)
+            ref_centers.append(p.ref_kf.center)
+            ref_levels.append(int(p.ref_kf.keypoints.octave[idx]))
+    if not rows:
+        return
+    pos = np.array([p.pos for p in points])
+    r = np.asarray(rows)
+    d = pos[r] - np.asarray(centers)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    normals = np.zeros_like(pos)
+    np.add.at(normals, r, d)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
+    for j in set(rows):
+        points[j].normal = normals[j]
+    if ref_rows:
+        rr = np.asarray(ref_rows)
+        dist = np.linalg.norm(pos[rr] - np.asarray(ref_centers), axis=1)
+        max_d = dist * scale_factors[np.asarray(ref_levels)]
+        min_d = max_d / scale_factors[-1]
+        for j, mx, mn in zip(rr, max_d, min_d):
+            points[j].max_dist = float(mx)
+            points[j].min_dist = float(mn)
+
+
+@dataclass(eq=False)
+class KeyFrame:
+    """A frame kept in the map, with its features and their map points."""
+
+    id: int
+    frame_index: int
+    timestamp: float
+    T_cw: Array
+    keypoints: Keypoints
+    xy: Array  # undistorted keypoint positions
+    depth: NDArray[np.float32]
+    ur: NDArray[np.float64]
+    points: list[MapPoint | None]
+    map: "Map | None" = None
+    bow: Any = None  # place.vocabulary.BowVector, set by local mapping
+    featvec: dict[int, Any] = field(default_factory=dict)
+    covis: dict["KeyFrame", int] = field(default_factory=dict)
+    ordered_covis: list["KeyFrame"] = field(default_factory=list)
+    parent: "KeyFrame | None" = None
+    children: set["KeyFrame"] = field(default_factory=set)
+    loop_edges: set["KeyFrame"] = field(default_factory=set)
+    bad: bool = False
+    not_erase: bool = False
+    to_be_erased: bool = False
+    T_cw_before_gba: Array | None = None
+    T_cp: Array | None = None  # pose relative to the parent, kept when the keyframe is culled
+    _tree: Any = None
+    _center: Array = field(default_factory=lambda: np.zeros(3), repr=False)
+
+    def __hash__(self) -> int:
+        return self.id
+
+    def __repr__(self) -> str:
+        return f"KeyFrame({self.id}, frame={self.frame_index})"
+
+    @property
+    def T_wc(self) -> Array:
+        return invert(self.T_cw)
+
+    def __post_init__(self) -> None:
+        self.set_pose(self.T_cw)
+
+    @property
+    def center(self) -> Array:
+        return self._center
+
+    def set_pose(self, T_cw: Array) -> None:
+        self.T_cw = np.asarray(T_cw, dtype=np.float64).copy()
+        self._center = -self.T_cw[:3, :3].T @ self.T_cw[:3, 3]
+
+    def tracked_points(self, min_obs: int = 1) -> int:
+        return sum(1 for p in self.points if p is not None and not p.bad and p.n_obs >= min_obs)
+
+    def valid_points(self) -> list[MapPoint]:
+        return [p for p in self.points if p is not None and not p.bad]
+
+    def best_covisibles(self, n: int) -> list["KeyFrame"]:
+        return [kf for kf in self.ordered_covis[:n] if not kf.bad]
+
+    def covisibles_with_weight(self, w: int) -> list["KeyFrame"]:
+        return [kf for kf in self.ordered_covis if self.covis.get(kf, 0) >= w and not kf.bad]
+
+    def update_connections(self) -> None:
+        """Covisibility weights = shared map points; spanning-tree parent = best covisible."""
+        counts: dict[KeyFrame, int] = {}
+        for p in self.points:
+            if p is None or p.bad:
+                continue
+            for kf in p.observations:
+                if kf is not self and not kf.bad:
+                    counts[kf] = counts.get(kf, 0) + 1
+        if not counts:
+            return
+        best = max(counts, key=lambda k: counts[k])
+        strong = {kf: w for kf, w in counts.items() if w >= 15} or {best: counts[best]}
+        for kf, w in strong.items():
+            kf.add_connection(self, w)
+        self.covis = strong
+        self.ordered_covis = sorted(strong, key=lambda k: -strong[k])
+        if self.parent is None and self.id != 0:
+            self.parent = self.ordered_covis[0]
+            self.parent.children.add(self)
+
+    def add_connection(self, kf: "KeyFrame", weight: int) -> None:
+        self.covis[kf] = weight
+        self.ordered_covis = sorted(self.covis, key=lambda k: -self.covis[k])
+
+    def erase_connection(self, kf: "KeyFrame") -> None:
+        if kf in self.covis:
+            del self.covis[kf]
+            self.ordered_covis = [k for k in self.ordered_covis if k is not kf]
+
+    def tree(self) -> Any:
+        """KD-tree over keypoint positions for radius searches (built once)."""
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(self.xy)
+        return self._tree
+
+
+class Map:
+    """All keyframes and points; ``lock`` guards structural changes across threads."""
+
+    def __init__(self) -> None:
+        self.keyframes: dict[int, KeyFrame] = {}
+        self.points: dict[int, MapPoint] = {}
+        self.lock = threading.RLock()
+        self._next_kf = 0
+        self._next_pt = 0
+        self.origins: list[KeyFrame] = []
+        self.n_loops = 0
+        # Bumped by loop correction and global BA: a local BA computed on older poses is dropped.
+        self.generation = 0
+
+    def new_kf_id(self) -> int:
+        self._next_kf += 1
+        return self._next_kf - 1
+
+    def new_point(self, pos: Array, descriptor: NDArray[np.uint8], ref_kf: KeyFrame) -> MapPoint:
+        p = MapPoint(self._next_pt, pos, descriptor, ref_kf)
+        self._next_pt += 1
+        self.points[p.id] = p
+        return p
+
+    def add_keyframe(self, kf: KeyFrame) -> None:
+        kf.map = self
+        self.keyframes[kf.id] = kf
+        if not self.origins:
+            self.origins.append(kf)
+
+    def set_bad_point(self, p: MapPoint) -> None:
+        """Remove a point and its observations (ORB-SLAM MapPoint::SetBadFlag)."""
+        if p.bad:
+            return
+        p.bad = True
+        for kf, idx in list(p.observations.items()):
+            if idx < len(kf.points) and kf.points[idx] is p:
+                kf.points[idx] = None
+        p.observations = {}
+        self.points.pop(p.id, None)
+
+    def replace_point(self, old: MapPoint, new: MapPoint) -> None:
+        """Fuse ``old`` into ``new`` (duplicates found by projection or loop fusion)."""
+        if old is new or old.bad or new.bad:
+            return
+        for kf, idx in list(old.observations.items()):
+            if kf in new.observations:
+                if kf.points[idx] is old:
+                    kf.points[idx] = None
+            else:
+                kf.points[idx] = new
+                new.add_observation(kf, idx)
+        new.n_found += old.n_found
+        new.n_visible += old.n_visible
+        old.observations = {}
+        old.bad = True
+        old.replaced_by = new
+        self.points.pop(old.id, None)
+        new.compute_distinctive_descriptor()
+
+    def set_bad_keyframe(self, kf: KeyFrame) -> None:
+        """Remove a redundant keyframe, re-parenting its children (ORB-SLAM KeyFrame::SetBadFlag)."""
+        if kf.id == 0 or kf.not_erase:
+            kf.to_be_erased = True
+            return
+        for other in list(kf.covis):
+            other.erase_connection(kf)
+        for i, p in enumerate(kf.points):
+            if p is not None:
+                kf.points[i] = None
+                p.erase_observation(kf)
+        kf.covis, kf.ordered_covis = {}, []
+        # Re-parent children to the covisible keyframe they share most with.
+        parent = kf.parent
+        if parent is not None:
+            kf.T_cp = kf.T_cw @ parent.T_wc
+        for child in list(kf.children):
+            candidates = [c for c in child.ordered_covis if c is not kf and not c.bad]
+            new_parent = candidates[0] if candidates else parent
+            child.parent = new_parent
+            if new_parent is not None:
+                new_parent.children.add(child)
+        if parent is not None:
+            parent.children.discard(kf)
+        kf.children = set()
+        kf.bad = True
+        # Keep the relative pose to the parent for the trajectory of frames that referenced kf.
+        self.keyframes.pop(kf.id, None)
+
+    def all_keyframes(self) -> list[KeyFrame]:
+        return sorted(self.keyframes.values(), key=lambda k: k.id)

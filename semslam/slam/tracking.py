@@ -1,0 +1,467 @@
+"""ORB-SLAM2 tracking for RGB-D: motion model or reference keyframe, then the local map,
+pose-only optimisation after each matching step, keyframe decision, relocalisation.
+
+The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comment says so.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.pose_only import optimize_pose
+from semslam.config import SystemConfig
+from semslam.features.base import create_extractor
+from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.se3 import invert, orthonormalize
+from semslam.io.sequence import Frame
+from semslam.slam.frame_state import FrameState, PyramidInfo
+from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.search import TH_HIGH, project, rotation_consistent, search_by_bow, search_by_projection
+from semslam.slam.types import TrackingState, TrackResult
+
+if TYPE_CHECKING:
+    from semslam.place.database import KeyframeDatabase
+    from semslam.place.vocabulary import Vocabulary
+
+
+class Tracking:
+    """Owns the current frame and decides when to make keyframes; see the module docstring."""
+
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map,
+                 vocabulary: "Vocabulary", database: "KeyframeDatabase") -> None:
+        self.cfg = config.slam
+        self.camera = camera
+        self.map = slam_map
+        self.voc = vocabulary
+        self.db = database
+        self.extractor = create_extractor(config.features)
+        self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
+        self.seed = config.seed
+        self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
+        self.state = TrackingState.NOT_INITIALIZED
+        self.last: FrameState | None = None
+        self.velocity: NDArray[np.float64] | None = None
+        self.ref_kf: KeyFrame | None = None
+        self.last_kf_frame = -1
+        self.last_reloc_frame = -(10**9)
+        self.local_kfs: list[KeyFrame] = []
+        self.local_points: list[MapPoint] = []
+        self.n_relocalisations = 0
+        self.n_matches_inliers = 0
+        # Hooks set by the System: hand keyframes to local mapping and ask whether it is idle.
+        self.insert_keyframe = lambda kf: None
+        self.mapping_idle = lambda: True
+        self.mapping_queue_size = lambda: 0
+        # Per frame: (frame timestamp, reference keyframe, T_c_ref, lost flag) for the trajectory.
+        self.trajectory_refs: list[tuple[float, KeyFrame, NDArray[np.float64], bool]] = []
+
+    # ------------------------------------------------------------------ entry point
+    def track(self, frame: Frame) -> TrackResult:
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        mask = getattr(frame, "feature_mask", None)
+        kps = self.extractor.extract(frame.gray, mask)
+        cur = FrameState.create(frame.index, frame.timestamp, kps, frame.depth, self.camera, self.cfg.bf)
+        timings["extract"] = (time.perf_counter() - t0) * 1e3
+        is_kf = False
+        with self.map.lock:
+            t0 = time.perf_counter()
+            if self.state is TrackingState.NOT_INITIALIZED:
+                ok = self._initialize(cur)
+                is_kf = ok
+                timings["track"] = (time.perf_counter() - t0) * 1e3
+                if not ok:
+                    return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings)
+            else:
+                ok = self._track_frame(cur, timings)
+                timings["track"] = (time.perf_counter() - t0) * 1e3
+                if ok:
+                    t0 = time.perf_counter()
+                    ok = self._track_local_map(cur)
+                    timings["local_map"] = (time.perf_counter() - t0) * 1e3
+                self.state = TrackingState.OK if ok else TrackingState.LOST
+                if ok:
+                    self.velocity = cur.T_cw @ invert(self.last.T_cw) if self.last is not None and self.last.T_cw is not None else None
+                    if not self.cfg.localization_only and self._need_new_keyframe(cur):
+                        t0 = time.perf_counter()
+                        self._create_keyframe(cur)
+                        timings["keyframe"] = (time.perf_counter() - t0) * 1e3
+                        is_kf = True
+                    # Outliers are not carried to the next frame (ORB-SLAM discards them here).
+                    for i in np.nonzero(cur.outlier)[0]:
+                        cur.points[i] = None
+                    cur.outlier[:] = False
+                else:
+                    self.velocity = None
+                    if cur.T_cw is None:
+                        cur.T_cw = self.last.T_cw.copy() if self.last is not None and self.last.T_cw is not None else np.eye(4)
+            if cur.ref_kf is None:
+                cur.ref_kf = self.ref_kf
+            self._record(cur, lost=self.state is not TrackingState.OK)
+            self.last = cur
+            n_inl = sum(1 for i, p in enumerate(cur.points) if p is not None and not cur.outlier[i])
+        pose_wc = invert(cur.T_cw) if cur.T_cw is not None else None
+        return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
+                           n_keypoints=len(kps), is_keyframe=is_kf, timings=timings)
+
+    def _record(self, cur: FrameState, lost: bool) -> None:
+        ref = cur.ref_kf or self.ref_kf
+        if ref is None or cur.T_cw is None:
+            return
+        self.trajectory_refs.append((cur.timestamp, ref, cur.T_cw @ ref.T_wc, lost))
+
+    # ------------------------------------------------------------------ initialisation
+    def _initialize(self, cur: FrameState) -> bool:
+        """First frame with enough keypoints becomes keyframe 0 at the origin, points from depth."""
+        if len(cur) < self.cfg.min_init_keypoints or (cur.depth > 0).sum() < self.cfg.min_init_keypoints // 2:
+            return False
+        cur.T_cw = np.eye(4)
+        kf = self._make_keyframe(cur)
+        idx = np.nonzero(cur.depth > 0)[0]
+        pts = cur.world_points(idx, self.camera)
+        for i, pw in zip(idx, pts):
+            self._new_point_from_keyframe(kf, cur, int(i), pw)
+        self.map.add_keyframe(kf)
+        self.insert_keyframe(kf)
+        self.ref_kf = kf
+        cur.ref_kf = kf
+        self.last_kf_frame = cur.index
+        self.local_kfs = [kf]
+        self.local_points = kf.valid_points()
+        self.state = TrackingState.OK
+        return True
+
+    def _new_point_from_keyframe(self, kf: KeyFrame, cur: FrameState, i: int, pos: NDArray[np.float64]) -> MapPoint:
+        p = self.map.new_point(pos, kf.keypoints.descriptors[i].copy(), kf)
+        p.add_observation(kf, i)
+        kf.points[i] = p
+        cur.points[i] = p
+        p.update_normal_and_depth(self.pyr.scales)
+        return p
+
+    def _make_keyframe(self, cur: FrameState) -> KeyFrame:
+        assert cur.T_cw is not None
+        kf = KeyFrame(self.map.new_kf_id(), cur.index, cur.timestamp, cur.T_cw.copy(), cur.keypoints, cur.xy,
+                      cur.depth, cur.ur, list(cur.points))
+        if cur.bow is not None:
+            kf.bow, kf.featvec = cur.bow, cur.featvec or {}
+        return kf
+
+    # ------------------------------------------------------------------ frame tracking
+    def _track_frame(self, cur: FrameState, timings: dict[str, float]) -> bool:
+        if self.state is TrackingState.OK:
+            ok = False
+            if self.velocity is not None and cur.index > self.last_reloc_frame + 1:
+                ok = self._track_with_motion_model(cur)
+            if not ok:
+                ok = self._track_reference_keyframe(cur)
+            return ok
+        t0 = time.perf_counter()
+        ok = self._relocalise(cur)
+        timings["relocalise"] = (time.perf_counter() - t0) * 1e3
+        if ok:
+            self.n_relocalisations += 1
+            self.last_reloc_frame = cur.index
+        return ok
+
+    def _optimize(self, cur: FrameState) -> int:
+        """Pose-only optimisation over the frame's matched points; marks outliers."""
+        idx = cur.matched_indices()
+        if len(idx) < 3:
+            return 0
+        assert cur.T_cw is not None
+        pts = np.array([cur.points[i].pos for i in idx])  # type: ignore[union-attr]
+        oct_ = cur.keypoints.octave[idx]
+        res = optimize_pose(cur.T_cw, pts, cur.xy[idx], cur.ur[idx], self.pyr.inv_sigma2[oct_],
+                            self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy, self.cfg.bf)
+        cur.T_cw = orthonormalize(res.T_cw)
+        cur.outlier[:] = False
+        cur.outlier[idx[~res.inliers]] = True
+        return int(res.inliers.sum())
+
+    def _discard_outliers(self, cur: FrameState) -> int:
+        n = 0
+        for i in range(len(cur)):
+            if cur.points[i] is None:
+                continue
+            if cur.outlier[i]:
+                cur.points[i] = None
+                cur.outlier[i] = False
+            elif len(cur.points[i].observations) > 0:  # type: ignore[union-attr]
+                n += 1
+        return n
+
+    def _track_with_motion_model(self, cur: FrameState) -> bool:
+        last = self.last
+        assert last is not None and last.T_cw is not None and self.velocity is not None
+        cur.T_cw = self.velocity @ last.T_cw
+        idx = np.array([i for i, p in enumerate(last.points) if p is not None and not p.bad and not last.outlier[i]], np.intp)
+        if len(idx) == 0:
+            return False
+        pts = [last.points[i] for i in idx]
+        pos = np.array([p.pos for p in pts])  # type: ignore[union-attr]
+        uv, z = project(cur.T_cw, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
+        # Forward motion makes points appear at finer levels, backward at coarser (ORB-SLAM).
+        t_lc = (cur.T_cw @ invert(last.T_cw))[:3, 3]
+        forward = t_lc[2] > self.cfg.bf / self.camera.fx
+        backward = -t_lc[2] > self.cfg.bf / self.camera.fx
+        octv = last.keypoints.octave[idx].astype(np.intp)
+        lo = np.where(forward, octv, np.where(backward, 0, octv - 1))
+        hi = np.where(forward, self.pyr.n_levels - 1, np.where(backward, octv, octv + 1))
+        for th in (15.0, 30.0):
+            inside = self._inside(uv, z)
+            radius = th * self.pyr.scales[octv]
+            qi, ti = self._search(cur, uv[inside], radius[inside], lo[inside], hi[inside],
+                                  np.stack([p.descriptor for p in pts])[inside])  # type: ignore[union-attr]
+            sel = np.nonzero(inside)[0][qi]
+            keep = rotation_consistent(cur.keypoints.angle[ti], last.keypoints.angle[idx[sel]])
+            sel, ti = sel[keep], ti[keep]
+            if len(ti) >= 20:
+                break
+            cur.points = [None] * len(cur)
+        if len(ti) < 20:
+            return False
+        for s, t in zip(sel, ti):
+            cur.points[t] = pts[s]
+        self._optimize(cur)
+        return self._discard_outliers(cur) >= 10
+
+    def _inside(self, uv: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.bool_]:
+        h_lim, w_lim = 2 * self.camera.cy + 1, 2 * self.camera.cx + 1
+        return (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w_lim) & (uv[:, 1] >= 0) & (uv[:, 1] < h_lim)
+
+    def _search(self, cur: FrameState, uv: NDArray[np.float64], radius: NDArray[np.float64], lo: NDArray[np.intp],
+                hi: NDArray[np.intp], desc: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        if len(uv) == 0:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        return search_by_projection(uv, radius, lo, hi, desc, cur.xy, cur.keypoints.octave, cur.keypoints.descriptors,
+                                    cur.free_mask(), cur.tree(), TH_HIGH)
+
+    def _compute_bow(self, cur: FrameState) -> None:
+        if cur.bow is None:
+            cur.bow, cur.featvec = self.voc.transform(cur.keypoints.descriptors)
+
+    def _track_reference_keyframe(self, cur: FrameState) -> bool:
+        """Match by bag-of-words to the reference keyframe; start from the last pose."""
+        kf = self.ref_kf
+        if kf is None or kf.bad or self.last is None:
+            return False
+        self._compute_bow(cur)
+        kf_valid = np.array([p is not None and not p.bad for p in kf.points], bool)
+        ia, ib = search_by_bow(kf.featvec, kf.keypoints.descriptors, cur.featvec or {}, cur.keypoints.descriptors,
+                               kf_valid, np.ones(len(cur), bool))
+        keep = rotation_consistent(kf.keypoints.angle[ia], cur.keypoints.angle[ib])
+        ia, ib = ia[keep], ib[keep]
+        if len(ia) < 15:
+            return False
+        cur.points = [None] * len(cur)
+        for a, b in zip(ia, ib):
+            cur.points[b] = kf.points[a]
+        cur.T_cw = self.last.T_cw.copy()
+        self._optimize(cur)
+        return self._discard_outliers(cur) >= 10
+
+    # ------------------------------------------------------------------ local map
+    def _update_local_map(self, cur: FrameState) -> None:
+        counts: dict[KeyFrame, int] = {}
+        for i, p in enumerate(cur.points):
+            if p is None or p.bad or cur.outlier[i]:
+                continue
+            for kf in p.observations:
+                counts[kf] = counts.get(kf, 0) + 1
+        if not counts:
+            return
+        local: dict[KeyFrame, None] = {kf: None for kf in counts if not kf.bad}
+        for kf in list(local)[:80]:
+            for nb in kf.best_covisibles(10):
+                local.setdefault(nb)
+            for ch in kf.children:
+                if not ch.bad:
+                    local.setdefault(ch)
+            if kf.parent is not None and not kf.parent.bad:
+                local.setdefault(kf.parent)
+        self.local_kfs = list(local)
+        best = max(counts, key=lambda k: counts[k])
+        if not best.bad:
+            self.ref_kf = best
+            cur.ref_kf = best
+        seen: set[int] = set()
+        pts: list[MapPoint] = []
+        for kf in self.local_kfs:
+            for p in kf.points:
+                if p is not None and not p.bad and p.id not in seen:
+                    seen.add(p.id)
+                    pts.append(p)
+        self.local_points = pts
+
+    def _track_local_map(self, cur: FrameState) -> bool:
+        self._update_local_map(cur)
+        in_frame = {p.id for p in cur.points if p is not None}
+        for p in cur.points:
+            if p is not None and not p.bad:
+                p.n_visible += 1
+        cand = [p for p in self.local_points if p.id not in in_frame and not p.bad]
+        if cand:
+            assert cur.T_cw is not None
+            pos = np.array([p.pos for p in cand])
+            uv, z = project(cur.T_cw, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
+            center = invert(cur.T_cw)[:3, 3]
+            ray = pos - center
+            dist = np.linalg.norm(ray, axis=1)
+            normals = np.array([p.normal for p in cand])
+            max_d = np.array([p.max_dist for p in cand])
+            min_d = np.array([p.min_dist for p in cand])
+            view_cos = np.einsum("ij,ij->i", ray, normals) / np.maximum(dist, 1e-9)
+            ok = self._inside(uv, z) & (dist >= 0.8 * min_d) & (dist <= 1.2 * max_d) & (view_cos >= 0.5)
+            sel = np.nonzero(ok)[0]
+            for s in sel:
+                cand[s].n_visible += 1
+            if len(sel):
+                ratio = max_d[sel] / np.maximum(dist[sel], 1e-9)
+                level = np.clip(np.ceil(np.log(np.maximum(ratio, 1e-9)) / self.pyr.log_scale), 0, self.pyr.n_levels - 1).astype(np.intp)
+                th = 5.0 if cur.index < self.last_reloc_frame + 2 else 3.0  # RGB-D: 3 (ORB-SLAM2)
+                # ORB-SLAM also widens the radius for points seen at a grazing angle (cos < 0.998).
+                radius = th * np.where(view_cos[sel] > 0.998, 2.5, 4.0) * self.pyr.scales[level]
+                desc = np.stack([cand[s].descriptor for s in sel])
+                qi, ti = self._search(cur, uv[sel], radius, level - 1, level, desc)
+                for q, t in zip(qi, ti):
+                    cur.points[t] = cand[sel[q]]
+        n_inl = self._optimize(cur)
+        n_found = 0
+        for i, p in enumerate(cur.points):
+            if p is None:
+                continue
+            if not cur.outlier[i]:
+                p.n_found += 1
+                if len(p.observations) > 0:
+                    n_found += 1
+        del n_inl
+        self.n_matches_inliers = n_found
+        if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_found < 50:
+            return False
+        return n_found >= 30
+
+    # ------------------------------------------------------------------ keyframes
+    def _need_new_keyframe(self, cur: FrameState) -> bool:
+        """ORB-SLAM2 Tracking::NeedNewKeyFrame for RGB-D."""
+        n_kfs = len(self.map.keyframes)
+        if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_kfs > self.cfg.max_frames:
+            return False
+        if self.ref_kf is None:
+            return True
+        min_obs = 3 if n_kfs > 2 else 2
+        ref_matches = self.ref_kf.tracked_points(min_obs)
+        idle = self.mapping_idle()
+        close = (cur.depth > 0) & (cur.depth < self.th_depth_m)
+        tracked = np.array([p is not None and not cur.outlier[i] for i, p in enumerate(cur.points)], bool)
+        n_tracked_close = int((close & tracked).sum())
+        n_untracked_close = int((close & ~tracked).sum())
+        need_close = n_tracked_close < 100 and n_untracked_close > 70
+        th_ref = 0.4 if n_kfs < 2 else 0.75
+        inl = self.n_matches_inliers
+        c1a = cur.index >= self.last_kf_frame + self.cfg.max_frames
+        c1b = cur.index >= self.last_kf_frame + self.cfg.min_frames and idle
+        c1c = inl < ref_matches * 0.25 or need_close
+        c2 = (inl < ref_matches * th_ref or need_close) and inl > 15
+        if (c1a or c1b or c1c) and c2:
+            return idle or self.mapping_queue_size() < 3
+        return False
+
+    def _create_keyframe(self, cur: FrameState) -> None:
+        """New keyframe; close keypoints without a point get one from depth (ORB-SLAM2 RGB-D)."""
+        kf = self._make_keyframe(cur)
+        idx = np.nonzero(cur.depth > 0)[0]
+        idx = idx[np.argsort(cur.depth[idx], kind="stable")]
+        n_points = 0
+        new_idx = []
+        for i in idx:
+            p = cur.points[i]
+            if p is None or p.bad or len(p.observations) == 0:
+                new_idx.append(i)
+            n_points += 1
+            if cur.depth[i] > self.th_depth_m and n_points > 100:
+                break
+        if new_idx:
+            arr = np.asarray(new_idx, np.intp)
+            pos = cur.world_points(arr, self.camera)
+            for i, pw in zip(arr, pos):
+                kf.points[i] = None
+                self._new_point_from_keyframe(kf, cur, int(i), pw)
+        self.map.add_keyframe(kf)
+        self.ref_kf = kf
+        cur.ref_kf = kf
+        self.last_kf_frame = cur.index
+        self.insert_keyframe(kf)
+
+    # ------------------------------------------------------------------ relocalisation
+    def _relocalise(self, cur: FrameState) -> bool:
+        """Bag-of-words candidates, PnP-RANSAC, pose optimisation, guided search (>= 50 inliers)."""
+        from semslam.place.database import detect_relocalisation_candidates
+
+        self._compute_bow(cur)
+        candidates = detect_relocalisation_candidates(self.db, cur.bow)
+        for kf_id in candidates:
+            kf = self.map.keyframes.get(kf_id)
+            if kf is None or kf.bad:
+                continue
+            kf_valid = np.array([p is not None and not p.bad for p in kf.points], bool)
+            ia, ib = search_by_bow(kf.featvec, kf.keypoints.descriptors, cur.featvec or {}, cur.keypoints.descriptors,
+                                   kf_valid, np.ones(len(cur), bool), ratio=0.75)
+            if len(ia) < 15:
+                continue
+            pts = np.array([kf.points[a].pos for a in ia])  # type: ignore[union-attr]
+            cv2.setRNGSeed(self.seed)
+            ok, rvec, tvec, inl = cv2.solvePnPRansac(pts.reshape(-1, 1, 3), cur.xy[ib].reshape(-1, 1, 2), self.camera.K, None,
+                                                     iterationsCount=300, reprojectionError=5.991 ** 0.5 * 2,
+                                                     confidence=0.99, flags=cv2.SOLVEPNP_AP3P)
+            if not ok or inl is None or len(inl) < 10:
+                continue
+            rot, _ = cv2.Rodrigues(rvec)
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = rot, tvec.reshape(3)
+            cur.T_cw = T
+            cur.points = [None] * len(cur)
+            for k in inl.reshape(-1):
+                cur.points[ib[k]] = kf.points[ia[k]]
+            n_good = self._optimize(cur)
+            if n_good < 10:
+                continue
+            self._discard_outliers(cur)
+            if n_good < 50:
+                # Guided search with the candidate's points to gather more matches.
+                self._project_keyframe_points(cur, kf, 10.0)
+                n_good = self._optimize(cur)
+                self._discard_outliers(cur)
+            if n_good >= 50:
+                self.ref_kf = kf
+                cur.ref_kf = kf
+                return True
+        cur.points = [None] * len(cur)
+        cur.T_cw = None
+        return False
+
+    def _project_keyframe_points(self, cur: FrameState, kf: KeyFrame, th: float) -> int:
+        have = {p.id for p in cur.points if p is not None}
+        cand = [p for p in kf.valid_points() if p.id not in have]
+        if not cand or cur.T_cw is None:
+            return 0
+        pos = np.array([p.pos for p in cand])
+        uv, z = project(cur.T_cw, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
+        dist = np.linalg.norm(pos - invert(cur.T_cw)[:3, 3], axis=1)
+        max_d = np.array([p.max_dist for p in cand])
+        ok = self._inside(uv, z)
+        sel = np.nonzero(ok)[0]
+        if len(sel) == 0:
+            return 0
+        ratio = max_d[sel] / np.maximum(dist[sel], 1e-9)
+        level = np.clip(np.ceil(np.log(np.maximum(ratio, 1e-9)) / self.pyr.log_scale), 0, self.pyr.n_levels - 1).astype(np.intp)
+        qi, ti = self._search(cur, uv[sel], th * self.pyr.scales[level], level - 1, level + 1,
+                              np.stack([cand[s].descriptor for s in sel]))
+        for q, t in zip(qi, ti):
+            cur.points[t] = cand[sel[q]]
+        return len(qi)
