@@ -1,0 +1,159 @@
+#!/usr/bin/env python
+"""Benchmark: ORB-SLAM's extractor (``semslam.features.orb_slam``) against
+``cv2.ORB_create(n)`` on 640x480 frames: ms per frame (wall and CPU), per-stage
+breakdown, keypoints per level against ORB-SLAM's formula, spatial uniformity (fraction
+of occupied cells of an 8x6 grid, coefficient of variation of the counts per cell) and
+agreement with the literal per-cell FAST of ORB-SLAM.
+
+    python benchmarks/extractor_timing.py [--repeats 30] [--features 1000] [--cv-threads N] [--json out.json]
+
+Frames: the real ones in ../shared/data (if present) and one rendered synthetic frame.
+Prints a JSON document, then markdown tables. Timings are the median and the minimum
+over ``--repeats`` runs after a warm-up. "CPU" is the main thread's CPU time, which other
+processes on the machine barely affect (unlike wall time; the load average is reported);
+with ``--cv-threads 1`` and ``OPENBLAS_NUM_THREADS=1`` all the work is on the main thread,
+so that CPU time is the whole cost. Numbers come from this run on this machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+
+from semslam.features.orb_slam import OrbSlamExtractor, features_per_level
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+GRID = (8, 6)
+
+
+def load_frames() -> dict[str, np.ndarray]:
+    frames: dict[str, np.ndarray] = {}
+    for sub in ("kinect_rgbd_5frames/color", "images_people"):
+        for p in sorted((SHARED_DATA / sub).glob("*.png")):
+            frames[f"{sub.split('/')[0]}/{p.stem}"] = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+    from semslam.synth import SEQUENCES, Renderer
+
+    rgb = Renderer(SEQUENCES["static_xyz"].replace(frames=5)).render(0).rgb
+    frames["synthetic/static_xyz_0"] = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    return frames
+
+
+def timed(fn: Callable[[], Any], repeats: int) -> dict[str, float]:
+    fn()  # warm-up (buffers, caches)
+    wall, cpu = [], []
+    for _ in range(repeats):
+        w0, c0 = time.perf_counter(), time.thread_time()
+        fn()
+        wall.append(time.perf_counter() - w0)
+        cpu.append(time.thread_time() - c0)
+    return {"wall_ms_median": 1e3 * float(np.median(wall)), "wall_ms_min": 1e3 * float(np.min(wall)),
+            "cpu_ms_median": 1e3 * float(np.median(cpu))}
+
+
+def uniformity(xy: np.ndarray, shape: tuple[int, int]) -> dict[str, float]:
+    """Fraction of occupied cells of an 8x6 grid and the coefficient of variation of the
+    counts per cell (0 = perfectly even)."""
+    nx, ny = GRID
+    h, w = shape
+    cx = np.clip((xy[:, 0] / w * nx).astype(int), 0, nx - 1)
+    cy = np.clip((xy[:, 1] / h * ny).astype(int), 0, ny - 1)
+    counts = np.bincount(cy * nx + cx, minlength=nx * ny)
+    return {"occupied": float(np.mean(counts > 0)), "cv": float(counts.std() / max(counts.mean(), 1e-9))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--features", type=int, default=1000)
+    ap.add_argument("--cv-threads", type=int, default=None, help="cv2.setNumThreads (default: OpenCV's)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the JSON here")
+    args = ap.parse_args(argv)
+    if args.cv_threads is not None:
+        cv2.setNumThreads(args.cv_threads)
+
+    frames = load_frames()
+    ours = OrbSlamExtractor(n_features=args.features)
+    reference = OrbSlamExtractor(n_features=args.features, reference_detection=True)
+    orb = cv2.ORB_create(args.features)  # OpenCV's own defaults otherwise (8 levels, 1.2)
+    wanted = features_per_level(args.features, ours.n_levels, ours.scale_factor)
+    rows = []
+    for name, gray in frames.items():
+        kp = ours.extract(gray)
+        stages: list[dict[str, float]] = []
+
+        def run_ours() -> None:
+            ours.extract(gray)
+            stages.append(dict(ours.last_stage_ms))
+
+        t_ours = timed(run_ours, args.repeats)
+        t_cv = timed(lambda: orb.detectAndCompute(gray, None), args.repeats)
+        cv_kps, _ = orb.detectAndCompute(gray, None)
+        cv_xy = np.array([k.pt for k in cv_kps], np.float32).reshape(-1, 2)
+        ref = reference.extract(gray)
+        a = set(map(tuple, np.c_[kp.xy, kp.octave].tolist()))
+        b = set(map(tuple, np.c_[ref.xy, ref.octave].tolist()))
+        rows.append({
+            "frame": name,
+            "ours": {**t_ours, "n": len(kp), "per_level": np.bincount(kp.octave, minlength=len(wanted)).tolist(),
+                     "stage_ms_median": {k: float(np.median([s[k] for s in stages])) for k in stages[0]},
+                     **uniformity(kp.xy, gray.shape)},
+            "cv2_orb": {**t_cv, "n": len(cv_kps),
+                        "per_level": np.bincount([k.octave for k in cv_kps], minlength=8).tolist(),
+                        **uniformity(cv_xy, gray.shape)},
+            "same_as_per_cell_reference": len(a & b) / max(len(b), 1),
+        })
+
+    doc = {
+        "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count(),
+                    "opencv": cv2.__version__, "opencv_threads": cv2.getNumThreads(),
+                    "openblas_num_threads_env": os.environ.get("OPENBLAS_NUM_THREADS"),
+                    "load_average_1min_at_end": os.getloadavg()[0]},
+        "features": args.features, "repeats": args.repeats,
+        "formula_per_level": wanted.tolist(),
+        "frames": rows,
+    }
+    print(json.dumps(doc, indent=2))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(doc, indent=2))
+
+    print()
+    print(f"ms per frame, median of {args.repeats} (min); load average {doc['machine']['load_average_1min_at_end']:.2f}"
+          f" on {os.cpu_count()} CPUs")
+    print()
+    print("| frame | ours wall ms | ours main-thread CPU ms | cv2.ORB wall ms | cv2.ORB main-thread CPU ms | ours n | cv2 n "
+          "| occupied 8x6 ours / cv2 | CV per cell ours / cv2 | same as per-cell FAST |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        o, c = r["ours"], r["cv2_orb"]
+        print(f"| {r['frame']} | {o['wall_ms_median']:.1f} ({o['wall_ms_min']:.1f}) | {o['cpu_ms_median']:.1f} "
+              f"| {c['wall_ms_median']:.1f} ({c['wall_ms_min']:.1f}) | {c['cpu_ms_median']:.1f} | {o['n']} | {c['n']} "
+              f"| {o['occupied']:.2f} / {c['occupied']:.2f} | {o['cv']:.2f} / {c['cv']:.2f} "
+              f"| {100 * r['same_as_per_cell_reference']:.1f} % |")
+    print()
+    print("| frame | " + " | ".join(f"L{i}" for i in range(len(wanted))) + " | total |")
+    print("|---|" + "---|" * (len(wanted) + 1))
+    print("| formula | " + " | ".join(map(str, wanted.tolist())) + f" | {int(wanted.sum())} |")
+    for r in rows:
+        per = r["ours"]["per_level"]
+        print(f"| {r['frame']} | " + " | ".join(map(str, per)) + f" | {sum(per)} |")
+    print()
+    names = list(rows[0]["ours"]["stage_ms_median"])
+    print("| frame | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(names))
+    for r in rows:
+        print(f"| {r['frame']} | " + " | ".join(f"{r['ours']['stage_ms_median'][k]:.2f}" for k in names) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
