@@ -22,9 +22,9 @@ app = typer.Typer(
 
 
 def _register_commands() -> None:
-    from semslam.cli import eval_cmd, run_cmd, synth_cmd
+    from semslam.cli import eval_cmd, run_cmd, synth_cmd, train_cmd
 
-    for module in (run_cmd, eval_cmd, synth_cmd):
+    for module in (run_cmd, eval_cmd, synth_cmd, train_cmd):
         module.register(app)
 
 

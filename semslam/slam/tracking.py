@@ -404,7 +404,11 @@ class Tracking:
         from semslam.place.database import detect_relocalisation_candidates
 
         self._compute_bow(cur)
-        candidates = detect_relocalisation_candidates(self.db, cur.bow)
+        def covisibles(kf_id: int, n: int) -> list[int]:
+            other = self.map.keyframes.get(kf_id)
+            return [] if other is None else [c.id for c in other.best_covisibles(n)]
+
+        candidates = detect_relocalisation_candidates(self.db, cur.bow, covisibles)
         for kf_id in candidates:
             kf = self.map.keyframes.get(kf_id)
             if kf is None or kf.bad:
