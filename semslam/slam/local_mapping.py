@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.bundle_adjustment import BAProblem, bundle_adjust
+from semslam.backend.bundle_adjustment import BAProblem, BAResult
+from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.features.matching import match_candidates
 from semslam.geometry.camera import PinholeCamera
@@ -79,6 +80,7 @@ class LocalMapping:
         self._thread: threading.Thread | None = None
         self.stats = {"local_ba": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0, "fused": 0}
         self.error: BaseException | None = None
+        self.ba = BundleAdjustmentRunner(use_process=False)
 
     # ---------------------------------------------------------------- thread control
     def start(self) -> None:
@@ -377,7 +379,7 @@ class LocalMapping:
                 return
             problem, obs_ref = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)
             gen = self.map.generation
-        result = bundle_adjust(problem)
+        result: BAResult = self.ba.run(problem)
         with self.map.lock:
             if self.map.generation != gen:
                 return

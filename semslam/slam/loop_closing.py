@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.bundle_adjustment import bundle_adjust
 from semslam.backend.pose_graph import optimize_pose_graph
 from semslam.config import SystemConfig
 from semslam.geometry.alignment import umeyama
@@ -343,7 +342,7 @@ class LoopClosing:
             free, fixed = kfs[1:], kfs[:1]
             problem, _ = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)
             before = {k: k.T_cw.copy() for k in kfs}
-        result = bundle_adjust(problem, remove_outliers=False)
+        result = self.mapper.ba.run(problem, iterations=(10, 0), remove_outliers=False)  # ORB-SLAM GBA: 10 iterations
         with self.map.lock:
             if self.map.generation != gen:
                 log.info("global BA discarded: map corrected meanwhile")

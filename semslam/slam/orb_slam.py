@@ -58,6 +58,9 @@ class OrbSlam:
             self.mapper.on_keyframe_done = self._add_to_database_only
         self.threaded = not config.slam.sequential
         if self.threaded:
+            from semslam.backend.worker import BundleAdjustmentRunner
+
+            self.mapper.ba = BundleAdjustmentRunner(use_process=True)
             if use_mapping:
                 self.mapper.start()
             if use_loops:
@@ -97,6 +100,7 @@ class OrbSlam:
         if self.threaded:
             self.mapper.stop()
             self.closer.stop()
+        self.mapper.ba.close()
 
     def trajectory(self) -> Trajectory:
         stamps, poses = [], []

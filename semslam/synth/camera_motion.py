@@ -51,6 +51,7 @@ def camera_trajectory(
         "rpy": _rpy,
         "halfsphere": _halfsphere,
         "loop": _loop,
+        "room_loop": _room_loop,
     }[motion]
     return fn(t, duration)
 
@@ -175,4 +176,29 @@ def _loop(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
         )
         target = BASE_TARGET + k * 0.9 * np.sin(s[i]) * right + 0.15 * k * (np.cos(s[i]) - 1.0) * up
         poses[i] = look_at(eye, target)
+    return poses
+
+
+#: Centre of the room_loop circle (the middle of the 6 x 5 m room, eye height 1.4 m).
+ROOM_LOOP_CENTER = np.array([3.0, 2.4, 1.4])
+
+
+def _room_loop(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """One full turn on a 0.5 m circle in the middle of the room, looking outward at the
+    walls, ending exactly at the start pose.
+
+    Unlike ``loop`` (which keeps the desk in view), the start is out of view for most of
+    the way, so coming back to it is a real loop closure: tracking cannot rejoin the first
+    keyframes through its local map and drift has accumulated by then.
+    """
+    x = np.clip(t / max(duration - 1e-9, 1e-9), 0.0, 1.0)
+    s = 2 * np.pi * (x - np.sin(2 * np.pi * x) / (2 * np.pi))
+    base_dir = BASE_TARGET - BASE_EYE
+    yaw0 = np.arctan2(base_dir[1], base_dir[0])
+    poses = np.empty((len(t), 4, 4))
+    for i in range(len(t)):
+        yaw = yaw0 + s[i]
+        d = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+        eye = ROOM_LOOP_CENTER + 0.5 * d - 0.5 * np.array([np.cos(yaw0), np.sin(yaw0), 0.0])
+        poses[i] = look_at(eye, eye + 2.0 * d + np.array([0.0, 0.0, -0.35]))
     return poses

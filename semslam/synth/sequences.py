@@ -13,7 +13,7 @@ from typing import Any
 
 from semslam.errors import ConfigError
 
-MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop")
+MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop")
 PEOPLE_MODES = ("walking", "idle")
 
 #: TUM freiburg3 RGB intrinsics at 640x480 (fx, fy, cx, cy); fr3 images are undistorted.
@@ -99,6 +99,8 @@ SEQUENCES: dict[str, SynthConfig] = {
     "sitting_xyz": SynthConfig(motion="xyz", frames=300, people=1, people_mode="idle", seed=6),
     "static_xyz": SynthConfig(motion="xyz", frames=300, people=0, seed=7),
     "loop": SynthConfig(motion="loop", frames=600, people=0, seed=8),
+    # A full turn looking at every wall: ~13 deg/s, the start is out of view for ~300 deg.
+    "room_loop": SynthConfig(motion="room_loop", frames=900, people=0, seed=10),
     "mover_xyz": SynthConfig(motion="xyz", frames=300, people=0, mover=True, seed=9),
 }
 

@@ -1,0 +1,130 @@
+"""The ORB-SLAM2-class core (preset ``orb``) on rendered frames fed straight to System.track:
+accuracy against the exact ground truth, relocalisation after a blackout, map save/load,
+localisation-only tracking in a loaded map, and the threaded mode.
+
+Frames come from the renderer in memory (no disk), 640x480 with Kinect-like depth noise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semslam.config import load_config
+from semslam.eval.metrics import ate
+from semslam.geometry.camera import PinholeCamera
+from semslam.io.sequence import Frame
+from semslam.io.trajectory import Trajectory
+from semslam.slam.map_io import load_map
+from semslam.slam.system import System
+from semslam.slam.types import TrackingState
+from semslam.synth import SEQUENCES, Renderer
+
+N_FRAMES = 90
+
+
+@pytest.fixture(scope="module")
+def rendered() -> tuple[list[Frame], np.ndarray, PinholeCamera]:
+    cfg = SEQUENCES["static_xyz"].replace(frames=N_FRAMES)
+    r = Renderer(cfg)
+    frames = []
+    for i in range(N_FRAMES):
+        f = r.render(i)
+        frames.append(Frame(i, float(r.times[i]), f.rgb, f.depth.astype(np.float32) / 5000.0))
+    return frames, r.poses.copy(), PinholeCamera(*cfg.intrinsics())
+
+
+def _system(camera: PinholeCamera, *overrides: str, map_path: Path | None = None) -> System:
+    return System(load_config("orb", ["slam.sequential=true", *overrides]), camera, map_path)
+
+
+def _ate(traj: Trajectory, gt_poses: np.ndarray, times: np.ndarray) -> float:
+    return ate(Trajectory(times, gt_poses), traj, align="se3").stats["rmse"]
+
+
+def _times(frames: list[Frame]) -> np.ndarray:
+    return np.array([f.timestamp for f in frames])
+
+
+@pytest.mark.slow
+def test_static_accuracy_and_map(rendered: tuple[list[Frame], np.ndarray, PinholeCamera]) -> None:
+    frames, gt, cam = rendered
+    system = _system(cam)
+    states = [system.track(f).state for f in frames]
+    system.shutdown()
+    assert all(s is TrackingState.OK for s in states)
+    stats = system.extra_stats()
+    assert system.n_keyframes >= 3 and stats["map_points"] > 500 and stats["local_ba"] >= 1
+    # Static scene, 3 s: the issue's target for static sequences is <= 1.5 cm.
+    assert _ate(system.trajectory(), gt, _times(frames)) < 0.015
+
+
+@pytest.mark.slow
+def test_relocalisation_after_blackout(rendered: tuple[list[Frame], np.ndarray, PinholeCamera]) -> None:
+    """Ten black frames (lens covered) lose tracking; the next real frame relocalises by
+    bag-of-words + PnP-RANSAC and its pose is right."""
+    frames, gt, cam = rendered
+    system = _system(cam)
+    black = np.zeros_like(frames[0].rgb)
+    results = {}
+    for f in frames[:50]:
+        system.track(f)
+    for k in range(10):
+        r = system.track(Frame(1000 + k, frames[49].timestamp + 0.001 * (k + 1), black, np.zeros_like(frames[0].depth)))
+        assert r.state is not TrackingState.OK
+    for f in frames[62:]:
+        results[f.index] = system.track(f)
+    system.shutdown()
+    assert system.extra_stats()["relocalisations"] >= 1
+    assert results[62].state is TrackingState.OK
+    # Pose right after relocalisation, relative to the first frame's ground truth.
+    est = results[62].pose_wc
+    ref = np.linalg.inv(gt[0]) @ gt[62]
+    assert np.linalg.norm(est[:3, 3] - ref[:3, 3]) < 0.03
+
+
+@pytest.mark.slow
+def test_save_load_and_localisation_only(rendered: tuple[list[Frame], np.ndarray, PinholeCamera], tmp_path: Path) -> None:
+    frames, gt, cam = rendered
+    system = _system(cam)
+    for f in frames[:60]:
+        system.track(f)
+    system.shutdown()
+    path = tmp_path / "map.npz"
+    system.save_map(path)
+    saved = system.tracker.map
+    loaded = load_map(path, system.tracker.tracking.pyr.scales)
+    assert sorted(loaded.keyframes) == sorted(saved.keyframes)
+    for kid, kf in saved.keyframes.items():
+        assert np.allclose(loaded.keyframes[kid].T_cw, kf.T_cw)
+        assert [p.id if p is not None and not p.bad else -1 for p in kf.points] == \
+               [p.id if p is not None else -1 for p in loaded.keyframes[kid].points]
+    assert sorted(loaded.points) == sorted(p.id for p in saved.points.values() if not p.bad)
+    for pid, p in saved.points.items():
+        assert np.allclose(loaded.points[pid].pos, p.pos)
+
+    # Localisation only in the loaded map: relocalise, track, add nothing.
+    loc = _system(cam, "slam.localization_only=true", map_path=path)
+    n_kf = loc.n_keyframes
+    res = [loc.track(f) for f in frames[60:]]
+    loc.shutdown()
+    assert loc.n_keyframes == n_kf
+    assert loc.extra_stats()["relocalisations"] >= 1
+    ok = [r for r in res if r.state is TrackingState.OK]
+    assert len(ok) >= 0.9 * len(res)
+    # Poses in the loaded map's frame (the first frame of the mapping run).
+    errs = [np.linalg.norm(r.pose_wc[:3, 3] - (np.linalg.inv(gt[0]) @ gt[60 + k])[:3, 3]) for k, r in enumerate(res) if r.state is TrackingState.OK]
+    assert np.median(errs) < 0.02
+
+
+@pytest.mark.slow
+def test_threaded_mode_matches_sequential_accuracy(rendered: tuple[list[Frame], np.ndarray, PinholeCamera]) -> None:
+    frames, gt, cam = rendered
+    system = System(load_config("orb"), cam)  # threads + BA worker process
+    for f in frames[:60]:
+        system.track(f)
+    system.shutdown()
+    assert system.extra_stats()["threaded"] is True
+    assert _ate(system.trajectory(), gt[:60], _times(frames[:60])) < 0.015
