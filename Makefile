@@ -30,7 +30,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/synthetic.py
+	$(BIN)/python benchmarks/synthetic.py --presets f2kf,orb --variant "orb-noloop:orb:slam.loop_closing=false" --json out/bench/results.json
 
 clean:
 	rm -rf $(VENV) out

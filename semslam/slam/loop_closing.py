@@ -156,6 +156,7 @@ class LoopClosing:
                 return [] if other is None else [c.id for c in other.best_covisibles(n)]
 
             cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, covisibles)
+            log.debug("kf %d: min_score %.3f, loop candidates %s", kf.id, min_score, cand_ids)
             candidates = [self.map.keyframes[i] for i in cand_ids if i in self.map.keyframes]
             # Consistency: a candidate's covisibility group must connect with groups that
             # were candidates for the previous keyframes (ORB-SLAM DetectLoop, 3 in a row).
@@ -174,6 +175,7 @@ class LoopClosing:
                 if best >= self.cfg.loop_consistency and c not in enough:
                     enough.append(c)
             self.consistent_groups = new_groups
+            log.debug("kf %d: consistent candidates %s", kf.id, [c.id for c in enough])
             for c in enough:
                 res = self._compute_se3(kf, c)
                 if res is not None:
@@ -186,6 +188,7 @@ class LoopClosing:
         i1, i2 = search_by_bow(kf.featvec, kf.keypoints.descriptors, cand.featvec, cand.keypoints.descriptors,
                                valid1, valid2, ratio=0.75)
         if len(i1) < 20:
+            log.debug("kf %d vs %d: %d BoW matches", kf.id, cand.id, len(i1))
             return None
         p1 = np.array([kf.points[i].pos for i in i1])  # type: ignore[union-attr]
         p2 = np.array([cand.points[i].pos for i in i2])  # type: ignore[union-attr]
@@ -194,6 +197,7 @@ class LoopClosing:
         T12, inl = ransac_se3(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
                               self.pyr.inv_sigma2[cand.keypoints.octave[i2]], self.camera, self.rng)
         if T12 is None:
+            log.debug("kf %d vs %d: SE3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(i1), int(inl.sum()))
             return None
         T_cw_corr = T12 @ cand.T_cw
         # Verify: project the loop keyframe's neighbourhood into the current keyframe.
@@ -216,6 +220,7 @@ class LoopClosing:
                                       np.stack([pts[s].descriptor for s in sel]), kf.xy, kf.keypoints.octave,
                                       kf.keypoints.descriptors, np.ones(len(kf.points), bool), kf.tree(), TH_HIGH, 0.9)
         n_matched = int(inl.sum()) + len(qi)
+        log.debug("kf %d vs %d: %d SE3 inliers, %d projected matches", kf.id, cand.id, int(inl.sum()), len(qi))
         if len(qi) < self.cfg.loop_min_matches and n_matched < self.cfg.loop_min_matches:
             return None
         return cand, T12, {int(t): pts[sel[q]] for q, t in zip(qi, ti)}

@@ -181,18 +181,19 @@ def _loop(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
 
 #: Centre of the room_loop circle (the middle of the 6 x 5 m room, eye height 1.4 m).
 ROOM_LOOP_CENTER = np.array([3.0, 2.4, 1.4])
+ROOM_LOOP_TURNS = 1.25
 
 
 def _room_loop(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
-    """One full turn on a 0.5 m circle in the middle of the room, looking outward at the
-    walls, ending exactly at the start pose.
+    """1.25 turns on a 0.5 m circle in the middle of the room, looking outward at the walls.
 
     Unlike ``loop`` (which keeps the desk in view), the start is out of view for most of
     the way, so coming back to it is a real loop closure: tracking cannot rejoin the first
-    keyframes through its local map and drift has accumulated by then.
+    keyframes through its local map and drift has accumulated by then. The last quarter
+    turn revisits the start area, as a loop detector needs several keyframes there.
     """
     x = np.clip(t / max(duration - 1e-9, 1e-9), 0.0, 1.0)
-    s = 2 * np.pi * (x - np.sin(2 * np.pi * x) / (2 * np.pi))
+    s = ROOM_LOOP_TURNS * 2 * np.pi * (x - np.sin(2 * np.pi * x) / (2 * np.pi))
     base_dir = BASE_TARGET - BASE_EYE
     yaw0 = np.arctan2(base_dir[1], base_dir[0])
     poses = np.empty((len(t), 4, 4))

@@ -99,8 +99,8 @@ SEQUENCES: dict[str, SynthConfig] = {
     "sitting_xyz": SynthConfig(motion="xyz", frames=300, people=1, people_mode="idle", seed=6),
     "static_xyz": SynthConfig(motion="xyz", frames=300, people=0, seed=7),
     "loop": SynthConfig(motion="loop", frames=600, people=0, seed=8),
-    # A full turn looking at every wall: ~13 deg/s, the start is out of view for ~300 deg.
-    "room_loop": SynthConfig(motion="room_loop", frames=900, people=0, seed=10),
+    # 1.25 turns looking at every wall (~15 deg/s): the start is out of view for ~300 deg.
+    "room_loop": SynthConfig(motion="room_loop", frames=1080, people=0, seed=10),
     "mover_xyz": SynthConfig(motion="xyz", frames=300, people=0, mover=True, seed=9),
 }
 
