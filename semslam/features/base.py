@@ -56,6 +56,7 @@ def register_extractor(name: str) -> Callable[[Callable[[FeatureConfig], Extract
 def create_extractor(cfg: FeatureConfig) -> Extractor:
     import semslam.features.orb_opencv  # noqa: F401  (each backend registers itself)
     import semslam.features.orb_slam  # noqa: F401
+    import semslam.features.qtree_orb  # noqa: F401
 
     if cfg.extractor not in _REGISTRY:
         raise ConfigError(f"features.extractor: unknown extractor {cfg.extractor!r} (known: {', '.join(sorted(_REGISTRY))})")

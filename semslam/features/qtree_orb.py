@@ -1,0 +1,571 @@
+"""STDC-SLAM's improved Qtree-ORB extractor (Hu et al., "STDC-SLAM", IEEE Access 2023,
+section III.C): ORB-SLAM's extractor with (1) a pyramid whose depth follows the image
+size and per-level budgets proportional to level *area*, (2) a two-threshold FAST
+detection that only falls back to the low threshold when the high one cannot fill the
+level's budget, (3) a quadtree that only splits nodes holding a high-quality point and
+(4) Harris instead of the FAST score to pick each node's point.
+
+Why: ORB-SLAM's quadtree spreads the points so evenly that it keeps many weak (low
+threshold) corners in texture-poor cells; the paper trades a little uniformity for more
+strong corners (its Table 2: 155 -> 183 high, 63 -> 35 low of ~218 per frame).
+
+What is reused (imported, not copied): the stacked pyramid (``pyramid.build_pyramid``,
+``level_mask``), FAST wrapper and ORB-SLAM's cell grid (``orb_slam._fast``,
+``orb_slam._cell_grid``, ``orb_slam._detection_region``), the leaf bookkeeping of the
+vectorised quadtree (``quadtree._Leaves``, ``_split``, ``_best_per_leaf``), IC angle and
+steered rBRIEF (``orb_slam.ic_angles``, ``orb_slam.orb_descriptors``).
+
+The paper's equations and how ``s`` relates to ORB-SLAM's ``scale_factor``:
+- eq. 2: ``M = Round(max(W, H) / 100)`` levels (6 at 640x480, 12 at 1241x376);
+- eq. 3-5: level ``i`` has area ``HW (s^2)^i``, so ``s`` is the *linear* size ratio of
+  consecutive levels, ``s = 1 / scale_factor`` (0.833 for ORB-SLAM's 1.2) and ``s^2 =
+  1 / 1.44`` is the area ratio; ``N_i = N (1 - s^2) / (1 - (s^2)^M) (s^2)^i`` is a
+  geometric series summing to ``N`` (1000, 6 levels, 1.2 -> 344 239 166 115 80 56).
+  ORB-SLAM instead uses the linear ratio ``1/s`` per level (217 181 ... 60 for 8
+  levels), i.e. budgets per unit *length*; ``budget="orb_slam"`` selects that.
+
+Choices where the paper is vague (all commented where they are made):
+- Algorithm 2 regions are ORB-SLAM's ~30 px FAST cells; as in our ORB-SLAM port FAST
+  runs once per level on the whole detection region and points are assigned to the
+  cells (non-max suppression can see across cell boundaries). The low-threshold pass is
+  one FAST call at ``T_L`` on the region; its points with score >= ``T_H`` are exactly
+  the high pass's points (OpenCV's FAST score does not depend on the threshold and a
+  pixel is a corner at ``t`` iff its score >= ``t``; checked in the tests), the others
+  form ``P^L``. Algorithm 2 inserts ``P^L_j`` cell by cell in raster order and stops
+  as soon as ``|P^H| + |P^L| >= N_i`` (lines 8-16): we keep exactly those cells' low
+  points (literal; it favours the top of the level). Text and Algorithm 2 line 7
+  disagree on ``N^H == N_i`` (text: done, code: ``<=`` runs the low pass); we follow
+  the text.
+- Algorithm 3 stops when nodes > ``N_i^T`` (``while N^n <= N_i^T``) and has no way to
+  stop when nothing can split; we stop at nodes >= ``N_i`` (ORB-SLAM's rule, so both
+  extractors aim at the same count) or when no node can split. A full pass can
+  overshoot ``N_i`` up to 4x; the paper says nothing, its Table 2 shows the same T as
+  ORB-SLAM, so we keep ORB-SLAM's last phase: when the next pass could overshoot, split
+  the splittable nodes with the most points first, one at a time, until ``N_i`` (may
+  overshoot by <= 3). A node of 1x1 px is never split (it cannot separate points).
+- Harris: OpenCV ORB's ``HarrisResponses`` (7x7 block of 3x3 Sobel gradients,
+  k = 0.04, same scaling) on the level image, evaluated at the candidate points only
+  (one small matmul per chunk; ``cv2.cornerHarris`` over all levels costs ~15 ms).
+- Quality of a kept point: high iff its FAST score >= ``T_H`` (i.e. it is in ``P^H``).
+  The same rule classifies ORB-SLAM's keypoints (their response is the FAST score),
+  see ``fast_quality``.
+
+Consequences worth knowing: on textured 640x480 frames every level has ``|P^H| >= N_i``,
+so the low pass never runs and no low-quality point is kept; on texture-poor frames a
+level can end with fewer than ``N_i`` points, because nodes holding only low-quality
+points are never split (one point each). With eq. 2 the number of levels depends on
+the image size (6 at 640x480, 12 at 1241x376), so whatever sizes per-level tables from
+``FeatureConfig.n_levels`` must use ``levels_for`` instead (or turn eq. 2 off).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.config import FeatureConfig
+from semslam.features.base import Keypoints, register_extractor
+from semslam.features.orb_slam import (
+    _BORDER,
+    Scratch,
+    _cell_grid,
+    _detection_region,
+    _fast,
+    ic_angles,
+    orb_descriptors,
+)
+from semslam.features.pyramid import build_pyramid, features_per_level, level_mask, scale_factors
+from semslam.features.quadtree import _best_per_leaf, _Leaves, _split
+
+__all__ = [
+    "Detection", "QtreeOrbCounts", "QtreeOrbExtractor", "detect_two_thresholds", "distribute_improved_quadtree",
+    "distribution_uniformity", "fast_quality", "harris_responses", "levels_for_image", "paper_features_per_level",
+]
+
+PIXELS_PER_LEVEL = 100  # eq. 2's divisor
+_STAGES = ("pyramid", "fast", "harris", "quadtree", "orientation", "blur", "descriptors")
+
+
+# --------------------------------------------------------------------------- eq. 2-5
+
+def levels_for_image(width: int, height: int) -> int:
+    """Eq. 2: ``M = Round(max(W, H) / 100)`` (round half up), at least 1."""
+    return max(1, int(math.floor(max(width, height) / PIXELS_PER_LEVEL + 0.5)))
+
+
+def paper_features_per_level(n_features: int, n_levels: int, scale_factor: float) -> NDArray[np.int64]:
+    """Eq. 5: ``N_i = N (1 - s^2) / (1 - (s^2)^M) (s^2)^i`` with ``s = 1 / scale_factor``,
+    rounded half to even, the remainder going to the last level so the sum is exactly
+    ``N`` (as ORB-SLAM does with its own formula). Decreasing for ``scale_factor > 1``."""
+    if n_levels < 1:
+        raise ValueError("n_levels must be >= 1")
+    if n_levels == 1:
+        return np.array([n_features], np.int64)
+    q = 1.0 / float(scale_factor) ** 2  # s^2: area ratio of consecutive levels
+    exact = n_features * (1.0 - q) / (1.0 - q**n_levels) * q ** np.arange(n_levels)
+    counts = np.rint(exact).astype(np.int64)
+    counts[-1] = max(n_features - int(counts[:-1].sum()), 0)
+    return counts
+
+
+# --------------------------------------------------------------------------- Harris
+
+def _harris_kernel() -> NDArray[np.float32]:
+    """(81, 98) matrix mapping a 9x9 patch (row-major) to the 7x7 Sobel x then y
+    gradients around its centre (OpenCV ORB ``HarrisResponses``' dx, dy)."""
+    k = np.zeros((9, 9, 2, 7, 7), np.float32)
+    for i in range(7):
+        for j in range(7):
+            for d, w in ((-1, 1.0), (0, 2.0), (1, 1.0)):
+                k[i + 1 + d, j + 2, 0, i, j] += w  # dx: right column minus left column
+                k[i + 1 + d, j, 0, i, j] -= w
+                k[i + 2, j + 1 + d, 1, i, j] += w  # dy: bottom row minus top row
+                k[i, j + 1 + d, 1, i, j] -= w
+    return k.reshape(81, 98)
+
+
+_HARRIS_KERNEL = _harris_kernel()
+_HARRIS_CHUNK = 512
+
+
+def harris_responses(image: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.integer],
+                     k: float = 0.04, scratch: Scratch | None = None) -> NDArray[np.float64]:
+    """OpenCV ORB's ``HarrisResponses`` (block 7) at integer pixels at least 4 px from
+    the border: ``(a b - c^2 - k (a + b)^2) / (4 * 7 * 255)^4`` with a, b, c the sums of
+    dx^2, dy^2, dx dy of 3x3 Sobel gradients over the 7x7 block.
+
+    Vectorised: the 9x9 windows are copied in chunks and turned into both gradient
+    blocks by one float32 matmul (exact: integers < 2^24); per point, not per pixel,
+    because the candidates cover a few thousand of the pyramid's ~1.2 M pixels."""
+    n = len(x)
+    if n == 0:
+        return np.zeros(0, np.float64)
+    scratch = scratch or Scratch()
+    windows = np.lib.stride_tricks.sliding_window_view(image, (9, 9))
+    wy = np.asarray(y, np.intp) - 4
+    wx = np.asarray(x, np.intp) - 4
+    pbuf = scratch.get("h_p", (_HARRIS_CHUNK, 81), np.float32)
+    gbuf = scratch.get("h_g", (_HARRIS_CHUNK, 98), np.float32)
+    abc = np.empty((n, 3), np.float64)
+    for i in range(0, n, _HARRIS_CHUNK):
+        j = min(i + _HARRIS_CHUNK, n)
+        p, g = pbuf[: j - i], gbuf[: j - i]
+        np.copyto(p, windows[wy[i:j], wx[i:j]].reshape(j - i, 81))
+        np.matmul(p, _HARRIS_KERNEL, out=g)
+        gx, gy = g[:, :49], g[:, 49:]
+        abc[i:j, 0] = np.einsum("ij,ij->i", gx, gx)
+        abc[i:j, 1] = np.einsum("ij,ij->i", gy, gy)
+        abc[i:j, 2] = np.einsum("ij,ij->i", gx, gy)
+    a, b, c = abc[:, 0], abc[:, 1], abc[:, 2]
+    scale = 1.0 / (4.0 * 7.0 * 255.0)
+    return (a * b - c * c - k * (a + b) ** 2) * scale**4
+
+
+# --------------------------------------------------------------------------- Algorithm 2
+
+@dataclass
+class Detection:
+    """Candidates of all levels, level by level in ORB-SLAM's order (cell by cell,
+    row-major inside a cell): x, y in each level's distribution frame (level pixels -
+    EDGE_THRESHOLD + 3), FAST score, quality (True = in ``P^H``) and level; per level
+    ``|P^H|`` and ``|P^L|`` (the low points actually inserted)."""
+
+    x: NDArray[np.int64]
+    y: NDArray[np.int64]
+    score: NDArray[np.float32]
+    high: NDArray[np.bool_]
+    level: NDArray[np.int64]
+    n_high: NDArray[np.int64]
+    n_low: NDArray[np.int64]
+
+
+def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.integer],
+                          fast_hi: cv2.FastFeatureDetector, fast_lo: cv2.FastFeatureDetector,
+                          masks: list[NDArray[np.uint8] | None] | None = None) -> Detection:
+    """Algorithm 2 on every level: ``P^H`` = FAST at ``T_H`` (``fast_hi``) on all cells;
+    if ``|P^H| < N_i``, insert the cells' low points (FAST at ``T_L``, score < ``T_H``)
+    cell by cell in raster order until ``|P^H| + |P^L| >= N_i``. Levels must all have a
+    detection region. See the module doc for the choices."""
+    t_high = np.float32(fast_hi.getThreshold())
+    xs, ys, ss, hs, cells = [], [], [], [], []
+    n_high = np.zeros(len(images), np.int64)
+    n_low = np.zeros(len(images), np.int64)
+    level_first_cell = []
+    cell_base = 0
+    for level, image in enumerate(images):
+        region = _detection_region(image)
+        assert region is not None, "levels without a detection region must be left out"
+        width, height = region
+        crop = image[_BORDER:_BORDER + height, _BORDER:_BORDER + width]
+        mask = None if masks is None else masks[level]
+        cmask = None if mask is None else mask[_BORDER:_BORDER + height, _BORDER:_BORDER + width]
+        grid = _cell_grid(width, height)
+        x, y, s = _fast(fast_hi, crop, cmask)
+        n_high[level] = len(x)
+        xs.append(x)
+        ys.append(y)
+        ss.append(s)
+        hs.append(np.ones(len(x), bool))
+        cells.append(grid.cell_of(x, y) + cell_base)
+        deficit = int(n_wanted[level]) - len(x)
+        if deficit > 0:
+            lx, ly, ls = _fast(fast_lo, crop, cmask)
+            low = ls < t_high  # the others are exactly P^H again
+            lx, ly, ls = lx[low], ly[low], ls[low]
+            lcell = grid.cell_of(lx, ly)
+            per_cell = np.bincount(lcell, minlength=grid.n_cells)
+            # Cell j is inserted iff the check after cell j-1 had not reached N_i.
+            before = np.cumsum(per_cell) - per_cell
+            take = (before < deficit)[lcell]
+            n_low[level] = int(take.sum())
+            xs.append(lx[take])
+            ys.append(ly[take])
+            ss.append(ls[take])
+            hs.append(np.zeros(int(take.sum()), bool))
+            cells.append(lcell[take] + cell_base)
+        level_first_cell.append(cell_base)
+        cell_base += grid.n_cells
+    x, y, score = np.concatenate(xs), np.concatenate(ys), np.concatenate(ss)
+    high, cell = np.concatenate(hs), np.concatenate(cells)
+    # ORB-SLAM's order, (cell, y, x) as one integer key; cells are numbered level by level.
+    side = np.int64(max(max(im.shape) for im in images))
+    order = np.argsort((cell * side + y) * side + x, kind="stable")
+    cell = cell[order]
+    level = np.searchsorted(np.array(level_first_cell), cell, side="right") - 1
+    return Detection(x[order], y[order], score[order], high[order], level.astype(np.int64), n_high, n_low)
+
+
+# --------------------------------------------------------------------------- Algorithm 3
+
+_MAIN, _FINE, _DONE = 0, 1, 2
+_MAX_ROUNDS = 256  # safety net only: every split shrinks a node, so depth is ~log2(size)
+
+
+def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
+                                 high: NDArray[np.bool_], level: NDArray[np.integer], widths: NDArray[np.integer],
+                                 heights: NDArray[np.integer], n_wanted: NDArray[np.integer]
+                                 ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
+    """Algorithm 3 for all levels at once: the indices (sorted) of the kept points and
+    every point's final leaf (-1 for levels with ``n_wanted <= 0``, which keep nothing).
+
+    Same frame, initial nodes, split lines, ORB-SLAM-style last phase and tie rule
+    (first in input order) as ``quadtree.distribute_quadtree_leaves``; the differences:
+    a node is split only if it holds > 1 points *and* >= 1 high-quality point and is
+    larger than 1x1 px; the level stops at ``n_wanted`` nodes or when no node can split
+    (instead of ORB-SLAM's "a pass changed nothing"); ``response`` is Harris."""
+    x_in = np.asarray(x)
+    y_in = np.asarray(y)
+    level_in = np.asarray(level, np.int64)
+    widths = np.asarray(widths, np.int64)
+    heights = np.asarray(heights, np.int64)
+    n_wanted = np.asarray(n_wanted, np.int64)
+    n_levels = len(n_wanted)
+    leaf_all = np.full(len(x_in), -1, np.int64)
+    idx = np.flatnonzero(n_wanted[level_in] > 0) if len(x_in) else np.zeros(0, np.intp)
+    if len(idx) == 0:
+        return np.zeros(0, np.intp), leaf_all
+    lv = level_in[idx]
+    resp = np.asarray(response, np.float64)[idx]
+    hi_idx = np.flatnonzero(np.asarray(high, bool)[idx])
+    px = np.floor(x_in[idx]).astype(np.int64)
+    py = np.floor(y_in[idx]).astype(np.int64)
+
+    # Initial nodes as ORB-SLAM: round(W/H) vertical strips, bounds int(hX i), float32.
+    n_ini = np.maximum(1, np.floor(widths / np.maximum(heights, 1) + 0.5).astype(np.int64))
+    hx = widths.astype(np.float32) / n_ini.astype(np.float32)
+    first = np.concatenate([[0], np.cumsum(n_ini)])
+    strip_level = np.repeat(np.arange(n_levels), n_ini)
+    strip_i = (np.arange(first[-1]) - first[strip_level]).astype(np.float32)
+    strip_x0 = (strip_i * hx[strip_level]).astype(np.int64)
+    strip_x1 = ((strip_i + 1) * hx[strip_level]).astype(np.int64)
+    strip = np.minimum((px.astype(np.float32) / hx[lv]).astype(np.int64), n_ini[lv] - 1) + first[lv]
+    counts = np.bincount(strip, minlength=first[-1])
+    nonempty = np.flatnonzero(counts)  # Algorithm 3 case 2: empty nodes are dropped
+    remap = np.full(first[-1], -1, np.int64)
+    remap[nonempty] = np.arange(len(nonempty))
+    node_of = remap[strip]
+    sl = strip_level[nonempty]
+    # n_old = 0: the initial nodes count as "just made", so the state update below can
+    # send a level straight to the last phase (ORB-SLAM always runs one full pass first;
+    # the results differ only for budgets below ~4 nodes per strip).
+    leaves = _Leaves(strip_x0[nonempty], np.zeros(len(nonempty), np.int64), strip_x1[nonempty], heights[sl],
+                     counts[nonempty], sl, 0)
+
+    def splittable(lv_: _Leaves, high_count: NDArray[np.int64]) -> NDArray[np.bool_]:
+        # Algorithm 3 case 1 (> 1 points and >= 1 high-quality point); a 1x1 node holds
+        # at most one distinct pixel, so refusing it only guards against duplicates.
+        return (lv_.count > 1) & (high_count > 0) & ((lv_.x1 - lv_.x0 > 1) | (lv_.y1 - lv_.y0 > 1))
+
+    state = np.full(n_levels, _MAIN, np.int64)
+    state[np.bincount(lv, minlength=n_levels) == 0] = _DONE
+    leaf_high = np.bincount(node_of[hi_idx], minlength=len(leaves))
+    can = splittable(leaves, leaf_high)
+    prev = np.zeros(n_levels, np.int64)
+    for _ in range(_MAX_ROUNDS):
+        # State update after the initial nodes / the last round: stop at n_wanted nodes
+        # or when nothing can split (splittable leaves are always ones made by the last
+        # round: the others were split or cannot be); go to the last phase when a full
+        # pass could overshoot.
+        now = np.bincount(leaves.level, minlength=n_levels)
+        n_expandable = np.bincount(leaves.level[leaves.n_old:][can[leaves.n_old:]], minlength=n_levels)
+        stop = (now >= n_wanted) | (n_expandable == 0)
+        to_fine = (state == _MAIN) & ~stop & (now + 3 * n_expandable > n_wanted)
+        state[stop] = _DONE
+        state[to_fine] = _FINE
+        prev = now
+        if (state == _DONE).all():
+            break
+        n = len(leaves)
+        lstate = state[leaves.level]
+        which = can & (lstate == _MAIN)
+        fine_cand = can & (lstate == _FINE)
+        fine_cand[:leaves.n_old] = False
+        pts = np.flatnonzero((which | fine_cand)[node_of])
+        parent = node_of[pts]
+        midx = (leaves.x0 + leaves.x1 + 1) >> 1  # ORB-SLAM: UL + ceil((UR - UL) / 2)
+        midy = (leaves.y0 + leaves.y1 + 1) >> 1
+        key = 4 * parent + (px[pts] >= midx[parent]) + 2 * (py[pts] >= midy[parent])
+        fine = np.flatnonzero(fine_cand)
+        if len(fine):
+            # Largest first (ties: raster order of the top-left corner); a candidate is
+            # split iff its level had fewer than n_wanted nodes before it (ORB-SLAM's
+            # one-at-a-time loop with its break), as in quadtree.py.
+            n_quarters = np.count_nonzero(np.bincount(key, minlength=4 * n).reshape(n, 4), axis=1)
+            flv = leaves.level[fine]
+            big = np.int64(max(int(heights.max()), int(widths.max())) + 1)
+            sort_key = ((flv * (len(px) + 1) - leaves.count[fine]) * big + leaves.y0[fine]) * big + leaves.x0[fine]
+            s = np.argsort(sort_key)
+            order, flv = fine[s], flv[s]
+            gain = n_quarters[order] - 1
+            cum = np.cumsum(gain)
+            seg_start = np.ones(len(order), bool)
+            seg_start[1:] = flv[1:] != flv[:-1]
+            base = np.maximum.accumulate(np.where(seg_start, np.arange(len(order)), 0))
+            cum_excl = cum - gain - (cum[base] - gain[base])
+            which[order[prev[flv] + cum_excl < n_wanted[flv]]] = True
+            moving = which[parent]
+            pts, key = pts[moving], key[moving]
+        leaves, node_of = _split(leaves, node_of, pts, key, which, midx, midy)
+        leaf_high = np.bincount(node_of[hi_idx], minlength=len(leaves))
+        can = splittable(leaves, leaf_high)
+
+    keep = _best_per_leaf(node_of, resp, len(leaves))
+    leaf_all[idx] = node_of
+    return idx[keep], leaf_all
+
+
+# --------------------------------------------------------------------------- metrics
+
+def fast_quality(keypoints: Keypoints, fast_threshold: int = 20) -> NDArray[np.bool_]:
+    """High-quality flag of keypoints whose ``response`` is the FAST score (ORB-SLAM's
+    extractor): score >= ``T_H``. Same rule as ``QtreeOrbExtractor.last_quality``."""
+    return np.asarray(keypoints.response) >= fast_threshold
+
+
+def distribution_uniformity(xy: NDArray[np.floating], width: int, height: int) -> float:
+    """Uniformity ``U`` of a point set (larger = less uniform).
+
+    STDC-SLAM cites Yao et al. 2020 (Comput. Eng. Des. 41(6)) for it; that paper was not
+    available, so this is the measure commonly used in that literature: split the image
+    in 5 ways into two parts of equal area -- left/right, top/bottom, either side of each
+    image diagonal, and a centred rectangle of sides ``W/sqrt(2)`` x ``H/sqrt(2)``
+    (half the area) against the rest -- count the points in the 10 parts and return the
+    population variance of the 10 counts. Uniformly random points give about ``T/4``;
+    a point exactly on a dividing line goes to the right / bottom / outer part."""
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    if len(xy) == 0:
+        return 0.0
+    u, v = xy[:, 0] / width, xy[:, 1] / height  # normalised so every split halves the area
+    c = 0.5 / math.sqrt(2.0)
+    parts = [
+        u < 0.5,                                  # vertical line
+        v < 0.5,                                  # horizontal line
+        v < u,                                    # main diagonal (top-left to bottom-right)
+        u + v < 1.0,                              # anti-diagonal
+        (np.abs(u - 0.5) < c) & (np.abs(v - 0.5) < c),  # centre vs periphery
+    ]
+    n = len(xy)
+    counts = np.array([[int(p.sum()), n - int(p.sum())] for p in parts], np.float64).reshape(-1)
+    return float(counts.var())
+
+
+# --------------------------------------------------------------------------- extractor
+
+@dataclass
+class QtreeOrbCounts:
+    """Per-level numbers of the last frame: budget ``N_i``, detected ``|P^H|`` and
+    inserted ``|P^L|``, and the kept high / low points; ``H``, ``L``, ``T`` are the
+    frame totals of kept points (the paper's Table 2 columns)."""
+
+    n_wanted: list[int] = field(default_factory=list)
+    detected_high: list[int] = field(default_factory=list)
+    detected_low: list[int] = field(default_factory=list)
+    kept_high: list[int] = field(default_factory=list)
+    kept_low: list[int] = field(default_factory=list)
+
+    @property
+    def H(self) -> int:  # noqa: N802  (the paper's names)
+        return int(sum(self.kept_high))
+
+    @property
+    def L(self) -> int:  # noqa: N802
+        return int(sum(self.kept_low))
+
+    @property
+    def T(self) -> int:  # noqa: N802
+        return self.H + self.L
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"n_wanted": self.n_wanted, "detected_high": self.detected_high, "detected_low": self.detected_low,
+                "kept_high": self.kept_high, "kept_low": self.kept_low, "H": self.H, "L": self.L, "T": self.T}
+
+
+class QtreeOrbExtractor:
+    """STDC-SLAM's improved Qtree-ORB (defaults: 1000 features, scale 1.2, FAST 20/7,
+    ``M`` levels from eq. 2, budgets from eq. 5).
+
+    ``extract(gray, mask)`` returns ``Keypoints`` like ``OrbSlamExtractor``: level by
+    level, positions in level-0 px (``level px * scale_factor^level``), ``octave`` =
+    level, ``response`` = Harris, IC angle in degrees, 32-byte steered rBRIEF. ``mask``
+    (0 = forbidden) drops keypoints before Algorithms 2 and 3, so they neither count for
+    the budget nor reach the quadtree.
+
+    After each call: ``last_quality`` (bool per returned keypoint, True = high quality,
+    i.e. FAST score >= ``T_H``), ``last_fast_score`` (float32 per keypoint),
+    ``last_counts`` (``QtreeOrbCounts``), ``last_stage_ms``.
+
+    ``levels_from_image_size=False`` uses ``n_levels`` instead of eq. 2;
+    ``budget="orb_slam"`` uses ORB-SLAM's per-level budgets instead of eq. 5."""
+
+    def __init__(self, n_features: int = 1000, scale_factor: float = 1.2, n_levels: int = 8,
+                 fast_threshold: int = 20, fast_min_threshold: int = 7, levels_from_image_size: bool = True,
+                 budget: Literal["paper", "orb_slam"] = "paper") -> None:
+        if n_levels < 1 or scale_factor <= 1.0 or n_features < 0:
+            raise ValueError("need n_levels >= 1, scale_factor > 1 and n_features >= 0")
+        if not 0 < fast_min_threshold <= fast_threshold:
+            raise ValueError("need 0 < fast_min_threshold <= fast_threshold")
+        if budget not in ("paper", "orb_slam"):
+            raise ValueError(f"budget must be 'paper' or 'orb_slam', got {budget!r}")
+        self.n_features = int(n_features)
+        self.scale_factor = float(scale_factor)
+        self.n_levels = int(n_levels)
+        self.fast_threshold = int(fast_threshold)
+        self.fast_min_threshold = int(fast_min_threshold)
+        self.levels_from_image_size = bool(levels_from_image_size)
+        self.budget = budget
+        self._fast_hi = cv2.FastFeatureDetector_create(self.fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        self._fast_lo = cv2.FastFeatureDetector_create(self.fast_min_threshold, True,
+                                                       cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        self._scratch = Scratch()
+        self._pyramid_buffer: NDArray[np.uint8] | None = None
+        self._blur_buffer: NDArray[np.uint8] | None = None
+        self.last_quality: NDArray[np.bool_] = np.zeros(0, bool)
+        self.last_fast_score: NDArray[np.float32] = np.zeros(0, np.float32)
+        self.last_counts = QtreeOrbCounts()
+        self.last_stage_ms: dict[str, float] = {}
+
+    def levels_for(self, width: int, height: int) -> int:
+        """Number of pyramid levels for an image (eq. 2, or ``n_levels``)."""
+        return levels_for_image(width, height) if self.levels_from_image_size else self.n_levels
+
+    def features_per_level(self, width: int, height: int) -> NDArray[np.int64]:
+        """The per-level budgets ``N_i`` for an image (eq. 5, or ORB-SLAM's)."""
+        m = self.levels_for(width, height)
+        if self.budget == "paper":
+            return paper_features_per_level(self.n_features, m, self.scale_factor)
+        return features_per_level(self.n_features, m, self.scale_factor)
+
+    def _reset(self) -> Keypoints:
+        self.last_quality = np.zeros(0, bool)
+        self.last_fast_score = np.zeros(0, np.float32)
+        self.last_counts = QtreeOrbCounts()
+        return Keypoints.empty()
+
+    def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
+        gray = np.asarray(gray)
+        if gray.ndim == 3:
+            gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY if gray.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+        if gray.dtype != np.uint8 or gray.ndim != 2:
+            raise ValueError(f"expected a uint8 grey image, got {gray.dtype} {gray.shape}")
+        if mask is not None:
+            mask = np.asarray(mask)
+            if mask.shape != gray.shape:
+                raise ValueError(f"mask shape {mask.shape} differs from the image's {gray.shape}")
+            mask = np.ascontiguousarray(mask) if mask.dtype == np.uint8 else (mask != 0).view(np.uint8)
+        if gray.size == 0 or self.n_features == 0:
+            return self._reset()
+
+        clock = [time.perf_counter()]
+        n_levels = self.levels_for(gray.shape[1], gray.shape[0])
+        wanted_all = self.features_per_level(gray.shape[1], gray.shape[0])
+        pyr = build_pyramid(gray, n_levels, self.scale_factor, pad=3, buffer=self._pyramid_buffer)
+        self._pyramid_buffer = pyr.buffer
+        scales = scale_factors(n_levels, self.scale_factor)
+        clock.append(time.perf_counter())
+        images: list[NDArray[np.uint8]] = []
+        for image in pyr.levels:  # ORB-SLAM stops at the first level without a region
+            if _detection_region(image) is None:
+                break
+            images.append(image)
+        if not images:
+            return self._reset()
+        n_used = len(images)
+        wanted = wanted_all[:n_used]
+        masks = None if mask is None else [
+            mask if level == 0 else level_mask(mask, image.shape, scales[level]) for level, image in enumerate(images)]
+        det = detect_two_thresholds(images, wanted, self._fast_hi, self._fast_lo, masks)
+        clock.append(time.perf_counter())
+        # Harris on the level images in the stacked buffer (the points are >= 19 px inside
+        # their level, so the 9x9 windows never reach the padding or another level).
+        sx_all, sy_all = det.x + _BORDER + pyr.pad, det.y + _BORDER + pyr.rows[det.level]
+        harris = harris_responses(pyr.buffer, sx_all, sy_all, scratch=self._scratch)
+        clock.append(time.perf_counter())
+        widths = np.array([im.shape[1] - 2 * _BORDER for im in images])
+        heights = np.array([im.shape[0] - 2 * _BORDER for im in images])
+        keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted)
+        clock.append(time.perf_counter())
+        klv = det.level[keep]
+        quality = det.high[keep]
+        kept_high = np.bincount(klv[quality], minlength=n_used)
+        kept_low = np.bincount(klv[~quality], minlength=n_used)
+        self.last_counts = QtreeOrbCounts(wanted.tolist(), det.n_high.tolist(), det.n_low.tolist(),
+                                          kept_high.tolist(), kept_low.tolist())
+        if len(keep) == 0:
+            self.last_quality = np.zeros(0, bool)
+            self.last_fast_score = np.zeros(0, np.float32)
+            return Keypoints.empty()
+        kx, ky = det.x[keep] + _BORDER, det.y[keep] + _BORDER
+        sx, sy = sx_all[keep], sy_all[keep]
+        angle = ic_angles(pyr.buffer, sx, sy, self._scratch)
+        clock.append(time.perf_counter())
+        if self._blur_buffer is None or self._blur_buffer.shape != pyr.buffer.shape:
+            self._blur_buffer = np.empty_like(pyr.buffer)
+        # One 7x7 blur of the stacked levels (pad 3, BORDER_REFLECT_101) = ORB-SLAM's
+        # per-level blur.
+        blurred = cv2.GaussianBlur(pyr.buffer, (7, 7), 2, dst=self._blur_buffer, sigmaY=2,
+                                   borderType=cv2.BORDER_REFLECT_101)
+        clock.append(time.perf_counter())
+        desc = orb_descriptors(blurred, sx, sy, angle, self._scratch)
+        scale = scales.astype(np.float32)[klv]
+        xy = np.stack([kx, ky], axis=1).astype(np.float32) * scale[:, None]
+        clock.append(time.perf_counter())
+        self.last_stage_ms = dict(zip(_STAGES, (1e3 * np.diff(clock)).tolist()))
+        self.last_quality = quality
+        self.last_fast_score = det.score[keep].astype(np.float32)
+        return Keypoints(xy=xy, octave=klv.astype(np.int32), response=harris[keep].astype(np.float32),
+                         angle=angle.astype(np.float32), descriptors=desc)
+
+
+@register_extractor("qtree_orb")
+def _make(cfg: FeatureConfig) -> QtreeOrbExtractor:
+    """From ``FeatureConfig``. The level count comes from the config, not eq. 2, because
+    tracking and mapping size their per-level tables from it: the ``stdc`` preset sets
+    ``n_levels: 6``, eq. 2's value at 640x480 (``levels_for(W, H)`` gives it for others)."""
+    return QtreeOrbExtractor(cfg.n_features, cfg.scale_factor, cfg.n_levels, cfg.fast_threshold,
+                             cfg.fast_min_threshold, levels_from_image_size=False)
