@@ -426,8 +426,10 @@ def test_deterministic_and_registered(real_gray: np.ndarray, extractor: QtreeOrb
     assert isinstance(ex, QtreeOrbExtractor)
     assert (ex.n_features, ex.scale_factor, ex.fast_threshold, ex.fast_min_threshold) == (500, 1.3, 25, 5)
     kp = ex.extract(real_gray)
-    assert kp.octave.max() == 5  # eq. 2 (6 levels), not n_levels
-    assert 500 <= len(kp) <= 500 + 18
+    # The registry follows the config's n_levels (SLAM sizes its tables from it), not eq. 2.
+    assert kp.octave.max() == 3
+    assert 500 <= len(kp) <= 500 + 12
+    assert QtreeOrbExtractor().extract(real_gray).octave.max() == 5  # eq. 2: 6 levels at 640x480
     fixed = QtreeOrbExtractor(n_levels=4, levels_from_image_size=False).extract(real_gray)
     assert fixed.octave.max() == 3
 
