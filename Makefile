@@ -19,6 +19,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[test]"
+	$(BIN)/pip install -q --no-deps mediapipe==0.10.21
 	@touch $(STAMP)
 
 setup: $(STAMP)

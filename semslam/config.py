@@ -15,6 +15,7 @@ from typing import Any
 import yaml
 
 from semslam.errors import ConfigError
+from semslam.semantics.config import SemanticsConfig
 
 PRESET_DIR = Path(__file__).parent / "presets"
 
@@ -75,6 +76,11 @@ class SlamConfig:
     min_init_keypoints: int = 500
     local_mapping: bool = True
     local_ba: bool = True
+    # ORB-SLAM optimises all covisible keyframes; when keyframes pile up (a large mover
+    # makes tracking weak), that grew to seconds per BA here. Cap the window (best
+    # covisibles first) and the fixed keyframes (most observations first).
+    local_ba_max_keyframes: int = 20
+    local_ba_max_fixed: int = 20
     triangulation: bool = True
     keyframe_culling: bool = True
     loop_closing: bool = True
@@ -90,6 +96,23 @@ class SlamConfig:
 
 
 @dataclass
+class DynamicsConfig:
+    """What to do about moving content (DDL-SLAM, STDC-SLAM). Off in the plain presets."""
+
+    # Reject keypoints on a-priori dynamic classes found by the segmenter (semantics: section).
+    semantic: bool = False
+    # Reject keypoints in a band this wide around dynamic masks (DDL-SLAM: mask borders).
+    border_px: int = 8
+    # DDL-SLAM's multi-view geometry check against the best-overlapping keyframes.
+    multiview: bool = False
+    multiview_keyframes: int = 5
+    parallax_deg: float = 30.0
+    depth_threshold_m: float = 0.15
+    depth_threshold_rel: float = 0.03
+    edge_m: float = 0.05
+
+
+@dataclass
 class SystemConfig:
     """Root of the config tree."""
 
@@ -100,6 +123,8 @@ class SystemConfig:
     features: FeatureConfig = field(default_factory=FeatureConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     slam: SlamConfig = field(default_factory=SlamConfig)
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
+    semantics: SemanticsConfig = field(default_factory=SemanticsConfig)
 
 
 def available_presets() -> list[str]:

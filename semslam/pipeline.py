@@ -76,7 +76,8 @@ def run_slam(
     frame_ms: list[float] = []
     stage_ms: dict[str, list[float]] = {}
     t_start = time.perf_counter()
-    frames = prefetch(sequence.frames(0, n_total))
+    # The reader thread hands each decoded frame to the system at once (segmentation starts).
+    frames = prefetch(system.prepare(f) for f in sequence.frames(0, n_total))
     bar = None
     if progress:
         from tqdm import tqdm

@@ -12,6 +12,7 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -37,6 +38,9 @@ class Frame:
     depth: NDArray[np.float32] | None = None
     rgb_path: Path | None = None
     depth_path: Path | None = None
+    # Set by the semantic worker while the frame waits for tracking: a boolean dynamic
+    # mask, or a Future of one (segmentation runs ahead in its own thread).
+    dynamic_mask: Any = None
     _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
 
     @property

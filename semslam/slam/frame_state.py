@@ -58,6 +58,16 @@ class FrameState:
     def __len__(self) -> int:
         return len(self.keypoints)
 
+    def drop(self, keep: NDArray[np.bool_]) -> None:
+        """Remove keypoints (e.g. found dynamic after tracking) and everything indexed by them."""
+        idx = np.nonzero(keep)[0]
+        self.keypoints = self.keypoints.subset(idx)
+        self.xy, self.depth, self.ur = self.xy[idx], self.depth[idx], self.ur[idx]
+        self.points = [self.points[i] for i in idx]
+        self.outlier = self.outlier[idx]
+        self.bow = self.featvec = None
+        self._tree = None
+
     def tree(self) -> Any:
         if self._tree is None:
             from scipy.spatial import cKDTree

@@ -361,20 +361,20 @@ class LocalMapping:
     def _local_bundle_adjustment(self, kf: KeyFrame) -> None:
         t0 = time.perf_counter()
         with self.map.lock:
-            local = [kf] + [k for k in kf.ordered_covis if not k.bad]
+            local = [kf] + [k for k in kf.ordered_covis if not k.bad][: self.cfg.local_ba_max_keyframes - 1]
             local_set = set(local)
             pts: dict[int, MapPoint] = {}
             for k in local:
                 for p in k.valid_points():
                     pts.setdefault(p.id, p)
             points = list(pts.values())
-            fixed: dict[KeyFrame, None] = {}
+            fixed: dict[KeyFrame, int] = {}
             for p in points:
                 for k in p.observations:
                     if k not in local_set and not k.bad:
-                        fixed.setdefault(k)
+                        fixed[k] = fixed.get(k, 0) + 1
             free = [k for k in local if k.id != 0]
-            fixed_list = list(fixed) + [k for k in local if k.id == 0]
+            fixed_list = sorted(fixed, key=lambda k: -fixed[k])[: self.cfg.local_ba_max_fixed] + [k for k in local if k.id == 0]
             if not points or not free:
                 return
             problem, obs_ref = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)

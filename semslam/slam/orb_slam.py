@@ -65,6 +65,12 @@ class OrbSlam:
                 self.mapper.start()
             if use_loops:
                 self.closer.start()
+        self.semantic = None
+        if config.dynamics.semantic:
+            from semslam.dynamics.semantic_worker import SemanticWorker
+
+            self.semantic = SemanticWorker(config.semantics, threaded=self.threaded)
+            self.tracking.semantic_mask = self.semantic.mask
         if slam_map is not None:
             self._index_loaded_map()
 
@@ -85,6 +91,10 @@ class OrbSlam:
             self.tracking.ref_kf = self.map.all_keyframes()[-1]
 
     # ------------------------------------------------------------------ System interface
+    def prepare(self, frame: Frame) -> Frame:
+        """Called by the reader as soon as a frame is decoded: start its segmentation."""
+        return self.semantic.prepare(frame) if self.semantic is not None else frame
+
     def track(self, frame: Frame) -> TrackResult:
         for worker in (self.mapper, self.closer):
             if worker.error is not None:
@@ -101,6 +111,8 @@ class OrbSlam:
             self.mapper.stop()
             self.closer.stop()
         self.mapper.ba.close()
+        if self.semantic is not None:
+            self.semantic.close()
 
     def trajectory(self) -> Trajectory:
         stamps, poses = [], []
@@ -136,6 +148,7 @@ class OrbSlam:
             "culled_keyframes": self.mapper.stats["culled_keyframes"],
             "triangulated_points": self.mapper.stats["triangulated"],
             "threaded": self.threaded,
+            **(self.semantic.stats() if self.semantic is not None else {}),
         }
 
     def save_map(self, path: Path) -> None:

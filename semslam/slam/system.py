@@ -56,6 +56,11 @@ class System:
         self.tracker = TRACKERS[config.tracking.method](config, camera, *([map_path] if map_path else []))
         self.results: list[TrackResult] = []
 
+    def prepare(self, frame: Frame) -> Frame:
+        """Start per-frame work that can run ahead of tracking (segmentation), from the reader."""
+        fn = getattr(self.tracker, "prepare", None)
+        return fn(frame) if fn else frame
+
     def track(self, frame: Frame) -> TrackResult:
         result = self.tracker.track(frame)
         self.results.append(result)

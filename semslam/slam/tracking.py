@@ -7,6 +7,7 @@ The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comm
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import cv2
@@ -14,6 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.pose_only import optimize_pose
+from semslam.dynamics.masks import dilate, extractor_mask, keypoints_in_mask
+from semslam.dynamics.multiview import MultiViewParams, multiview_mask
 from semslam.config import SystemConfig
 from semslam.features.base import create_extractor
 from semslam.geometry.camera import PinholeCamera
@@ -35,6 +38,7 @@ class Tracking:
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map,
                  vocabulary: "Vocabulary", database: "KeyframeDatabase") -> None:
         self.cfg = config.slam
+        self.dyn = config.dynamics
         self.camera = camera
         self.map = slam_map
         self.voc = vocabulary
@@ -53,6 +57,12 @@ class Tracking:
         self.local_points: list[MapPoint] = []
         self.n_relocalisations = 0
         self.n_matches_inliers = 0
+        self.n_culled_dynamic_points = 0
+        self.mv_params = MultiViewParams(parallax_deg=self.dyn.parallax_deg, depth_threshold_m=self.dyn.depth_threshold_m,
+                                         depth_threshold_rel=self.dyn.depth_threshold_rel, edge_m=self.dyn.edge_m)
+        # Dynamic mask of a frame (set by the System when semantics are on): (mask | None, wait ms).
+        self.semantic_mask: Callable[[Frame], tuple[NDArray[np.bool_] | None, float]] = lambda f: (None, 0.0)
+        self.last_dynamic_ratio = 0.0
         # Hooks set by the System: hand keyframes to local mapping and ask whether it is idle.
         self.insert_keyframe = lambda kf: None
         self.mapping_idle = lambda: True
@@ -63,8 +73,11 @@ class Tracking:
     # ------------------------------------------------------------------ entry point
     def track(self, frame: Frame) -> TrackResult:
         timings: dict[str, float] = {}
+        dynamic, wait_ms = self.semantic_mask(frame)
+        if dynamic is not None:
+            timings["semantic_wait"] = wait_ms
         t0 = time.perf_counter()
-        mask = getattr(frame, "feature_mask", None)
+        mask = extractor_mask(dynamic, self.dyn.border_px) if dynamic is not None else None
         kps = self.extractor.extract(frame.gray, mask)
         cur = FrameState.create(frame.index, frame.timestamp, kps, frame.depth, self.camera, self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
@@ -84,6 +97,10 @@ class Tracking:
                     t0 = time.perf_counter()
                     ok = self._track_local_map(cur)
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
+                if ok and self.dyn.multiview and frame.depth is not None:
+                    t0 = time.perf_counter()
+                    dynamic = self._multiview_check(cur, frame.depth, dynamic)
+                    timings["multiview"] = (time.perf_counter() - t0) * 1e3
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
                     self.velocity = cur.T_cw @ invert(self.last.T_cw) if self.last is not None and self.last.T_cw is not None else None
@@ -106,8 +123,39 @@ class Tracking:
             self.last = cur
             n_inl = sum(1 for i, p in enumerate(cur.points) if p is not None and not cur.outlier[i])
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None else None
+        self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
-                           n_keypoints=len(kps), is_keyframe=is_kf, timings=timings)
+                           n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
+                           timings=timings)
+
+    # ------------------------------------------------------------------ dynamics
+    def _multiview_check(self, cur: FrameState, depth: NDArray[np.float32],
+                         dynamic: NDArray[np.bool_] | None) -> NDArray[np.bool_] | None:
+        """DDL-SLAM's multi-view geometry with the pose just tracked: keypoints in newly
+        found moving regions (and their border band) are dropped and the pose re-optimised."""
+        ref = self.ref_kf
+        if ref is None or cur.T_cw is None:
+            return dynamic
+        # Reference keyframes with the highest overlap: the reference and its best covisibles.
+        kfs = [ref, *ref.best_covisibles(self.dyn.multiview_keyframes - 1)]
+        refs = [(k.T_cw, k.xy, k.depth) for k in kfs if not k.bad]
+        res = multiview_mask(cur.T_cw, depth, self.camera, refs, self.mv_params)
+        if not res.mask.any():
+            return dynamic
+        moving = dilate(res.mask, self.dyn.border_px)
+        drop = keypoints_in_mask(cur.keypoints.xy, moving)
+        if drop.any():
+            # A map point matched inside a region found moving is on the mover: it was
+            # mapped while the object stood still and would keep pulling the pose.
+            inside = keypoints_in_mask(cur.keypoints.xy, res.mask)
+            for i in np.nonzero(inside)[0]:
+                p = cur.points[i]
+                if p is not None and not p.bad and not cur.outlier[i]:
+                    self.map.set_bad_point(p)
+                    self.n_culled_dynamic_points += 1
+            cur.drop(~drop)
+            self._optimize(cur)
+        return res.mask if dynamic is None else (dynamic | res.mask)
 
     def _record(self, cur: FrameState, lost: bool) -> None:
         ref = cur.ref_kf or self.ref_kf

@@ -1,0 +1,1 @@
+"""Finding what moves: mask combination, keypoint rejection, multi-view geometry."""

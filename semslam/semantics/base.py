@@ -1,0 +1,182 @@
+"""The segmenter protocol, its registry and the class-name -> dynamic-mask mapping.
+
+A backend is one module that registers a factory with ``@register_segmenter(name)``.
+Backend modules are imported only when their backend is chosen (``BACKEND_MODULES``), so
+an optional package (mediapipe, torch) is needed only by the runs that use it, and its
+absence is a ConfigError that says what to install instead of an ImportError at startup.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.errors import ConfigError
+from semslam.semantics.config import SemanticsConfig
+from semslam.semantics.labels import KNOWN_CLASS_NAMES
+
+if TYPE_CHECKING:
+    from semslam.io.sequence import Frame
+
+@dataclass
+class LabelMap:
+    """Per-pixel class ids of one image in the label set of the backend that made it.
+
+    ``names`` maps every id the backend can output to its class name, so class names in
+    the config (not backend-specific ids) decide what is dynamic. ``confidence`` is the
+    backend's score of the chosen label where it has one (for display and thresholds).
+    """
+
+    labels: NDArray[np.uint8]
+    names: dict[int, str]
+    confidence: NDArray[np.float32] | None = None
+
+    def __post_init__(self) -> None:
+        if self.labels.dtype != np.uint8 or self.labels.ndim != 2:
+            raise ValueError(f"LabelMap.labels must be uint8 HxW, got {self.labels.dtype} {self.labels.shape}")
+        if self.confidence is not None and self.confidence.shape != self.labels.shape:
+            raise ValueError(f"LabelMap.confidence shape {self.confidence.shape} != labels {self.labels.shape}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.labels.shape[0], self.labels.shape[1]
+
+
+class Segmenter(Protocol):
+    """Anything that turns an RGB image into a LabelMap.
+
+    ``names`` is the backend's label set where it is known before the first image (None
+    for backends whose label set comes with the data, like ``ground_truth``), so a bad
+    ``dynamic_classes`` can be reported at startup.
+    """
+
+    name: str
+    names: dict[int, str] | None
+
+    def segment(self, rgb: NDArray[np.uint8], frame: Frame | None = None) -> LabelMap: ...
+
+
+SegmenterFactory = Callable[[SemanticsConfig], Segmenter]
+
+_REGISTRY: dict[str, SegmenterFactory] = {}
+
+# Backend name -> module that registers it; imported only when that backend is chosen.
+BACKEND_MODULES: dict[str, str] = {
+    "mediapipe_person": "semslam.semantics.mediapipe_person",
+    "mediapipe_person_fast": "semslam.semantics.mediapipe_person",
+    "ground_truth": "semslam.semantics.ground_truth",
+}
+
+# Optional package (import name) -> what to install, for the error message.
+_INSTALL_HINTS: dict[str, str] = {
+    # --no-deps: mediapipe's metadata would pull jax, jaxlib, sounddevice and the GUI
+    # opencv-contrib-python (which clashes with the headless build); none is needed here.
+    "mediapipe": "pip install --no-deps mediapipe==0.10.21 absl-py==2.5.1 attrs==26.1.0 flatbuffers==25.12.19 "
+                 "protobuf==4.25.9 sentencepiece==0.2.3",
+    "torch": "pip install torch (CPU wheel: --index-url https://download.pytorch.org/whl/cpu)",
+}
+
+
+def register_segmenter(name: str) -> Callable[[SegmenterFactory], SegmenterFactory]:
+    """Decorator: make ``factory(cfg) -> Segmenter`` available as ``semantics.backend = name``."""
+
+    def deco(factory: SegmenterFactory) -> SegmenterFactory:
+        _REGISTRY[name] = factory
+        return factory
+
+    return deco
+
+
+def available_segmenters() -> list[str]:
+    return sorted(set(_REGISTRY) | set(BACKEND_MODULES))
+
+
+def missing_package_error(backend: str, package: str) -> ConfigError:
+    """The error for a backend whose optional package is not installed."""
+    hint = _INSTALL_HINTS.get(package, f"pip install {package}")
+    return ConfigError(
+        f"semantics.backend={backend!r} needs the {package!r} package, which is not installed; "
+        f"install it with: {hint}"
+    )
+
+
+def create_segmenter(cfg: SemanticsConfig) -> Segmenter:
+    """Build the configured backend; ConfigError for unknown names, bad settings or missing packages."""
+    cfg.check()
+    name = cfg.backend
+    if name not in _REGISTRY and name in BACKEND_MODULES:
+        try:
+            importlib.import_module(BACKEND_MODULES[name])
+        except ImportError as exc:
+            package = (exc.name or "").split(".")[0]
+            if package == "semslam":
+                raise
+            if not package:  # the package is there but broken (e.g. built for another numpy)
+                raise ConfigError(
+                    f"semantics.backend={name!r}: its packages are installed but cannot be loaded ({exc})"
+                ) from None
+            raise missing_package_error(name, package) from None
+    if name not in _REGISTRY:
+        raise ConfigError(f"semantics.backend: unknown segmenter {name!r} (known: {', '.join(available_segmenters())})")
+    segmenter = _REGISTRY[name](cfg)
+    if segmenter.names is not None:
+        dynamic_ids(segmenter.names, cfg.dynamic_classes)  # report a bad class list now, not on frame 1
+    return segmenter
+
+
+def dynamic_ids(names: dict[int, str], dynamic_classes: Iterable[str]) -> NDArray[np.uint8]:
+    """Ids of ``names`` whose class is in ``dynamic_classes``.
+
+    A class that semslam knows (a VOC or synthetic class) but this backend cannot output,
+    such as "car" for the person segmenter, matches nothing. A name that is neither in the
+    backend's label set nor known at all is almost certainly a typo: ConfigError listing
+    the backend's classes.
+    """
+    by_name = {n: i for i, n in names.items()}
+    ids: list[int] = []
+    for cls in dynamic_classes:
+        if cls in by_name:
+            ids.append(by_name[cls])
+        elif cls not in KNOWN_CLASS_NAMES:
+            raise ConfigError(
+                f"semantics.dynamic_classes: unknown class {cls!r}; this backend's classes are: "
+                f"{', '.join(names[i] for i in sorted(names))}"
+            )
+    return np.array(sorted(set(ids)), np.uint8)
+
+
+def dynamic_mask(label_map: LabelMap, dynamic_classes: Iterable[str]) -> NDArray[np.bool_]:
+    """Boolean HxW mask of the pixels whose class is one of ``dynamic_classes`` (by name)."""
+    lut = np.zeros(256, np.bool_)
+    lut[dynamic_ids(label_map.names, dynamic_classes)] = True
+    return lut[label_map.labels]
+
+
+def inference_size(shape: tuple[int, int], input_width: int) -> tuple[int, int]:
+    """(height, width) to run a network at: native for 0, else ``input_width`` wide, same aspect."""
+    h, w = shape
+    if input_width <= 0 or input_width == w:
+        return h, w
+    return max(1, round(h * input_width / w)), input_width
+
+
+def resize_input(rgb: NDArray[np.uint8], input_width: int) -> NDArray[np.uint8]:
+    """Downscale (area) or upscale (linear) an image to the inference width."""
+    h, w = inference_size(rgb.shape[:2], input_width)
+    if (h, w) == rgb.shape[:2]:
+        return rgb
+    interp = cv2.INTER_AREA if w < rgb.shape[1] else cv2.INTER_LINEAR
+    return cv2.resize(rgb, (w, h), interpolation=interp)
+
+
+def resize_score(score: NDArray[np.float32], shape: tuple[int, int]) -> NDArray[np.float32]:
+    """Bring a per-pixel score back to the native image size (linear, then thresholded by the caller)."""
+    if score.shape == shape:
+        return score
+    return cv2.resize(score, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
