@@ -74,6 +74,7 @@ def run_slam(
     system = System(config, sequence.camera, Path(load_map) if load_map else None)
     n_total = len(sequence) if max_frames is None else min(max_frames, len(sequence))
     frame_ms: list[float] = []
+    dynamic_ratio: list[float] = []
     stage_ms: dict[str, list[float]] = {}
     t_start = time.perf_counter()
     # The reader thread hands each decoded frame to the system at once (segmentation starts).
@@ -88,6 +89,7 @@ def run_slam(
             t0 = time.perf_counter()
             result = system.track(frame)
             frame_ms.append((time.perf_counter() - t0) * 1e3)
+            dynamic_ratio.append(result.dynamic_ratio)
             for stage, ms in result.timings.items():
                 stage_ms.setdefault(stage, []).append(ms)
             if bar is not None:
@@ -114,6 +116,7 @@ def run_slam(
         "skipped_frames": len(sequence.skipped),
         "ms_per_frame": _timing_stats(frame_ms),
         "stages_ms_median": {k: float(np.median(v)) for k, v in stage_ms.items()},
+        "dynamic_ratio_mean": float(np.mean(dynamic_ratio)) if dynamic_ratio else 0.0,
         "wall_s": wall_s,
         "fps": len(frame_ms) / wall_s if wall_s > 0 else 0.0,
         "tracking_fps": 1000.0 / float(np.mean(frame_ms)) if frame_ms else 0.0,

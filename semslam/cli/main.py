@@ -6,14 +6,9 @@ cause (``SemslamError``) are printed as one line naming the file and the problem
 
 from __future__ import annotations
 
-import os
 import sys
 
-# SLAM runs its own threads (tracking, local mapping, loop closing) and a BA process; BLAS
-# and OpenCV worker pools on top of them only compete for the cores (measured on 2 cores:
-# 36 -> 28 ms/frame median). Must be set before numpy loads; the environment overrides.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+import semslam.runtime  # noqa: F401  (thread limits; before numpy loads)
 
 import typer
 
@@ -29,18 +24,16 @@ app = typer.Typer(
 
 
 def _register_commands() -> None:
-    from semslam.cli import eval_cmd, run_cmd, synth_cmd, train_cmd
+    from semslam.cli import bench_cmd, eval_cmd, run_cmd, synth_cmd, train_cmd
 
-    for module in (run_cmd, eval_cmd, synth_cmd, train_cmd):
+    for module in (run_cmd, eval_cmd, synth_cmd, train_cmd, bench_cmd):
         module.register(app)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return the process exit code (2 for user errors)."""
     _register_commands()
-    import cv2
-
-    cv2.setNumThreads(int(os.environ.get("SEMSLAM_OPENCV_THREADS", "1")))
+    semslam.runtime.limit_opencv_threads()
     try:
         # Typer/click handle usage errors themselves (message + exit code 2) and end with
         # SystemExit; only our own errors need catching.
