@@ -40,7 +40,7 @@ def kinect(shared_data: Path) -> tuple[list[Frame], np.ndarray]:
 
 def test_relative_poses_on_real_kinect_frames(kinect: tuple[list[Frame], np.ndarray]) -> None:
     frames, gt = kinect
-    cfg = load_config("default", WIDE_BASELINE)
+    cfg = load_config("f2kf", WIDE_BASELINE)
     report, tracked = [], 0
     for i in (2, 3, 4):
         for j in (2, 3, 4):
