@@ -6,8 +6,6 @@ redundant keyframe culling. Runs as a thread, or inline when ``slam.sequential``
 from __future__ import annotations
 
 import logging
-import queue
-import threading
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
@@ -21,6 +19,7 @@ from semslam.config import SystemConfig
 from semslam.features.matching import match_candidates
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.frame_state import PyramidInfo
+from semslam.slam.keyframe_worker import KeyframeWorker
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
 from semslam.slam.search import TH_LOW, project
 
@@ -63,8 +62,10 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
     return problem, obs_ref
 
 
-class LocalMapping:
+class LocalMapping(KeyframeWorker):
     """Processes keyframes from tracking; hands them on to loop closing."""
+
+    thread_name = "local-mapping"
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary") -> None:
         self.cfg = config.slam
@@ -73,59 +74,11 @@ class LocalMapping:
         self.voc = vocabulary
         self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
+        super().__init__()
         self.recent_points: list[MapPoint] = []
-        self.queue: "queue.Queue[KeyFrame | None]" = queue.Queue()
         self.on_keyframe_done: Callable[[KeyFrame], None] = lambda kf: None
-        self._busy = threading.Event()
-        self._thread: threading.Thread | None = None
         self.stats = {"local_ba": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0, "fused": 0}
-        self.error: BaseException | None = None
         self.ba = BundleAdjustmentRunner(use_process=False)
-
-    # ---------------------------------------------------------------- thread control
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name="local-mapping", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while True:
-            kf = self.queue.get()
-            if kf is None:
-                return
-            self._busy.set()
-            try:
-                self.process(kf)
-            except BaseException as exc:  # pragma: no cover - surfaced by the System
-                log.exception("local mapping failed")
-                self.error = exc
-                return
-            finally:
-                if self.queue.empty():
-                    self._busy.clear()
-
-    def insert(self, kf: KeyFrame) -> None:
-        if self._thread is None:
-            self.process(kf)
-        else:
-            self._busy.set()
-            self.queue.put(kf)
-
-    def idle(self) -> bool:
-        return not self._busy.is_set() and self.queue.empty()
-
-    def queue_size(self) -> int:
-        return self.queue.qsize()
-
-    def stop(self) -> None:
-        if self._thread is not None:
-            self.queue.put(None)
-            self._thread.join()
-            self._thread = None
-
-    def wait_idle(self, timeout: float = 60.0) -> None:
-        end = time.time() + timeout
-        while not self.idle() and time.time() < end and self._thread is not None and self._thread.is_alive():
-            time.sleep(0.002)
 
     # ---------------------------------------------------------------- one keyframe
     def process(self, kf: KeyFrame) -> None:

@@ -8,8 +8,6 @@ RGB-D fixes the scale, so ORB-SLAM's Sim3 becomes SE(3) here.
 from __future__ import annotations
 
 import logging
-import queue
-import threading
 import time
 from typing import TYPE_CHECKING
 
@@ -22,6 +20,7 @@ from semslam.geometry.alignment import umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
 from semslam.slam.frame_state import PyramidInfo
+from semslam.slam.keyframe_worker import KeyframeWorker
 from semslam.slam.local_mapping import LocalMapping, build_ba_problem
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
 from semslam.slam.search import TH_HIGH, project, search_by_bow, search_by_projection
@@ -72,11 +71,14 @@ def ransac_se3(x1: NDArray[np.float64], x2: NDArray[np.float64], uv1: NDArray[np
     return T, inliers_of(T)
 
 
-class LoopClosing:
+class LoopClosing(KeyframeWorker):
     """Detects and corrects loops; runs global BA after each correction."""
+
+    thread_name = "loop-closing"
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, database: "KeyframeDatabase",
                  mapper: LocalMapping) -> None:
+        super().__init__()
         self.cfg = config.slam
         self.camera = camera
         self.map = slam_map
@@ -86,48 +88,8 @@ class LoopClosing:
         self.rng = np.random.default_rng(config.seed)
         self.last_loop_kf_id = 0
         self.consistent_groups: list[tuple[set[KeyFrame], int]] = []
-        self.queue: "queue.Queue[KeyFrame | None]" = queue.Queue()
-        self._thread: threading.Thread | None = None
-        self._busy = threading.Event()
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "global_ba": 0, "global_ba_ms": [], "pose_graph_ms": []}
-        self.error: BaseException | None = None
-
-    # ---------------------------------------------------------------- thread control
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name="loop-closing", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while True:
-            kf = self.queue.get()
-            if kf is None:
-                return
-            try:
-                self.process(kf)
-            except BaseException as exc:  # pragma: no cover - surfaced by the System
-                log.exception("loop closing failed")
-                self.error = exc
-                return
-            finally:
-                if self.queue.empty():
-                    self._busy.clear()
-
-    def insert(self, kf: KeyFrame) -> None:
-        if self._thread is None:
-            self.process(kf)
-        else:
-            self._busy.set()
-            self.queue.put(kf)
-
-    def stop(self) -> None:
-        if self._thread is not None:
-            self.queue.put(None)
-            self._thread.join()
-            self._thread = None
-
-    def idle(self) -> bool:
-        return not self._busy.is_set() and self.queue.empty()
 
     # ---------------------------------------------------------------- per keyframe
     def process(self, kf: KeyFrame) -> None:
