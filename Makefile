@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null || { echo "error: $(PY) not found (semslam needs Python 3.11)"; exit 1; }
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[test]"
+	$(BIN)/pip install -q -e ".[test,nets]"
 	$(BIN)/pip install -q --no-deps mediapipe==0.10.21
 	@touch $(STAMP)
 
