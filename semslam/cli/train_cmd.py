@@ -15,7 +15,7 @@ import typer
 from semslam.errors import ConfigError
 
 train_app = typer.Typer(
-    help="Train the project's own models (ORB vocabulary; networks later).",
+    help="Train the project's own models (ORB vocabulary, STDC, DUNet).",
     no_args_is_help=True,
     add_completion=False,
 )

@@ -71,6 +71,8 @@ BACKEND_MODULES: dict[str, str] = {
     "mediapipe_person": "semslam.semantics.mediapipe_person",
     "mediapipe_person_fast": "semslam.semantics.mediapipe_person",
     "ground_truth": "semslam.semantics.ground_truth",
+    "stdc": "semslam.semantics.nets_backend",
+    "dunet": "semslam.semantics.nets_backend",
 }
 
 # Optional package (import name) -> what to install, for the error message.
