@@ -81,7 +81,7 @@ from semslam.features.orb_slam import (
     orb_descriptors,
 )
 from semslam.features.pyramid import build_pyramid, features_per_level, level_mask, scale_factors
-from semslam.features.quadtree import _best_per_leaf, _Leaves, _split
+from semslam.features.quadtree import _best_per_leaf, _Leaves, _split_round
 
 __all__ = [
     "Detection", "QtreeOrbCounts", "QtreeOrbExtractor", "detect_two_thresholds", "distribute_improved_quadtree",
@@ -321,37 +321,11 @@ def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer],
         prev = now
         if (state == _DONE).all():
             break
-        n = len(leaves)
         lstate = state[leaves.level]
         which = can & (lstate == _MAIN)
         fine_cand = can & (lstate == _FINE)
         fine_cand[:leaves.n_old] = False
-        pts = np.flatnonzero((which | fine_cand)[node_of])
-        parent = node_of[pts]
-        midx = (leaves.x0 + leaves.x1 + 1) >> 1  # ORB-SLAM: UL + ceil((UR - UL) / 2)
-        midy = (leaves.y0 + leaves.y1 + 1) >> 1
-        key = 4 * parent + (px[pts] >= midx[parent]) + 2 * (py[pts] >= midy[parent])
-        fine = np.flatnonzero(fine_cand)
-        if len(fine):
-            # Largest first (ties: raster order of the top-left corner); a candidate is
-            # split iff its level had fewer than n_wanted nodes before it (ORB-SLAM's
-            # one-at-a-time loop with its break), as in quadtree.py.
-            n_quarters = np.count_nonzero(np.bincount(key, minlength=4 * n).reshape(n, 4), axis=1)
-            flv = leaves.level[fine]
-            big = np.int64(max(int(heights.max()), int(widths.max())) + 1)
-            sort_key = ((flv * (len(px) + 1) - leaves.count[fine]) * big + leaves.y0[fine]) * big + leaves.x0[fine]
-            s = np.argsort(sort_key)
-            order, flv = fine[s], flv[s]
-            gain = n_quarters[order] - 1
-            cum = np.cumsum(gain)
-            seg_start = np.ones(len(order), bool)
-            seg_start[1:] = flv[1:] != flv[:-1]
-            base = np.maximum.accumulate(np.where(seg_start, np.arange(len(order)), 0))
-            cum_excl = cum - gain - (cum[base] - gain[base])
-            which[order[prev[flv] + cum_excl < n_wanted[flv]]] = True
-            moving = which[parent]
-            pts, key = pts[moving], key[moving]
-        leaves, node_of = _split(leaves, node_of, pts, key, which, midx, midy)
+        leaves, node_of = _split_round(leaves, node_of, px, py, which, fine_cand, prev, n_wanted, heights, widths)
         leaf_high = np.bincount(node_of[hi_idx], minlength=len(leaves))
         can = splittable(leaves, leaf_high)
 

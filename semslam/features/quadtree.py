@@ -110,7 +110,6 @@ def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], r
     state[np.bincount(level, minlength=n_levels) == 0] = _DONE
     prev = np.bincount(leaves.level, minlength=n_levels)
     while (state != _DONE).any():
-        n = len(leaves)
         lstate = state[leaves.level]
         # Candidates: every splittable leaf of a main-phase level; the multi-point leaves
         # made by the previous round of a last-phase level.
@@ -118,32 +117,7 @@ def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], r
         which = multi & (lstate == _MAIN)
         fine_cand = multi & (lstate == _FINE)
         fine_cand[:leaves.n_old] = False
-        pts = np.flatnonzero((which | fine_cand)[node_of])
-        parent = node_of[pts]
-        midx = (leaves.x0 + leaves.x1 + 1) >> 1  # ORB-SLAM: UL + ceil((UR - UL) / 2)
-        midy = (leaves.y0 + leaves.y1 + 1) >> 1
-        key = 4 * parent + (px[pts] >= midx[parent]) + 2 * (py[pts] >= midy[parent])
-        fine = np.flatnonzero(fine_cand)
-        if len(fine):
-            # Largest first (ties: raster order of the top-left corner); split a
-            # candidate iff its level had not reached n_wanted before it, which is
-            # ORB-SLAM's one-by-one loop with its break.
-            n_quarters = np.count_nonzero(np.bincount(key, minlength=4 * n).reshape(n, 4), axis=1)
-            lv = leaves.level[fine]
-            big = np.int64(max(int(heights.max()), int(widths.max())) + 1)
-            sort_key = ((lv * (len(px) + 1) - leaves.count[fine]) * big + leaves.y0[fine]) * big + leaves.x0[fine]
-            s = np.argsort(sort_key)
-            order, lv = fine[s], lv[s]
-            gain = n_quarters[order] - 1
-            cum = np.cumsum(gain)
-            seg_start = np.ones(len(order), bool)
-            seg_start[1:] = lv[1:] != lv[:-1]
-            base = np.maximum.accumulate(np.where(seg_start, np.arange(len(order)), 0))
-            cum_excl = cum - gain - (cum[base] - gain[base])
-            which[order[prev[lv] + cum_excl < n_wanted[lv]]] = True
-            moving = which[parent]
-            pts, key = pts[moving], key[moving]
-        leaves, node_of = _split(leaves, node_of, pts, key, which, midx, midy)
+        leaves, node_of = _split_round(leaves, node_of, px, py, which, fine_cand, prev, n_wanted, heights, widths)
 
         now = np.bincount(leaves.level, minlength=n_levels)
         new = slice(leaves.n_old, None)
@@ -210,3 +184,39 @@ def distribute_quadtree(x: NDArray[np.integer], y: NDArray[np.integer], response
     x = np.asarray(x)
     return distribute_quadtree_levels(x, y, response, np.zeros(len(x), np.int64), np.array([width]),
                                       np.array([height]), np.array([n_wanted]))
+
+
+def _split_round(leaves: "_Leaves", node_of: NDArray[np.intp], px: NDArray, py: NDArray, which: NDArray[np.bool_],
+                 fine_cand: NDArray[np.bool_], prev: NDArray, n_wanted: NDArray, heights: NDArray, widths: NDArray
+                 ) -> tuple["_Leaves", NDArray[np.intp]]:
+    """One round of splits: every ``which`` leaf, plus the last-phase candidates
+    ``fine_cand`` taken largest first while their level is below ``n_wanted`` (shared by
+    ORB-SLAM's quadtree and STDC-SLAM's improved one, which differ only in the candidates)."""
+    n = len(leaves)
+    pts = np.flatnonzero((which | fine_cand)[node_of])
+    parent = node_of[pts]
+    midx = (leaves.x0 + leaves.x1 + 1) >> 1  # ORB-SLAM: UL + ceil((UR - UL) / 2)
+    midy = (leaves.y0 + leaves.y1 + 1) >> 1
+    key = 4 * parent + (px[pts] >= midx[parent]) + 2 * (py[pts] >= midy[parent])
+    fine = np.flatnonzero(fine_cand)
+    if len(fine):
+        # Largest first (ties: raster order of the top-left corner); split a
+        # candidate iff its level had not reached n_wanted before it, which is
+        # ORB-SLAM's one-by-one loop with its break.
+        n_quarters = np.count_nonzero(np.bincount(key, minlength=4 * n).reshape(n, 4), axis=1)
+        lv = leaves.level[fine]
+        big = np.int64(max(int(heights.max()), int(widths.max())) + 1)
+        sort_key = ((lv * (len(px) + 1) - leaves.count[fine]) * big + leaves.y0[fine]) * big + leaves.x0[fine]
+        s = np.argsort(sort_key)
+        order, lv = fine[s], lv[s]
+        gain = n_quarters[order] - 1
+        cum = np.cumsum(gain)
+        seg_start = np.ones(len(order), bool)
+        seg_start[1:] = lv[1:] != lv[:-1]
+        base = np.maximum.accumulate(np.where(seg_start, np.arange(len(order)), 0))
+        cum_excl = cum - gain - (cum[base] - gain[base])
+        which[order[prev[lv] + cum_excl < n_wanted[lv]]] = True
+        moving = which[parent]
+        pts, key = pts[moving], key[moving]
+    leaves, node_of = _split(leaves, node_of, pts, key, which, midx, midy)
+    return leaves, node_of
