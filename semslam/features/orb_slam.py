@@ -436,6 +436,22 @@ def detect_level_reference(image: NDArray[np.uint8], fast_threshold: int, fast_m
     return np.concatenate(xs), np.concatenate(ys), np.concatenate(rs)
 
 
+
+def check_extractor_inputs(gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None
+                           ) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None]:
+    """A uint8 grey image (colour is converted) and a uint8 mask of the same size, or an error."""
+    gray = np.asarray(gray)
+    if gray.ndim == 3:
+        gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY if gray.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    if gray.dtype != np.uint8 or gray.ndim != 2:
+        raise ValueError(f"expected a uint8 grey image, got {gray.dtype} {gray.shape}")
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != gray.shape:
+            raise ValueError(f"mask shape {mask.shape} differs from the image's {gray.shape}")
+        mask = np.ascontiguousarray(mask) if mask.dtype == np.uint8 else (mask != 0).view(np.uint8)
+    return gray, mask
+
 class OrbSlamExtractor:
     """ORB-SLAM2/3's ORB extractor (defaults: 1000 features, 8 levels x 1.2, FAST 20/7).
 
@@ -472,16 +488,7 @@ class OrbSlamExtractor:
         self.last_stage_ms: dict[str, float] = {}
 
     def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
-        gray = np.asarray(gray)
-        if gray.ndim == 3:
-            gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY if gray.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-        if gray.dtype != np.uint8 or gray.ndim != 2:
-            raise ValueError(f"expected a uint8 grey image, got {gray.dtype} {gray.shape}")
-        if mask is not None:
-            mask = np.asarray(mask)
-            if mask.shape != gray.shape:
-                raise ValueError(f"mask shape {mask.shape} differs from the image's {gray.shape}")
-            mask = np.ascontiguousarray(mask) if mask.dtype == np.uint8 else (mask != 0).view(np.uint8)
+        gray, mask = check_extractor_inputs(gray, mask)
         if gray.size == 0 or self.n_features == 0:
             return Keypoints.empty()
 

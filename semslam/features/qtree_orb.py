@@ -72,6 +72,7 @@ from numpy.typing import NDArray
 from semslam.config import FeatureConfig
 from semslam.features.base import Keypoints, register_extractor
 from semslam.features.orb_slam import (
+    check_extractor_inputs,
     _BORDER,
     Scratch,
     _cell_grid,
@@ -462,16 +463,7 @@ class QtreeOrbExtractor:
         return Keypoints.empty()
 
     def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
-        gray = np.asarray(gray)
-        if gray.ndim == 3:
-            gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY if gray.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-        if gray.dtype != np.uint8 or gray.ndim != 2:
-            raise ValueError(f"expected a uint8 grey image, got {gray.dtype} {gray.shape}")
-        if mask is not None:
-            mask = np.asarray(mask)
-            if mask.shape != gray.shape:
-                raise ValueError(f"mask shape {mask.shape} differs from the image's {gray.shape}")
-            mask = np.ascontiguousarray(mask) if mask.dtype == np.uint8 else (mask != 0).view(np.uint8)
+        gray, mask = check_extractor_inputs(gray, mask)
         if gray.size == 0 or self.n_features == 0:
             return self._reset()
 
