@@ -136,8 +136,7 @@ class LocalMapping(KeyframeWorker):
     # ---------------------------------------------------------------- triangulation
     def _create_new_points(self, kf: KeyFrame) -> None:
         """Triangulate unmatched keypoints with the best covisible keyframes (epipolar-guided)."""
-        fx, fy, cx, cy = self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy
-        baseline = self.cfg.bf / fx
+        baseline = self.cfg.bf / self.camera.fx
         free1 = np.array([p is None or p.bad for p in kf.points], bool)
         for nb in kf.best_covisibles(10):
             if not free1.any():
@@ -162,7 +161,6 @@ class LocalMapping(KeyframeWorker):
                 self.recent_points.append(p)
                 free1[a] = False
                 self.stats["triangulated"] += 1
-        del fy, cx, cy
 
     def _epipolar_matches(self, kf1: KeyFrame, kf2: KeyFrame, free1: NDArray[np.bool_], free2: NDArray[np.bool_]
                           ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:

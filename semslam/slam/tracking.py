@@ -379,7 +379,7 @@ class Tracking:
                 qi, ti = self._search(cur, uv[sel], radius, level - 1, level, desc)
                 for q, t in zip(qi, ti):
                     cur.points[t] = cand[sel[q]]
-        n_inl = self._optimize(cur)
+        self._optimize(cur)
         n_found = 0
         for i, p in enumerate(cur.points):
             if p is None:
@@ -388,7 +388,6 @@ class Tracking:
                 p.n_found += 1
                 if len(p.observations) > 0:
                     n_found += 1
-        del n_inl
         self.n_matches_inliers = n_found
         if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_found < 50:
             return False
