@@ -1,0 +1,201 @@
+"""The contracts of the SLAM core. Read this first.
+
+Every backend implements one of these protocols and is found by name through
+``semslam.core.registry``; the System and the pipeline call only what is written here.
+
+    SequenceSource ─► Frame ─► FramePacket ─► DynamicStage.prepare (reader thread)
+                                   │
+                                   ▼
+    Tracker.track(packet)   uses  Extractor (+ its FeatureSpec) ─► Matcher (chosen by the spec)
+                                  DepthSource (sensor depth now, a depth network later)
+                                  DynamicStage.before_extraction / after_pose
+                                   │ keyframes
+                                   ▼
+    MapBuilder.add_keyframe(snapshot) ... correct_poses(...) ... finish(out_dir)
+
+Which thread owns what is in ``docs/architecture.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.core.types import FeatureSpec, Frame, Keypoints, LabelMap, TrackResult
+from semslam.geometry.camera import PinholeCamera
+
+if TYPE_CHECKING:
+    from semslam.io.trajectory import Trajectory
+
+BoolImage = NDArray[np.bool_]
+
+
+# ---------------------------------------------------------------------------- per-frame packet
+@dataclass
+class FramePacket:
+    """One frame on its way through the pipeline and what the stages attach to it.
+
+    Owned by the pipeline: the reader creates it, the dynamic stage attaches the dynamic mask
+    (or a Future of it, while segmentation runs ahead in its own thread), the tracker reads it.
+    """
+
+    frame: Frame
+    dynamic: BoolImage | Future[BoolImage] | None = None
+    labels: LabelMap | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class KeyframeSnapshot:
+    """What a map builder gets for a new keyframe: a copy that stays valid after the SLAM
+    core moves on (poses change later through ``MapBuilder.correct_poses``)."""
+
+    keyframe_id: int
+    timestamp: float
+    T_wc: NDArray[np.float64]
+    rgb: NDArray[np.uint8]
+    depth: NDArray[np.float32] | None
+    dynamic: BoolImage | None
+    labels: LabelMap | None
+    camera: PinholeCamera
+
+
+@dataclass
+class MovingRegions:
+    """Found after the pose (DDL-SLAM multi-view geometry): ``moving`` pixels, and the wider
+    ``drop`` band inside which keypoints are removed."""
+
+    moving: BoolImage
+    drop: BoolImage
+
+
+# ---------------------------------------------------------------------------- contracts
+@runtime_checkable
+class SequenceSource(Protocol):
+    """Frames of one sequence with its camera and, where known, its ground truth."""
+
+    name: str
+    root: Path
+    camera: PinholeCamera
+    groundtruth_path: Path | None
+    has_depth: bool
+    skipped: list[tuple[int, str]]
+
+    def __len__(self) -> int: ...
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]: ...
+
+
+@runtime_checkable
+class Extractor(Protocol):
+    """Keypoints and descriptors of a grey image; ``spec`` says what the descriptors are and
+    which pyramid the extractor really used (the core sizes its tables from it)."""
+
+    spec: FeatureSpec
+
+    def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints: ...
+
+
+@runtime_checkable
+class Matcher(Protocol):
+    """Descriptor distances and candidate matching for one descriptor kind (Hamming or L2)."""
+
+    def distances(self, a: NDArray[Any], b: NDArray[Any]) -> NDArray[np.float64]:
+        """Distance between row k of ``a`` and row k of ``b``."""
+        ...
+
+    def match_candidates(self, desc_query: NDArray[Any], desc_train: NDArray[Any], cand_q: NDArray[np.intp],
+                         cand_t: NDArray[np.intp], max_distance: float, ratio: float
+                         ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]: ...
+
+    def match_brute_force(self, desc_query: NDArray[Any], desc_train: NDArray[Any], max_distance: float, ratio: float
+                          ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]: ...
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """RGB image -> LabelMap. ``names`` is the label set where known before the first image
+    (None for backends whose labels come with the data, like ``ground_truth``)."""
+
+    name: str
+    names: dict[int, str] | None
+
+    def segment(self, rgb: NDArray[np.uint8], frame: Frame | None = None) -> LabelMap: ...
+
+
+@runtime_checkable
+class DepthSource(Protocol):
+    """Depth in metres for a frame: the sensor's now, a depth network's for monocular later."""
+
+    def depth(self, frame: Frame) -> NDArray[np.float32] | None: ...
+
+
+@runtime_checkable
+class DynamicStage(Protocol):
+    """Dynamic-scene handling around tracking (STDC-SLAM, DDL-SLAM).
+
+    ``prepare`` runs in the reader thread as soon as a frame is decoded (segmentation starts);
+    ``before_extraction`` gives the mask of pixels where no keypoint may be extracted (dynamic
+    classes, refined by SRM, grown by the border band) and the ms waited for it;
+    ``after_pose`` finds moving regions with the pose just tracked (multi-view geometry).
+    """
+
+    def prepare(self, packet: FramePacket) -> None: ...
+
+    def before_extraction(self, packet: FramePacket) -> tuple[BoolImage | None, NDArray[np.uint8] | None, float]:
+        """(dynamic mask, extractor mask, ms waited)."""
+        ...
+
+    def after_pose(self, T_cw: NDArray[np.float64], depth: NDArray[np.float32],
+                   references: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]]
+                   ) -> MovingRegions | None: ...
+
+    def stats(self) -> dict[str, float]: ...
+
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class MapBuilder(Protocol):
+    """Builds a map from keyframe snapshots (inpainting, octree, semantic cloud, TSDF);
+    told when loop closing or BA moves keyframes, asked to write its files at the end."""
+
+    def add_keyframe(self, snapshot: KeyframeSnapshot) -> None: ...
+
+    def correct_poses(self, poses_wc: dict[int, NDArray[np.float64]]) -> None: ...
+
+    def finish(self, out_dir: Path) -> dict[str, Path]: ...
+
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class Tracker(Protocol):
+    """A SLAM front end + back end behind one call per frame."""
+
+    has_map: bool
+
+    def track(self, packet: FramePacket) -> TrackResult: ...
+
+    @property
+    def n_keyframes(self) -> int: ...
+
+    def trajectory(self) -> "Trajectory":
+        """Every frame that has a pose (lost frames are left out), after final optimisation."""
+        ...
+
+    def keyframe_trajectory(self) -> "Trajectory": ...
+
+    def stats(self) -> dict[str, Any]: ...
+
+    def save_map(self, path: Path) -> None: ...
+
+    def shutdown(self) -> None:
+        """Stop every thread and process the tracker owns; safe to call twice."""
+        ...

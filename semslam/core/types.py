@@ -1,0 +1,183 @@
+"""Values that cross component boundaries: frames, keypoints and what describes them,
+labels, tracking results. Plain data with no behaviour beyond small derived properties.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from functools import cached_property
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+
+# ---------------------------------------------------------------------------- frames
+@dataclass
+class Frame:
+    """One time step: colour image (RGB, uint8), depth in metres (0 = none) and timestamp."""
+
+    index: int
+    timestamp: float
+    rgb: NDArray[np.uint8]
+    depth: NDArray[np.float32] | None = None
+    rgb_path: Path | None = None
+    depth_path: Path | None = None
+    _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
+
+    @property
+    def gray(self) -> NDArray[np.uint8]:
+        if self._gray is None:
+            self._gray = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
+        return self._gray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rgb.shape[0], self.rgb.shape[1]
+
+
+# ---------------------------------------------------------------------------- features
+class DescriptorKind(str, Enum):
+    """Binary descriptors are compared by Hamming distance, float ones by L2."""
+
+    BINARY = "binary"
+    FLOAT = "float"
+
+
+@dataclass(frozen=True)
+class ScalePyramid:
+    """Per-level scale factors and observation weights of an extractor's pyramid
+    (ORB-SLAM's mvScaleFactor, mvInvLevelSigma2), and the level a point is predicted at."""
+
+    scale_factor: float
+    n_levels: int
+
+    @cached_property
+    def scales(self) -> NDArray[np.float64]:
+        return self.scale_factor ** np.arange(self.n_levels)
+
+    @cached_property
+    def inv_sigma2(self) -> NDArray[np.float64]:
+        return 1.0 / self.scales**2
+
+    @cached_property
+    def log_scale(self) -> float:
+        return float(np.log(self.scale_factor))
+
+    def predict_level(self, max_dist: NDArray[np.float64], dist: NDArray[np.float64]) -> NDArray[np.intp]:
+        """Pyramid level at which a point observed up to ``max_dist`` appears from ``dist``
+        (ORB-SLAM MapPoint::PredictScale), for many points at once."""
+        ratio = np.asarray(max_dist) / np.maximum(dist, 1e-9)
+        level = np.ceil(np.log(np.maximum(ratio, 1e-9)) / self.log_scale)
+        return np.clip(level, 0, self.n_levels - 1).astype(np.intp)
+
+
+@dataclass(frozen=True)
+class FeatureSpec:
+    """What an extractor produces: the descriptor kind and size, the distance that compares
+    them, the matching thresholds in that distance, and the pyramid it actually used.
+
+    ``th_low`` / ``th_high`` are ORB-SLAM's TH_LOW / TH_HIGH (50 / 100 Hamming bits for ORB):
+    the strict threshold for guided searches (fusion, triangulation, bag-of-words) and the
+    loose one for searches by projection.
+    """
+
+    kind: DescriptorKind
+    dim: int  # bytes for binary descriptors, elements for float ones
+    scale_factor: float
+    n_levels: int
+    th_low: float
+    th_high: float
+
+    @property
+    def dtype(self) -> type:
+        return np.uint8 if self.kind is DescriptorKind.BINARY else np.float32
+
+    @property
+    def distance(self) -> str:
+        return "hamming" if self.kind is DescriptorKind.BINARY else "l2"
+
+    @cached_property
+    def pyramid(self) -> ScalePyramid:
+        return ScalePyramid(self.scale_factor, self.n_levels)
+
+
+#: ORB's 256-bit descriptors with ORB-SLAM's thresholds, for an extractor's spec.
+def orb_spec(scale_factor: float, n_levels: int) -> FeatureSpec:
+    return FeatureSpec(DescriptorKind.BINARY, 32, scale_factor, n_levels, th_low=50, th_high=100)
+
+
+@dataclass
+class Keypoints:
+    """Keypoints of one image: pixel positions (as detected, distorted), pyramid level,
+    detector response, orientation in degrees and one descriptor row per keypoint
+    (uint8 bytes for binary descriptors, float32 for float ones)."""
+
+    xy: NDArray[np.float32]
+    octave: NDArray[np.int32]
+    response: NDArray[np.float32]
+    angle: NDArray[np.float32]
+    descriptors: NDArray[np.uint8] | NDArray[np.float32]
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    def subset(self, keep: NDArray[np.bool_] | NDArray[np.intp]) -> "Keypoints":
+        return Keypoints(self.xy[keep], self.octave[keep], self.response[keep], self.angle[keep], self.descriptors[keep])
+
+    @staticmethod
+    def empty(descriptor_size: int = 32, dtype: type = np.uint8) -> "Keypoints":
+        return Keypoints(
+            np.zeros((0, 2), np.float32), np.zeros(0, np.int32), np.zeros(0, np.float32),
+            np.zeros(0, np.float32), np.zeros((0, descriptor_size), dtype),
+        )
+
+
+# ---------------------------------------------------------------------------- semantics
+@dataclass
+class LabelMap:
+    """Per-pixel class ids of one image in the label set of the backend that made it.
+
+    ``names`` maps every id the backend can output to its class name, so class names in
+    the config (not backend-specific ids) decide what is dynamic. ``confidence`` is the
+    backend's score of the chosen label where it has one (for display and thresholds).
+    """
+
+    labels: NDArray[np.uint8]
+    names: dict[int, str]
+    confidence: NDArray[np.float32] | None = None
+
+    def __post_init__(self) -> None:
+        if self.labels.dtype != np.uint8 or self.labels.ndim != 2:
+            raise ValueError(f"LabelMap.labels must be uint8 HxW, got {self.labels.dtype} {self.labels.shape}")
+        if self.confidence is not None and self.confidence.shape != self.labels.shape:
+            raise ValueError(f"LabelMap.confidence shape {self.confidence.shape} != labels {self.labels.shape}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.labels.shape[0], self.labels.shape[1]
+
+
+# ---------------------------------------------------------------------------- tracking
+class TrackingState(str, Enum):
+    NOT_INITIALIZED = "not_initialized"
+    OK = "ok"
+    LOST = "lost"
+
+
+@dataclass
+class TrackResult:
+    """What a tracker returns for one frame. ``pose_wc`` is None when the frame has no pose
+    (before initialisation, or lost): such frames are left out of the trajectory."""
+
+    timestamp: float
+    pose_wc: NDArray[np.float64] | None
+    state: TrackingState
+    n_matches: int = 0
+    n_inliers: int = 0
+    n_keypoints: int = 0
+    is_keyframe: bool = False
+    dynamic_ratio: float = 0.0
+    timings: dict[str, float] = field(default_factory=dict)
