@@ -32,7 +32,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from semslam.semantics import SemanticsConfig, create_segmenter, refine_brute_force, refine_segmentation
+from semslam.config import SemanticsConfig
+from semslam.dynamics.srm import refine_brute_force, refine_segmentation
+from semslam.semantics import create_segmenter
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -89,7 +91,7 @@ def bench_segmenters(repeats: int, synth: list[Any]) -> list[dict[str, Any]]:
         wall: list[float] = []
         cpu: list[float] = []
         for _, rgb in images:
-            w, c = timed(lambda: seg.segment(rgb), repeats)
+            w, c = timed(lambda seg=seg, rgb=rgb: seg.segment(rgb), repeats)
             wall += w
             cpu += c
         rows.append({"backend": backend, "input_width": width, "frames": len(images), **stats(wall, cpu)})
@@ -115,7 +117,7 @@ def bench_srm(repeats: int, synth: list[Any], brute: bool) -> list[dict[str, Any
     groups: dict[tuple[str, float | None], dict[str, Any]] = {}
     for name, frac, mask, depth in cases:
         g = groups.setdefault((name, frac), {"wall": [], "cpu": [], "coverage": [], "grown": [], "brute_ms": [], "equal": True})
-        w, c = timed(lambda: refine_segmentation(mask, depth), repeats)
+        w, c = timed(lambda mask=mask, depth=depth: refine_segmentation(mask, depth), repeats)
         g["wall"] += w
         g["cpu"] += c
         out = refine_segmentation(mask, depth)

@@ -1,10 +1,9 @@
 #!/usr/bin/env python
-"""Benchmark on the synthetic sequences: the same as ``semslam bench`` (see semslam/bench.py)."""
+"""Benchmark on the synthetic sequences: the same as ``semslam bench`` (same options)."""
 
 import sys
 
-import semslam.runtime  # noqa: F401  (thread limits, before numpy loads)
-from semslam.bench import main
+from semslam.cli.main import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(["bench", *sys.argv[1:]]))

@@ -1,7 +1,8 @@
 """Run the System over a sequence and write what other tools read.
 
-Outputs in ``out_dir``: ``trajectory.txt`` (TUM; evo reads it), ``stats.json`` (counts,
-per-frame and per-stage timings, ATE/RPE when ground truth exists), ``report.html``.
+Outputs in ``out_dir``: ``trajectory.txt`` (TUM; evo reads it), ``keyframes.txt``,
+``stats.json`` (the run's ``RunResult``: counts, per-frame and per-stage timings, ATE/RPE
+when ground truth exists), ``config.json`` and ``report.html``.
 """
 
 from __future__ import annotations
@@ -9,39 +10,29 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TypeVar
 
 import numpy as np
 
 from semslam.config import SystemConfig, config_to_dict
-from semslam.errors import EvalError
-from semslam.io.sequence import Frame, Sequence
-from semslam.io.trajectory import read_trajectory, write_tum
+from semslam.core.protocols import FramePacket, SequenceSource as Sequence
+from semslam.core.types import RunResult, TrackResult
+from semslam.errors import ConfigError, DataError, EvalError
+from semslam.io.trajectory import Trajectory, read_trajectory, write_tum
 from semslam.slam.system import System
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 
-@dataclass
-class RunSummary:
-    out_dir: Path
-    stats: dict[str, Any]
-
-    @property
-    def ate_rmse(self) -> float | None:
-        ate = self.stats.get("ate")
-        return None if ate is None else float(ate["rmse"])
-
-
-def prefetch(frames: Iterator[Frame], depth: int = 2) -> Iterator[Frame]:
+def prefetch(items: Iterator[T], depth: int = 2) -> Generator[T, None, None]:
     """Decode the next frames in a background thread (OpenCV releases the GIL)."""
     with ThreadPoolExecutor(max_workers=1) as pool:
         sentinel = object()
-        it = iter(frames)
+        it = iter(items)
         queue = [pool.submit(next, it, sentinel) for _ in range(depth)]
         while True:
             item = queue.pop(0).result()
@@ -67,72 +58,117 @@ def run_slam(
     report: bool = True,
     save_map: str | Path | None = None,
     load_map: str | Path | None = None,
-) -> RunSummary:
-    """Track every frame of ``sequence``, write outputs, evaluate against ground truth."""
+) -> RunResult:
+    """Track every frame of ``sequence``, write outputs, evaluate against ground truth.
+
+    Whatever happens (a failed worker thread, an exception while tracking), the trajectory
+    so far, ``keyframes.txt`` and ``stats.json`` (with ``error``) are written before the
+    exception propagates; every thread and process the run started is stopped.
+    """
     out = Path(out_dir)
+    if config.sensor == "rgbd" and not sequence.has_depth:
+        raise DataError(sequence.root, "no depth images: this is a monocular sequence, and monocular tracking is "
+                                       "not built yet (RGB-D only for now)")
     out.mkdir(parents=True, exist_ok=True)
     system = System(config, sequence.camera, Path(load_map) if load_map else None)
     n_total = len(sequence) if max_frames is None else min(max_frames, len(sequence))
-    frame_ms: list[float] = []
-    dynamic_ratio: list[float] = []
-    stage_ms: dict[str, list[float]] = {}
-    t_start = time.perf_counter()
+    timing = _RunTiming()
+    error: BaseException | None = None
+    try:
+        if save_map and not system.has_map:
+            raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+        _track_all(system, sequence, config, n_total, timing, progress)
+    except BaseException as exc:
+        error = exc
+    finally:
+        try:
+            system.shutdown()
+        except BaseException as exc:  # a worker that failed on the last keyframes
+            error = error or exc
+    if save_map and error is None:
+        system.save_map(Path(save_map))
+    result = _write_outputs(system, sequence, config, out, timing, report, error)
+    if error is not None:
+        raise error
+    return result
+
+
+class _RunTiming:
+    """Per-frame wall times, per-stage times and dynamic ratios of one run."""
+
+    def __init__(self) -> None:
+        self.frame_ms: list[float] = []
+        self.dynamic_ratio: list[float] = []
+        self.stage_ms: dict[str, list[float]] = {}
+        self.t_start = time.perf_counter()
+        self.wall_s = 0.0
+
+    def add(self, ms: float, result: TrackResult) -> None:
+        self.frame_ms.append(ms)
+        self.dynamic_ratio.append(result.dynamic_ratio)
+        for stage, v in result.timings.items():
+            self.stage_ms.setdefault(stage, []).append(v)
+
+
+def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total: int, timing: _RunTiming,
+               progress: bool) -> None:
     # The reader thread hands each decoded frame to the system at once (segmentation starts).
-    frames = prefetch(system.prepare(f) for f in sequence.frames(0, n_total))
+    packets = prefetch(system.prepare(FramePacket(f)) for f in sequence.frames(0, n_total))
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=n_total, unit="frame", desc=f"semslam {config.preset}", dynamic_ncols=True, leave=True)
     try:
-        for frame in frames:
+        for packet in packets:
             t0 = time.perf_counter()
-            result = system.track(frame)
-            frame_ms.append((time.perf_counter() - t0) * 1e3)
-            dynamic_ratio.append(result.dynamic_ratio)
-            for stage, ms in result.timings.items():
-                stage_ms.setdefault(stage, []).append(ms)
+            result = system.track(packet)
+            timing.add((time.perf_counter() - t0) * 1e3, result)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(state=result.state.value, inl=result.n_inliers, kf=system.n_keyframes, refresh=False)
     finally:
+        packets.close()
         if bar is not None:
             bar.close()
-        system.shutdown()
-    wall_s = time.perf_counter() - t_start
-    if save_map:
-        system.save_map(Path(save_map))
+        timing.wall_s = time.perf_counter() - timing.t_start
 
+
+def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out: Path, timing: _RunTiming,
+                   report: bool, error: BaseException | None) -> RunResult:
     traj = system.trajectory()
     write_tum(out / "trajectory.txt", traj)
+    paths = {"trajectory": str(out / "trajectory.txt"), "stats": str(out / "stats.json"),
+             "config": str(out / "config.json")}
     kf_traj = system.keyframe_trajectory()
-    if kf_traj is not None:
+    if len(kf_traj):
         write_tum(out / "keyframes.txt", kf_traj)
-    stats: dict[str, Any] = {
-        "sequence": str(sequence.root),
-        "preset": config.preset,
-        **system.counts(),
-        **system.extra_stats(),
-        "skipped_frames": len(sequence.skipped),
-        "ms_per_frame": _timing_stats(frame_ms),
-        "stages_ms_median": {k: float(np.median(v)) for k, v in stage_ms.items()},
-        "dynamic_ratio_mean": float(np.mean(dynamic_ratio)) if dynamic_ratio else 0.0,
-        "wall_s": wall_s,
-        "fps": len(frame_ms) / wall_s if wall_s > 0 else 0.0,
-        "tracking_fps": 1000.0 / float(np.mean(frame_ms)) if frame_ms else 0.0,
-        "camera": {"fx": sequence.camera.fx, "fy": sequence.camera.fy, "cx": sequence.camera.cx,
-                   "cy": sequence.camera.cy, "dist": list(sequence.camera.dist), "source": sequence.camera.source},
-    }
-    if sequence.skipped:
-        stats["skipped"] = [msg for _, msg in sequence.skipped]
+        paths["keyframes"] = str(out / "keyframes.txt")
+    n = len(timing.frame_ms)
+    cam = sequence.camera
+    result = RunResult(
+        sequence=str(sequence.root), preset=config.preset, out_dir=out, **system.counts(),
+        skipped_frames=len(sequence.skipped), skipped=[msg for _, msg in sequence.skipped],
+        ms_per_frame=_timing_stats(timing.frame_ms),
+        stages_ms_median={k: float(np.median(v)) for k, v in timing.stage_ms.items()},
+        dynamic_ratio_mean=float(np.mean(timing.dynamic_ratio)) if timing.dynamic_ratio else 0.0,
+        wall_s=timing.wall_s, fps=n / timing.wall_s if timing.wall_s > 0 else 0.0,
+        tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,
+        camera={"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width, "height": cam.height,
+                "dist": list(cam.dist), "source": cam.source},
+        tracker=system.stats(), paths=paths,
+        error=None if error is None else f"{type(error).__name__}: {error}",
+    )
     if sequence.groundtruth_path is not None and len(traj) >= 3:
-        stats.update(_evaluate(sequence.groundtruth_path, traj, config, out, stats, report))
-    (out / "stats.json").write_text(json.dumps(stats, indent=2))
+        _evaluate(sequence.groundtruth_path, traj, config, out, result, report)
+    (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
     (out / "config.json").write_text(json.dumps(config_to_dict(config), indent=2))
-    return RunSummary(out, stats)
+    return result
 
 
-def _evaluate(gt_path: Path, traj: Any, config: SystemConfig, out: Path, stats: dict[str, Any], report: bool) -> dict[str, Any]:
+def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, result: RunResult,
+              report: bool) -> None:
+    """ATE (SE(3) for RGB-D, Sim(3) for monocular) and RPE over 1 s, into ``result``; the HTML report."""
     from semslam.eval.metrics import ate, rpe
 
     gt = read_trajectory(gt_path)
@@ -142,14 +178,16 @@ def _evaluate(gt_path: Path, traj: Any, config: SystemConfig, out: Path, stats: 
         rpe_res = rpe(gt, traj, delta=1.0, delta_unit="seconds", align="none")
     except EvalError as exc:
         log.warning("evaluation skipped: %s", exc)
-        return {"eval_error": str(exc)}
-    result = {"ate": ate_res.stats, "ate_alignment": align,
-              "rpe_trans_1s": rpe_res.trans_stats, "rpe_rot_deg_1s": rpe_res.rot_stats}
+        result.eval_error = str(exc)
+        return
+    result.ate, result.ate_alignment = ate_res.stats, align
+    result.rpe_trans_1s, result.rpe_rot_deg_1s = rpe_res.trans_stats, rpe_res.rot_stats
     if report:
         from semslam.eval.report import write_report
 
-        extra = {"preset": config.preset, "frames": stats["frames"], "tracked": stats["tracked_frames"],
-                 "keyframes": stats["keyframes"], "median ms/frame": round(stats["ms_per_frame"]["median"], 2),
-                 "fps (wall)": round(stats["fps"], 1)}
-        write_report(out / "report.html", gt, traj, ate_res, rpe_res, title=f"semslam {config.preset}: {Path(stats['sequence']).name}", extra=extra)
-    return result
+        extra = {"preset": config.preset, "frames": result.frames, "tracked": result.tracked_frames,
+                 "lost": result.lost_frames, "keyframes": result.keyframes,
+                 "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
+        write_report(out / "report.html", gt, traj, ate_res, rpe_res,
+                     title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra)
+        result.paths["report"] = str(out / "report.html")

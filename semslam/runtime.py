@@ -1,21 +1,25 @@
-"""Process-wide settings for running SLAM on a few cores.
+"""Process-wide settings for running SLAM on a few cores, applied by entry points.
 
 SLAM runs its own threads (tracking, local mapping, loop closing) and a BA worker
 process; BLAS and OpenCV worker pools on top of them only compete for the cores
-(measured on 2 cores: 36 -> 28 ms/frame median on room_loop). Import this module before
-numpy for the BLAS settings to take effect; the environment overrides the defaults.
+(measured on 2 cores: 36 -> 28 ms/frame median on room_loop). Nothing here acts at import:
+the CLI's ``main`` and the benchmark scripts call ``limit_threads()`` first thing (BLAS
+reads its variables when numpy loads), a library user decides for their own process, and
+a Ray worker gets what its task sets. The environment overrides the defaults.
 """
 
 from __future__ import annotations
 
 import os
 
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+BLAS_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def limit_opencv_threads() -> None:
-    """One OpenCV thread unless SEMSLAM_OPENCV_THREADS says otherwise."""
+def limit_threads() -> None:
+    """One BLAS thread (for libraries not yet loaded) and one OpenCV thread, unless the
+    environment (``*_NUM_THREADS``, ``SEMSLAM_OPENCV_THREADS``) says otherwise."""
+    for var in BLAS_VARIABLES:
+        os.environ.setdefault(var, "1")
     import cv2
 
     cv2.setNumThreads(int(os.environ.get("SEMSLAM_OPENCV_THREADS", "1")))

@@ -292,7 +292,9 @@ def test_pose_graph_closes_loop():
     assert odo.max() < 3.0 * odo.mean()  # the correction is spread, not dumped on one edge
     assert odo.min() > 0.2 * odo.mean()
     # and the trajectory is closer to the truth than the drifted one
-    pos_err = lambda p: np.linalg.norm(p[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
+    def pos_err(p: np.ndarray) -> float:
+        return float(np.linalg.norm(p[:, :3, 3] - truth[:, :3, 3], axis=1).mean())
+
     assert pos_err(out) < 0.5 * pos_err(init)
 
 

@@ -17,7 +17,7 @@ from semslam.eval.metrics import ate
 from semslam.features.base import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
-from semslam.io.sequence import Frame
+from semslam.core.types import Frame
 from semslam.io.trajectory import Trajectory
 from semslam.slam.system import System
 from semslam.synth import SEQUENCES, Renderer
@@ -93,7 +93,6 @@ def test_walking_ate_with_dynamics_far_below_without() -> None:
     for name, over in (("off", base), ("on", base + ["dynamics.semantic=true"])):
         system = System(load_config("orb", over), cam)
         for f in frames:
-            f.dynamic_mask = None
             system.track(f)
         system.shutdown()
         errs[name] = ate(gt, system.trajectory(), align="se3").stats["rmse"]

@@ -85,12 +85,12 @@ def test_default_preset_on_walking_scene(rendered: dict[str, Path], tmp_path: Pa
 
 def test_max_frames_camera_and_set_options(rendered: dict[str, Path], tmp_path: Path) -> None:
     stats = _run(rendered["static"], tmp_path / "run", "--preset", "f2kf", "--max-frames", "10", "--camera", "535.4,539.2,320.1,247.6",
-                 "--set", "tracking.min_inliers=25", "--no-report")
+                 "--set", "frame_to_keyframe.min_inliers=25", "--no-report")
     assert stats["frames"] == 10
     assert stats["camera"]["source"] == "--camera"
     assert not (tmp_path / "run" / "report.html").exists()
     cfg = json.loads((tmp_path / "run" / "config.json").read_text())
-    assert cfg["tracking"]["min_inliers"] == 25
+    assert cfg["frame_to_keyframe"]["min_inliers"] == 25
 
 
 def test_run_errors_are_one_line(rendered: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -98,7 +98,7 @@ def test_run_errors_are_one_line(rendered: dict[str, Path], tmp_path: Path, caps
     assert "missing: sequence not found" in capsys.readouterr().err
     assert main(["run", str(rendered["static"]), "--out", str(tmp_path / "o"), "--preset", "nope"]) == 2
     assert "unknown preset 'nope'" in capsys.readouterr().err
-    assert main(["run", str(rendered["static"]), "--out", str(tmp_path / "o"), "--set", "tracking.bogus=1"]) == 2
+    assert main(["run", str(rendered["static"]), "--out", str(tmp_path / "o"), "--set", "frame_to_keyframe.bogus=1"]) == 2
     assert "unknown key 'bogus'" in capsys.readouterr().err
 
 

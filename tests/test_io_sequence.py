@@ -47,8 +47,8 @@ def test_association_drops_unmatched_and_respects_max_diff(tmp_path: Path) -> No
 
 
 def test_associations_file_used_when_given(tum_folder: Path) -> None:
-    rgb = [l.split() for l in (tum_folder / "rgb.txt").read_text().splitlines() if not l.startswith("#")]
-    dep = [l.split() for l in (tum_folder / "depth.txt").read_text().splitlines() if not l.startswith("#")]
+    rgb = [line.split() for line in (tum_folder / "rgb.txt").read_text().splitlines() if not line.startswith("#")]
+    dep = [line.split() for line in (tum_folder / "depth.txt").read_text().splitlines() if not line.startswith("#")]
     assoc = tum_folder / "assoc.txt"
     assoc.write_text("".join(f"{r[0]} {r[1]} {d[0]} {d[1]}\n" for r, d in list(zip(rgb, dep))[:3]))
     assert len(TumRgbdSequence(tum_folder, associations=assoc)) == 3

@@ -15,11 +15,11 @@ import pytest
 from semslam.config import load_config
 from semslam.eval.metrics import ate
 from semslam.geometry.camera import PinholeCamera
-from semslam.io.sequence import Frame
+from semslam.core.types import Frame
 from semslam.io.trajectory import Trajectory
 from semslam.slam.map_io import load_map
 from semslam.slam.system import System
-from semslam.slam.types import TrackingState
+from semslam.core.types import TrackingState
 from semslam.synth import SEQUENCES, Renderer
 
 N_FRAMES = 90
@@ -55,7 +55,7 @@ def test_static_accuracy_and_map(rendered: tuple[list[Frame], np.ndarray, Pinhol
     states = [system.track(f).state for f in frames]
     system.shutdown()
     assert all(s is TrackingState.OK for s in states)
-    stats = system.extra_stats()
+    stats = system.stats()
     assert system.n_keyframes >= 3 and stats["map_points"] > 500 and stats["local_ba"] >= 1
     # Static scene, 3 s: the target for static sequences is <= 1.5 cm.
     assert _ate(system.trajectory(), gt, _times(frames)) < 0.015
@@ -77,7 +77,7 @@ def test_relocalisation_after_blackout(rendered: tuple[list[Frame], np.ndarray, 
     for f in frames[62:]:
         results[f.index] = system.track(f)
     system.shutdown()
-    assert system.extra_stats()["relocalisations"] >= 1
+    assert system.stats()["relocalisations"] >= 1
     assert results[62].state is TrackingState.OK
     # Pose right after relocalisation, relative to the first frame's ground truth.
     est = results[62].pose_wc
@@ -111,7 +111,7 @@ def test_save_load_and_localisation_only(rendered: tuple[list[Frame], np.ndarray
     res = [loc.track(f) for f in frames[60:]]
     loc.shutdown()
     assert loc.n_keyframes == n_kf
-    assert loc.extra_stats()["relocalisations"] >= 1
+    assert loc.stats()["relocalisations"] >= 1
     ok = [r for r in res if r.state is TrackingState.OK]
     assert len(ok) >= 0.9 * len(res)
     # Poses in the loaded map's frame (the first frame of the mapping run).
@@ -126,7 +126,7 @@ def test_threaded_mode_matches_sequential_accuracy(rendered: tuple[list[Frame], 
     for f in frames[:60]:
         system.track(f)
     system.shutdown()
-    assert system.extra_stats()["threaded"] is True
+    assert system.stats()["threaded"] is True
     assert _ate(system.trajectory(), gt[:60], _times(frames[:60])) < 0.015
 
 

@@ -18,9 +18,12 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from semslam.errors import ConfigError, DataError
-from semslam.io.sequence import Frame, TumRgbdSequence
+from semslam.core.types import Frame
+from semslam.io.sequence import TumRgbdSequence
+from semslam.core import registry
+from semslam.dynamics import srm as refinement
+from semslam.dynamics.srm import refine_brute_force, refine_segmentation
 from semslam.semantics import (
-    BACKEND_MODULES,
     DDL_SLAM_DYNAMIC_CLASSES,
     SYNTH_CLASSES,
     VOC_CLASSES,
@@ -28,11 +31,7 @@ from semslam.semantics import (
     SemanticsConfig,
     create_segmenter,
     dynamic_mask,
-    refine_brute_force,
-    refine_segmentation,
-    register_segmenter,
 )
-from semslam.semantics import refinement
 from semslam.semantics.mediapipe_person import crop_columns
 from semslam.synth import SEQUENCES, Renderer, render_sequence
 from semslam.synth import writer as synth_writer
@@ -109,14 +108,8 @@ def test_registry_unknown_custom_and_missing_package(monkeypatch: pytest.MonkeyP
     with pytest.raises(ConfigError, match="unknown segmenter 'nope'.*ground_truth.*mediapipe_person"):
         create_segmenter(SemanticsConfig(backend="nope"))
 
-    class Everything:
-        name = "everything_person"
-        names = {0: "background", 15: "person"}
-
-        def segment(self, rgb: np.ndarray, frame: Frame | None = None) -> LabelMap:
-            return LabelMap(np.full(rgb.shape[:2], 15, np.uint8), dict(self.names))
-
-    register_segmenter("test_everything_person")(lambda cfg: Everything())
+    # A new backend is one factory plus one registry line.
+    monkeypatch.setitem(registry.PLUGINS["segmenter"], "test_everything_person", "tests.test_semantics:everything_person")
     seg = create_segmenter(SemanticsConfig(backend="test_everything_person"))
     assert dynamic_mask(seg.segment(np.zeros((4, 5, 3), np.uint8)), ["person"]).all()
     # A typo in dynamic_classes is reported when the segmenter is created, not on frame 1.
@@ -124,12 +117,29 @@ def test_registry_unknown_custom_and_missing_package(monkeypatch: pytest.MonkeyP
         create_segmenter(SemanticsConfig(backend="test_everything_person", dynamic_classes=["peple"]))
 
     # A backend whose optional package is missing: a ConfigError that says what to install.
-    monkeypatch.setitem(BACKEND_MODULES, "test_missing", "nonexistent_package_for_semslam_tests")
+    monkeypatch.setitem(registry.PLUGINS["segmenter"], "test_missing", "nonexistent_package_for_semslam_tests:create")
     with pytest.raises(ConfigError, match="needs the 'nonexistent_package_for_semslam_tests' package.*pip install"):
         create_segmenter(SemanticsConfig(backend="test_missing"))
     monkeypatch.setitem(sys.modules, "mediapipe", None)  # import mediapipe -> ImportError
     with pytest.raises(ConfigError, match="mediapipe.*pip install"):
         create_segmenter(SemanticsConfig(backend="mediapipe_person"))
+
+
+class _Everything:
+    """A segmenter that calls every pixel a person (registered by the test above)."""
+
+    name = "everything_person"
+    names = {0: "background", 15: "person"}
+
+    def segment(self, rgb: np.ndarray, frame: Frame | None = None) -> LabelMap:
+        return LabelMap(np.full(rgb.shape[:2], 15, np.uint8), dict(self.names))
+
+    def close(self) -> None:
+        pass
+
+
+def everything_person(cfg: SemanticsConfig) -> _Everything:
+    return _Everything()
 
 
 # ---------------------------------------------------------------- oracle backend

@@ -85,6 +85,9 @@ class BAResult:
     initial_error: float
     final_error: float
     time_ms: float
+    # False when an LM solve threw (e.g. an indeterminant system): the estimate of that
+    # stage was left unchanged, and the caller counts it as a failed BA.
+    converged: bool = True
 
 
 def reprojection_errors(problem: BAProblem, poses_cw: Array, points_w: Array) -> Array:
@@ -205,12 +208,13 @@ def _values(poses_wc: Array, points_w: Array, pose_keys: Array, point_idx: Array
 
 def _optimize(problem: BAProblem, poses_cw: Array, points_w: Array, active: NDArray[np.bool_],
               robust: bool, iterations: int, Ks: gtsam.Cal3_S2Stereo,
-              Km: gtsam.Cal3_S2) -> tuple[Array, Array]:
-    """One LM solve over the active observations; returns updated (poses_cw, points_w)."""
+              Km: gtsam.Cal3_S2) -> tuple[Array, Array, bool]:
+    """One LM solve over the active observations; returns updated (poses_cw, points_w) and
+    whether the solve succeeded (on failure the inputs come back unchanged)."""
     pts_ok = _constrained_points(problem, active)
     active = active & pts_ok[problem.obs_point]
     if iterations <= 0 or not active.any():
-        return poses_cw, points_w
+        return poses_cw, points_w, True
     K = poses_cw.shape[0]
     pose_keys = np.unique(problem.obs_pose[active])
     point_idx = np.unique(problem.obs_point[active])
@@ -233,7 +237,7 @@ def _optimize(problem: BAProblem, poses_cw: Array, points_w: Array, active: NDAr
         # ORB-SLAM's g2o never throws; a failed BA must not take the mapping thread down.
         log.warning("bundle adjustment failed (%s); estimate left unchanged",
                     str(exc).strip()[:200])
-        return poses_cw, points_w
+        return poses_cw, points_w, False
 
     poses_cw = poses_cw.copy()
     points_w = points_w.copy()
@@ -243,7 +247,7 @@ def _optimize(problem: BAProblem, poses_cw: Array, points_w: Array, active: NDAr
         wc = poses_from_rows(gtsam.utilities.extractPose3(result))
         poses_cw[free] = invert(wc[~problem.pose_fixed[pose_keys]])
     points_w[point_idx] = gtsam.utilities.extractPoint3(result)
-    return poses_cw, points_w
+    return poses_cw, points_w, True
 
 
 def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), robust: bool = True,
@@ -273,11 +277,12 @@ def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), rob
 
     active = np.ones(m, bool)
     n1 = iterations[0] if remove_outliers else iterations[0] + iterations[1]
-    poses, points = _optimize(problem, poses0, points0, active, robust, n1, Ks, Km)
+    poses, points, ok = _optimize(problem, poses0, points0, active, robust, n1, Ks, Km)
     if remove_outliers:
         chi2 = reprojection_errors(problem, poses, points)
         active = chi2 <= thr
-        poses, points = _optimize(problem, poses, points, active, False, iterations[1], Ks, Km)
+        poses, points, ok2 = _optimize(problem, poses, points, active, False, iterations[1], Ks, Km)
+        ok = ok and ok2
 
     chi2 = reprojection_errors(problem, poses, points)
     inlier = chi2 <= thr
@@ -285,4 +290,4 @@ def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), rob
     sel = inlier & np.isfinite(chi2_0)
     initial = float(chi2_0[sel].mean()) if sel.any() else float("nan")
     final = float(chi2[sel].mean()) if sel.any() else float("nan")
-    return BAResult(poses, points, inlier, initial, final, (time.perf_counter() - t0) * 1e3)
+    return BAResult(poses, points, inlier, initial, final, (time.perf_counter() - t0) * 1e3, ok)

@@ -26,6 +26,10 @@ _FIXED_SIGMA = 1e-9
 log = logging.getLogger(__name__)
 
 
+class PoseGraphFailed(RuntimeError):
+    """GTSAM could not solve the pose graph; the caller keeps its initial poses and counts it."""
+
+
 def optimize_pose_graph(
     poses_wc: Array,
     edges: NDArray[np.intp],
@@ -81,10 +85,8 @@ def optimize_pose_graph(
     params.setRelativeErrorTol(1e-10)
     try:
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-    except RuntimeError as exc:  # keep the (loop-corrected) input rather than kill loop closing
-        log.warning("pose graph optimisation failed (%s); poses left unchanged",
-                    str(exc).strip()[:200])
-        return poses_wc.copy()
+    except RuntimeError as exc:
+        raise PoseGraphFailed(str(exc).strip()[:200]) from exc
 
     out = poses_wc.copy()
     out[keys] = poses_from_rows(gtsam.utilities.extractPose3(result))

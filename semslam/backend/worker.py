@@ -9,7 +9,7 @@ optimisation use both cores as ORB-SLAM's threads do.
 from __future__ import annotations
 
 import multiprocessing as mp
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust
@@ -22,15 +22,20 @@ def _warm() -> bool:
 
 
 class BundleAdjustmentRunner:
-    """``run(problem, **kwargs) -> BAResult``, in this process or in one worker process."""
+    """``run(problem, **kwargs) -> BAResult``, in this process or in one worker process.
 
-    def __init__(self, use_process: bool) -> None:
+    Built inert; ``start(use_process=True)`` starts the worker process (so the owner can
+    build everything that may fail first), ``close()`` ends it. Until started, or after
+    ``start(use_process=False)``, BAs run in the calling thread.
+    """
+
+    def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
-        if use_process:
+
+    def start(self, use_process: bool) -> None:
+        if use_process and self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
-            self._warmup: Future[bool] | None = self._pool.submit(_warm)
-        else:
-            self._warmup = None
+            self._pool.submit(_warm)
 
     def run(self, problem: BAProblem, **kwargs: Any) -> BAResult:
         if self._pool is None:

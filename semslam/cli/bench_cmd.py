@@ -1,17 +1,56 @@
-"""``semslam bench``: benchmarks on the synthetic sequences (options of semslam/bench.py)."""
+"""``semslam bench``: render synthetic sequences, run presets/variants on each, print a JSON
+document and a markdown table (``--ablation``: the structure of STDC-SLAM's Table 1)."""
 
 from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
 
 import typer
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("bench", add_help_option=False,
-                 context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-    def bench(ctx: typer.Context) -> None:
-        """Render synthetic sequences, run presets, print JSON + a markdown table (--ablation: STDC-SLAM Table 1)."""
-        from semslam.bench import main
+    @app.command("bench")
+    def bench(
+        presets: Optional[str] = typer.Option(None, "--presets", help="comma-separated presets (default f2kf,orb; none with --ablation)"),
+        ablation: bool = typer.Option(False, "--ablation", help="STDC-SLAM Table 1 variants + ddl on walking/static sequences"),
+        variant: list[str] = typer.Option([], "--variant", help="label:preset:key=value,... (repeatable)"),
+        sequences: Optional[str] = typer.Option(None, "--sequences", help="comma-separated synthetic sequence names"),
+        frames: Optional[int] = typer.Option(None, "--frames", min=2, help="frames per sequence (default: each sequence's own)"),
+        data: Path = typer.Option(Path("out/bench/data"), "--data", help="where rendered sequences are cached"),
+        out: Path = typer.Option(Path("out/bench/runs"), "--out", help="where run outputs go"),
+        json_path: Optional[Path] = typer.Option(None, "--json", help="also write the JSON here"),
+    ) -> None:
+        """Benchmark presets on the synthetic sequences: JSON + a markdown table of ATE and ms/frame."""
+        from semslam.experiments.bench import (
+            ABLATION_SEQUENCES,
+            ABLATION_VARIANTS,
+            DEFAULT_SEQUENCES,
+            Variant,
+            document,
+            markdown_table,
+            run_benchmark,
+        )
 
-        code = main(list(ctx.args))
-        if code:
-            raise typer.Exit(code)
+        if presets is None:
+            presets = "" if ablation else "f2kf,orb"
+        texts = [p for p in presets.split(",") if p] + list(variant) + (ABLATION_VARIANTS if ablation else [])
+        variants = [Variant.parse(t) for t in texts]
+        names = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else (
+            ABLATION_SEQUENCES if ablation else DEFAULT_SEQUENCES)
+
+        def report(row) -> None:  # type: ignore[no-untyped-def]
+            r = row.result
+            print(f"{row.variant} on {row.sequence}: ATE {r.ate_rmse}, {r.ms_per_frame['median']:.1f} ms/frame, "
+                  f"loops {r.get('loops')}", file=sys.stderr)
+
+        rows = run_benchmark(variants, names, data, out, frames, on_row=report)
+        text = json.dumps(document(rows, names), indent=2)
+        print(text)
+        if json_path:
+            json_path.parent.mkdir(parents=True, exist_ok=True)
+            json_path.write_text(text)
+        print()
+        print(markdown_table(rows))

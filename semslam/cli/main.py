@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import sys
 
-import semslam.runtime  # noqa: F401  (thread limits; before numpy loads)
-
 import typer
 
+import semslam.runtime
 from semslam.errors import SemslamError
 
 app = typer.Typer(
@@ -32,8 +31,8 @@ def _register_commands() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return the process exit code (2 for user errors)."""
+    semslam.runtime.limit_threads()  # before the commands import numpy
     _register_commands()
-    semslam.runtime.limit_opencv_threads()
     try:
         # Typer/click handle usage errors themselves (message + exit code 2) and end with
         # SystemExit; only our own errors need catching.

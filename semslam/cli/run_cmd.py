@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Optional
@@ -13,7 +12,8 @@ from rich.table import Table
 
 from semslam.config import load_config
 from semslam.io.sequence import open_sequence
-from semslam.pipeline import RunSummary, run_slam
+from semslam.core.types import RunResult
+from semslam.pipeline import run_slam
 
 console = Console()
 
@@ -22,26 +22,40 @@ def _setup_logging(verbose: bool) -> None:
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
 
-def print_summary(summary: RunSummary) -> None:
-    s = summary.stats
-    table = Table(title=f"semslam {s['preset']} on {Path(s['sequence']).name}", show_header=False)
-    table.add_row("frames (tracked / total)", f"{s['tracked_frames']} / {s['frames']}")
-    if s.get("skipped_frames"):
-        table.add_row("skipped unreadable frames", str(s["skipped_frames"]))
-    table.add_row("keyframes", str(s["keyframes"]))
+def print_summary(result: RunResult) -> None:
+    r = result
+    table = Table(title=f"semslam {r.preset} on {Path(r.sequence).name}", show_header=False)
+    table.add_row("frames (tracked / total)", f"{r.tracked_frames} / {r.frames}")
+    if r.lost_frames:
+        table.add_row("lost frames (not in trajectory.txt)", str(r.lost_frames))
+    if r.skipped_frames:
+        table.add_row("skipped unreadable frames", str(r.skipped_frames))
+    table.add_row("keyframes", str(r.keyframes))
     for key, label in (("map_points", "map points"), ("loops", "loops closed"), ("relocalisations", "relocalisations")):
-        if key in s:
-            table.add_row(label, str(s[key]))
-    if "ate" in s:
-        table.add_row(f"ATE RMSE ({s['ate_alignment']})", f"{s['ate']['rmse'] * 100:.2f} cm")
-        table.add_row("RPE trans RMSE (1 s)", f"{s['rpe_trans_1s']['rmse'] * 100:.2f} cm")
-        table.add_row("RPE rot RMSE (1 s)", f"{s['rpe_rot_deg_1s']['rmse']:.3f} deg")
-    ms = s["ms_per_frame"]
+        if key in r.tracker:
+            table.add_row(label, str(r.tracker[key]))
+    if r.ate is not None and r.rpe_trans_1s is not None and r.rpe_rot_deg_1s is not None:
+        table.add_row(f"ATE RMSE ({r.ate_alignment})", f"{r.ate['rmse'] * 100:.2f} cm")
+        table.add_row("RPE trans RMSE (1 s)", f"{r.rpe_trans_1s['rmse'] * 100:.2f} cm")
+        table.add_row("RPE rot RMSE (1 s)", f"{r.rpe_rot_deg_1s['rmse']:.3f} deg")
+    ms = r.ms_per_frame
     table.add_row("ms/frame (median / p95)", f"{ms['median']:.1f} / {ms['p95']:.1f}")
-    table.add_row("fps (tracking / wall incl. I/O)", f"{s['tracking_fps']:.1f} / {s['fps']:.1f}")
+    table.add_row("fps (tracking / wall incl. I/O)", f"{r.tracking_fps:.1f} / {r.fps:.1f}")
     console.print(table)
-    outputs = ["trajectory.txt", "stats.json"] + (["report.html"] if (summary.out_dir / "report.html").exists() else [])
-    console.print(f"wrote {', '.join(outputs)} to {summary.out_dir}")
+    outputs = [Path(p).name for p in r.paths.values()]
+    console.print(f"wrote {', '.join(outputs)} to {r.out_dir}")
+
+
+def run_overrides(set_: list[str], depth_scale: float | None, sequential: bool, localization_only: bool) -> list[str]:
+    """Command-line flags as ``--set`` overrides, so the config is built once, one way."""
+    flags = list(set_)
+    if depth_scale is not None:
+        flags.append(f"depth_scale={depth_scale}")
+    if sequential:
+        flags.append("slam.sequential=true")
+    if localization_only:
+        flags.append("slam.localization_only=true")
+    return flags
 
 
 def register(app: typer.Typer) -> None:
@@ -64,17 +78,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run SLAM on a sequence; write trajectory.txt, stats.json and report.html."""
         _setup_logging(verbose)
-        cfg = load_config(preset, set_)
-        if depth_scale is not None:
-            cfg.depth_scale = depth_scale
-        if sequential:
-            cfg.slam.sequential = True
-        if localization_only:
-            cfg.slam.localization_only = True
+        cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only))
         seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
-        summary = run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
-                           save_map=save_map, load_map=load_map)
-        print_summary(summary)
+        print_summary(run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
+                               save_map=save_map, load_map=load_map))
 
     @app.command("demo")
     def demo(
@@ -87,7 +94,7 @@ def register(app: typer.Typer) -> None:
         """Render the embedded demo sequence (people walking), run SLAM on it, print ATE and fps."""
         from dataclasses import replace
 
-        from semslam.synth import SEQUENCES, render_sequence
+        from semslam.synth import SEQUENCES, needs_render, render_sequence
 
         _setup_logging(False)
         if sequence_name not in SEQUENCES:
@@ -96,30 +103,14 @@ def register(app: typer.Typer) -> None:
         if frames is not None:
             synth_cfg = replace(synth_cfg, frames=frames)
         seq_dir = out / sequence_name
-        if _needs_render(seq_dir, synth_cfg):
+        if needs_render(seq_dir, synth_cfg):
             console.print(f"rendering synthetic sequence {sequence_name!r} ({synth_cfg.frames} frames) to {seq_dir}")
             render_sequence(synth_cfg, seq_dir, progress=not quiet)
         else:
             console.print(f"reusing rendered sequence {seq_dir}")
         cfg = load_config(preset)
-        summary = run_slam(open_sequence(seq_dir), cfg, out / "run", progress=not quiet)
-        print_summary(summary)
-        s = summary.stats
-        if "ate" in s:
-            console.print(f"[bold]ATE RMSE {s['ate']['rmse'] * 100:.2f} cm, {s['tracking_fps']:.1f} fps tracking "
-                          f"({s['fps']:.1f} fps wall)[/bold]; report: {summary.out_dir / 'report.html'}")
-
-
-def _needs_render(seq_dir: Path, synth_cfg: object) -> bool:
-    """Re-render unless the folder holds the same configuration, complete."""
-    from dataclasses import asdict
-
-    meta = seq_dir / "sequence.json"
-    if not meta.is_file() or not (seq_dir / "groundtruth.txt").is_file():
-        return True
-    try:
-        saved = json.loads(meta.read_text())
-    except (OSError, json.JSONDecodeError):
-        return True
-    wanted = json.loads(json.dumps(asdict(synth_cfg)))  # type: ignore[call-overload]
-    return saved.get("config", saved) != wanted
+        result = run_slam(open_sequence(seq_dir), cfg, out / "run", progress=not quiet)
+        print_summary(result)
+        if result.ate_rmse is not None:
+            console.print(f"[bold]ATE RMSE {result.ate_rmse * 100:.2f} cm, {result.tracking_fps:.1f} fps tracking "
+                          f"({result.fps:.1f} fps wall)[/bold]; report: {result.out_dir / 'report.html'}")

@@ -128,6 +128,10 @@ class Segmenter(Protocol):
 
     def segment(self, rgb: NDArray[np.uint8], frame: Frame | None = None) -> LabelMap: ...
 
+    def close(self) -> None:
+        """Free what the backend holds (a MediaPipe graph, a thread pool)."""
+        ...
+
 
 @runtime_checkable
 class DepthSource(Protocol):

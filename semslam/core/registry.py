@@ -30,11 +30,11 @@ PLUGINS: dict[str, dict[str, str]] = {
         "float": "semslam.features.matching:L2Matcher",
     },
     "segmenter": {
-        "mediapipe_person": "semslam.semantics.mediapipe_person:create_segmenter",
-        "mediapipe_person_fast": "semslam.semantics.mediapipe_person:create_segmenter",
+        "mediapipe_person": "semslam.semantics.mediapipe_person:create_general",
+        "mediapipe_person_fast": "semslam.semantics.mediapipe_person:create_fast",
         "ground_truth": "semslam.semantics.ground_truth:create_segmenter",
-        "stdc": "semslam.semantics.nets_backend:create_segmenter",
-        "dunet": "semslam.semantics.nets_backend:create_segmenter",
+        "stdc": "semslam.semantics.nets_backend:create_stdc",
+        "dunet": "semslam.semantics.nets_backend:create_dunet",
     },
     "depth_source": {
         "sensor": "semslam.io.depth:SensorDepth",

@@ -181,3 +181,75 @@ class TrackResult:
     is_keyframe: bool = False
     dynamic_ratio: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------- runs
+@dataclass
+class RunResult:
+    """What one SLAM run produced, as a value (evo's ``Result`` is the model): written by the
+    pipeline as ``stats.json``, read back by ``semslam bench`` and the CLI.
+
+    ``tracker`` holds the tracker's own counters (map points, loops, BA counts, failures);
+    ``ate`` / ``rpe_*`` hold evo-style statistics (rmse, mean, median, std, min, max) in
+    metres / degrees when the sequence has ground truth.
+    """
+
+    sequence: str
+    preset: str
+    out_dir: Path
+    frames: int = 0
+    tracked_frames: int = 0
+    lost_frames: int = 0
+    uninitialized_frames: int = 0
+    keyframes: int = 0
+    skipped_frames: int = 0
+    skipped: list[str] = field(default_factory=list)
+    ms_per_frame: dict[str, float] = field(default_factory=dict)
+    stages_ms_median: dict[str, float] = field(default_factory=dict)
+    dynamic_ratio_mean: float = 0.0
+    wall_s: float = 0.0
+    fps: float = 0.0
+    tracking_fps: float = 0.0
+    camera: dict[str, object] = field(default_factory=dict)
+    tracker: dict[str, object] = field(default_factory=dict)
+    ate: dict[str, float] | None = None
+    ate_alignment: str | None = None
+    rpe_trans_1s: dict[str, float] | None = None
+    rpe_rot_deg_1s: dict[str, float] | None = None
+    eval_error: str | None = None
+    error: str | None = None
+    paths: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def ate_rmse(self) -> float | None:
+        return None if self.ate is None else float(self.ate["rmse"])
+
+    @property
+    def rpe_trans_rmse(self) -> float | None:
+        return None if self.rpe_trans_1s is None else float(self.rpe_trans_1s["rmse"])
+
+    def to_dict(self) -> dict[str, object]:
+        """The ``stats.json`` layout: every field, the tracker's counters at the top level."""
+        from dataclasses import asdict
+
+        d = asdict(self)
+        d["out_dir"] = str(self.out_dir)
+        tracker = d.pop("tracker")
+        d.update({k: v for k, v in tracker.items() if k not in d})
+        return {k: v for k, v in d.items() if v is not None}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, object]) -> "RunResult":
+        from dataclasses import fields
+
+        names = {f.name for f in fields(cls)}
+        known = {k: v for k, v in d.items() if k in names}
+        known["out_dir"] = Path(str(known.get("out_dir", ".")))
+        known["tracker"] = {k: v for k, v in d.items() if k not in names}
+        return cls(**known)  # type: ignore[arg-type]
+
+    def get(self, key: str, default: object = None) -> object:
+        """A field or a tracker counter by name (``loops``, ``map_points``, ...)."""
+        if key in self.tracker:
+            return self.tracker[key]
+        return getattr(self, key, default)

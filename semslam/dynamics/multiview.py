@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.config import DynamicsConfig
 from semslam.geometry.camera import PinholeCamera
 
 
@@ -36,6 +37,12 @@ class MultiViewParams:
     min_seeds: int = 3
     min_dynamic_ratio: float = 0.3
     downscale: int = 2
+
+    @classmethod
+    def from_config(cls, cfg: "DynamicsConfig") -> "MultiViewParams":
+        """The thresholds the ``dynamics:`` config section sets; the rest keep their defaults."""
+        return cls(parallax_deg=cfg.parallax_deg, depth_threshold_m=cfg.depth_threshold_m,
+                   depth_threshold_rel=cfg.depth_threshold_rel, edge_m=cfg.edge_m)
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Trajectory evaluation: association, ATE/RPE metrics (matching evo) and HTML reports."""
 
-from semslam.eval.association import associate, match_timestamps
+from semslam.io.association import associate, match_timestamps
 from semslam.eval.metrics import AteResult, RpeResult, ate, error_stats, rpe
 
 __all__ = [

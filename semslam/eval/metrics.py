@@ -4,7 +4,7 @@ Definitions follow Sturm et al., "A Benchmark for the Evaluation of RGB-D SLAM S
 (IROS 2012), and the numbers match evo 1.38 (``evo_ape`` / ``evo_rpe``) to floating-point
 rounding for the same settings:
 
-* association: :func:`semslam.eval.association.associate` (evo's nearest-time sync);
+* association: :func:`semslam.io.association.associate` (evo's nearest-time sync);
 * alignment: Umeyama on positions, applied to the estimate (SE(3) or Sim(3));
 * ATE: ``||p_est_aligned - p_gt||`` per associated pose (evo ``--pose_relation trans_part``);
 * RPE: ``E_ij = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``, translational error ``||trans(E)||`` in
@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from semslam.errors import EvalError
-from semslam.eval.association import associate
+from semslam.io.association import associate
 from semslam.geometry.alignment import apply_sim3, sim3_matrix, umeyama
 from semslam.geometry.se3 import invert
 from semslam.io.trajectory import Trajectory

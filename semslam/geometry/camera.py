@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -19,6 +19,25 @@ class PinholeCamera:
     cy: float
     dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
     source: str = field(default="", compare=False)
+    # Image size in pixels; 0 = unknown (then 2 cx + 1 by 2 cy + 1, the centred-principal-point
+    # guess). Sequence readers set it from the first image.
+    width: int = 0
+    height: int = 0
+
+    @property
+    def image_size(self) -> tuple[float, float]:
+        """(width, height) used for in-image tests."""
+        w = self.width if self.width > 0 else 2 * self.cx + 1
+        h = self.height if self.height > 0 else 2 * self.cy + 1
+        return w, h
+
+    def with_image_size(self, width: int, height: int) -> PinholeCamera:
+        return replace(self, width=int(width), height=int(height))
+
+    def in_image(self, uv: NDArray[np.floating]) -> NDArray[np.bool_]:
+        """Which (undistorted) pixel positions fall inside the image."""
+        w, h = self.image_size
+        return (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
 
     @property
     def K(self) -> NDArray[np.float64]:  # noqa: N802 - the usual name of the matrix

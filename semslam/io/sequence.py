@@ -10,14 +10,14 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.types import Frame
 from semslam.errors import DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import resolve_camera
@@ -26,32 +26,6 @@ from semslam.io.images import FrameReadError, read_depth, read_rgb
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
-
-
-@dataclass
-class Frame:
-    """One time step: colour image (RGB, uint8), depth in metres (0 = none) and timestamp."""
-
-    index: int
-    timestamp: float
-    rgb: NDArray[np.uint8]
-    depth: NDArray[np.float32] | None = None
-    rgb_path: Path | None = None
-    depth_path: Path | None = None
-    # Set by the semantic worker while the frame waits for tracking: a boolean dynamic
-    # mask, or a Future of one (segmentation runs ahead in its own thread).
-    dynamic_mask: Any = None
-    _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
-
-    @property
-    def gray(self) -> NDArray[np.uint8]:
-        if self._gray is None:
-            self._gray = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
-        return self._gray
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.rgb.shape[0], self.rgb.shape[1]
 
 
 @dataclass(frozen=True)
@@ -201,7 +175,7 @@ class TumRgbdSequence(Sequence):
         associations: str | Path | None = None,
     ) -> None:
         super().__init__()
-        from semslam.eval.association import match_timestamps
+        from semslam.io.association import match_timestamps
 
         self.root = Path(root)
         if not self.root.is_dir():
@@ -241,7 +215,7 @@ class TumRgbdSequence(Sequence):
                             self.root, len(self._rgb), len(rgb_all), max_diff)
         self._drop_missing_files()
         self._timestamps = np.array([e.timestamp for e in self._rgb])
-        self.camera = resolve_camera(self.root, camera)
+        self.camera = with_image_size(resolve_camera(self.root, camera), self._rgb[0].path if self._rgb else None)
         self.groundtruth_path = find_groundtruth(self.root)
 
     def _drop_missing_files(self) -> None:
@@ -273,6 +247,18 @@ class TumRgbdSequence(Sequence):
         return Frame(index, rgb_e.timestamp, rgb, depth, rgb_e.path, depth_e.path)
 
 
+def with_image_size(camera: PinholeCamera, first_image: Path | None) -> PinholeCamera:
+    """The camera with the image size of the sequence's first image (read from its header by
+    decoding it once); unchanged if it already has one or the image cannot be read (the frame
+    reader then reports the file)."""
+    if camera.width > 0 or first_image is None:
+        return camera
+    img = cv2.imread(str(first_image), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return camera
+    return camera.with_image_size(img.shape[1], img.shape[0])
+
+
 def _natural_key(path: Path) -> list[object]:
     return [int(tok) if tok.isdigit() else tok for tok in re.split(r"(\d+)", path.name)]
 
@@ -301,7 +287,7 @@ class ImageFolderSequence(Sequence):
             if not self._paths:
                 raise DataError(folder, f"no images ({', '.join(IMAGE_SUFFIXES)}) in folder")
             self._timestamps = self._folder_timestamps(fps)
-        self.camera = resolve_camera(self.root, camera)
+        self.camera = with_image_size(resolve_camera(self.root, camera), self._paths[0] if self._paths else None)
         self.groundtruth_path = find_groundtruth(self.root)
 
     def _folder_timestamps(self, fps: float) -> NDArray[np.float64]:

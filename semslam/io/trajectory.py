@@ -54,6 +54,13 @@ class Trajectory:
     def __len__(self) -> int:
         return int(self.timestamps.shape[0])
 
+    @classmethod
+    def from_poses(cls, stamped: list[tuple[float, Array]], name: str = "") -> Trajectory:
+        """From ``(timestamp, T_wc)`` pairs; an empty list gives an empty trajectory."""
+        if not stamped:
+            return cls(np.zeros(0), np.zeros((0, 4, 4)), name)
+        return cls(np.array([t for t, _ in stamped]), np.stack([T for _, T in stamped]), name)
+
     @property
     def positions(self) -> Array:
         """Camera centres in the world frame, ``(N, 3)``."""

@@ -273,7 +273,7 @@ def load_samples(
 ) -> list[Sample]:
     """Decode ``pairs`` (every ``every``-th), map labels to train indices, resize to fit ``size``."""
     lut = classes.lut()
-    return [load_sample(r, l, lut, size) for k, (r, l) in enumerate(pairs) if k % every == 0]
+    return [load_sample(r, lab, lut, size) for k, (r, lab) in enumerate(pairs) if k % every == 0]
 
 
 def describe_sources(tum: Sequence[Path], voc: Sequence[Path]) -> list[str]:

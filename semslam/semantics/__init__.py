@@ -1,27 +1,22 @@
-"""The semantics layer: segmenters (pluggable backends), a-priori dynamic classes and
-STDC-SLAM's depth-based Segmentation Refinement Module.
+"""The semantics layer: segmenters (pluggable backends) and a-priori dynamic classes.
 
 ``create_segmenter(cfg).segment(rgb, frame)`` gives a LabelMap; ``dynamic_mask`` turns
-it into the dynamic pixels by class name; ``refine_segmentation`` grows that mask along
-continuous depth (SRM). Backends are imported only when chosen.
+it into the dynamic pixels by class name. Backends are imported only when chosen.
+STDC-SLAM's depth refinement of the mask (SRM) is in ``semslam.dynamics.srm``.
 """
 
 from semslam.semantics.base import (
-    BACKEND_MODULES,
-    LabelMap,
-    Segmenter,
     available_segmenters,
     create_segmenter,
     dynamic_ids,
     dynamic_mask,
-    register_segmenter,
 )
-from semslam.semantics.config import SemanticsConfig
-from semslam.semantics.labels import DDL_SLAM_DYNAMIC_CLASSES, SYNTH_CLASSES, VOC_CLASSES
-from semslam.semantics.refinement import refine_brute_force, refine_segmentation
+from semslam.core.protocols import Segmenter
+from semslam.core.types import LabelMap
+from semslam.config import SemanticsConfig
+from semslam.core.labels import DDL_SLAM_DYNAMIC_CLASSES, SYNTH_CLASSES, VOC_CLASSES
 
 __all__ = [
-    "BACKEND_MODULES",
     "DDL_SLAM_DYNAMIC_CLASSES",
     "SYNTH_CLASSES",
     "VOC_CLASSES",
@@ -32,7 +27,4 @@ __all__ = [
     "create_segmenter",
     "dynamic_ids",
     "dynamic_mask",
-    "refine_brute_force",
-    "refine_segmentation",
-    "register_segmenter",
 ]

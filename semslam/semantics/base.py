@@ -1,79 +1,28 @@
-"""The segmenter protocol, its registry and the class-name -> dynamic-mask mapping.
+"""Building segmenters by name and the class-name -> dynamic-mask mapping.
 
-A backend is one module that registers a factory with ``@register_segmenter(name)``.
-Backend modules are imported only when their backend is chosen (``BACKEND_MODULES``), so
-an optional package (mediapipe, torch) is needed only by the runs that use it, and its
+A backend is one module implementing ``core.protocols.Segmenter`` with a factory listed in
+``core.registry``. Backend modules are imported only when their backend is chosen, so an
+optional package (mediapipe, torch) is needed only by the runs that use it, and its
 absence is a ConfigError that says what to install instead of an ImportError at startup.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core import registry
+from semslam.core.protocols import Segmenter
+from semslam.core.types import LabelMap
 from semslam.errors import ConfigError
-from semslam.semantics.config import SemanticsConfig
-from semslam.semantics.labels import KNOWN_CLASS_NAMES
-
-if TYPE_CHECKING:
-    from semslam.io.sequence import Frame
-
-@dataclass
-class LabelMap:
-    """Per-pixel class ids of one image in the label set of the backend that made it.
-
-    ``names`` maps every id the backend can output to its class name, so class names in
-    the config (not backend-specific ids) decide what is dynamic. ``confidence`` is the
-    backend's score of the chosen label where it has one (for display and thresholds).
-    """
-
-    labels: NDArray[np.uint8]
-    names: dict[int, str]
-    confidence: NDArray[np.float32] | None = None
-
-    def __post_init__(self) -> None:
-        if self.labels.dtype != np.uint8 or self.labels.ndim != 2:
-            raise ValueError(f"LabelMap.labels must be uint8 HxW, got {self.labels.dtype} {self.labels.shape}")
-        if self.confidence is not None and self.confidence.shape != self.labels.shape:
-            raise ValueError(f"LabelMap.confidence shape {self.confidence.shape} != labels {self.labels.shape}")
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.labels.shape[0], self.labels.shape[1]
-
-
-class Segmenter(Protocol):
-    """Anything that turns an RGB image into a LabelMap.
-
-    ``names`` is the backend's label set where it is known before the first image (None
-    for backends whose label set comes with the data, like ``ground_truth``), so a bad
-    ``dynamic_classes`` can be reported at startup.
-    """
-
-    name: str
-    names: dict[int, str] | None
-
-    def segment(self, rgb: NDArray[np.uint8], frame: Frame | None = None) -> LabelMap: ...
+from semslam.config import SemanticsConfig
+from semslam.core.labels import KNOWN_CLASS_NAMES
 
 
 SegmenterFactory = Callable[[SemanticsConfig], Segmenter]
-
-_REGISTRY: dict[str, SegmenterFactory] = {}
-
-# Backend name -> module that registers it; imported only when that backend is chosen.
-BACKEND_MODULES: dict[str, str] = {
-    "mediapipe_person": "semslam.semantics.mediapipe_person",
-    "mediapipe_person_fast": "semslam.semantics.mediapipe_person",
-    "ground_truth": "semslam.semantics.ground_truth",
-    "stdc": "semslam.semantics.nets_backend",
-    "dunet": "semslam.semantics.nets_backend",
-}
 
 # Optional package (import name) -> what to install, for the error message.
 _INSTALL_HINTS: dict[str, str] = {
@@ -85,18 +34,8 @@ _INSTALL_HINTS: dict[str, str] = {
 }
 
 
-def register_segmenter(name: str) -> Callable[[SegmenterFactory], SegmenterFactory]:
-    """Decorator: make ``factory(cfg) -> Segmenter`` available as ``semantics.backend = name``."""
-
-    def deco(factory: SegmenterFactory) -> SegmenterFactory:
-        _REGISTRY[name] = factory
-        return factory
-
-    return deco
-
-
 def available_segmenters() -> list[str]:
-    return sorted(set(_REGISTRY) | set(BACKEND_MODULES))
+    return registry.names("segmenter")
 
 
 def missing_package_error(backend: str, package: str) -> ConfigError:
@@ -111,22 +50,19 @@ def missing_package_error(backend: str, package: str) -> ConfigError:
 def create_segmenter(cfg: SemanticsConfig) -> Segmenter:
     """Build the configured backend; ConfigError for unknown names, bad settings or missing packages."""
     cfg.check()
-    name = cfg.backend
-    if name not in _REGISTRY and name in BACKEND_MODULES:
-        try:
-            importlib.import_module(BACKEND_MODULES[name])
-        except ImportError as exc:
-            package = (exc.name or "").split(".")[0]
-            if package == "semslam":
-                raise
-            if not package:  # the package is there but broken (e.g. built for another numpy)
-                raise ConfigError(
-                    f"semantics.backend={name!r}: its packages are installed but cannot be loaded ({exc})"
-                ) from None
-            raise missing_package_error(name, package) from None
-    if name not in _REGISTRY:
-        raise ConfigError(f"semantics.backend: unknown segmenter {name!r} (known: {', '.join(available_segmenters())})")
-    segmenter = _REGISTRY[name](cfg)
+    name = registry.resolve("segmenter", cfg.backend)
+    try:
+        factory = registry.load("segmenter", name)
+    except ImportError as exc:
+        package = (exc.name or "").split(".")[0]
+        if package == "semslam":
+            raise
+        if not package:  # the package is there but broken (e.g. built for another numpy)
+            raise ConfigError(
+                f"semantics.backend={name!r}: its packages are installed but cannot be loaded ({exc})"
+            ) from None
+        raise missing_package_error(name, package) from None
+    segmenter: Segmenter = factory(cfg)
     if segmenter.names is not None:
         dynamic_ids(segmenter.names, cfg.dynamic_classes)  # report a bad class list now, not on frame 1
     return segmenter

@@ -18,11 +18,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.errors import ConfigError, DataError
-from semslam.semantics.base import LabelMap, register_segmenter
-from semslam.semantics.config import SemanticsConfig
+from semslam.core.types import LabelMap
+from semslam.config import SemanticsConfig
 
 if TYPE_CHECKING:
-    from semslam.io.sequence import Frame
+    from semslam.core.types import Frame
 
 LABELS_FILE = "labels.json"
 
@@ -77,6 +77,9 @@ class GroundTruthSegmenter:
         self.names: dict[int, str] | None = None  # known after the first frame
         self._names_by_dir: dict[Path, dict[int, str]] = {}
 
+    def close(self) -> None:
+        """Nothing to free: labels are read per frame."""
+
     def segment(self, rgb: NDArray[np.uint8], frame: Frame | None = None) -> LabelMap:
         if frame is None or frame.rgb_path is None:
             raise ConfigError(
@@ -102,6 +105,5 @@ class GroundTruthSegmenter:
         return LabelMap(labels, dict(names), None)
 
 
-@register_segmenter("ground_truth")
-def _ground_truth(cfg: SemanticsConfig) -> GroundTruthSegmenter:
+def create_segmenter(cfg: SemanticsConfig) -> GroundTruthSegmenter:
     return GroundTruthSegmenter(cfg)

@@ -37,18 +37,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.errors import ConfigError
-from semslam.semantics.base import (
-    LabelMap,
-    missing_package_error,
-    register_segmenter,
-    resize_input,
-    resize_score,
-)
-from semslam.semantics.config import SemanticsConfig
-from semslam.semantics.labels import VOC_PERSON
+from semslam.core.types import LabelMap
+from semslam.semantics.base import missing_package_error, resize_input, resize_score
+from semslam.config import SemanticsConfig
+from semslam.core.labels import VOC_PERSON
 
 if TYPE_CHECKING:
-    from semslam.io.sequence import Frame
+    from semslam.core.types import Frame
 
 log = logging.getLogger(__name__)
 
@@ -214,11 +209,9 @@ class MediapipePersonSegmenter:
         self.close()
 
 
-@register_segmenter("mediapipe_person")
-def _general(cfg: SemanticsConfig) -> MediapipePersonSegmenter:
+def create_general(cfg: SemanticsConfig) -> MediapipePersonSegmenter:
     return MediapipePersonSegmenter(cfg, "general")
 
 
-@register_segmenter("mediapipe_person_fast")
-def _landscape(cfg: SemanticsConfig) -> MediapipePersonSegmenter:
+def create_fast(cfg: SemanticsConfig) -> MediapipePersonSegmenter:
     return MediapipePersonSegmenter(cfg, "landscape")

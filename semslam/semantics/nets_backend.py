@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.semantics.base import LabelMap, register_segmenter
-from semslam.semantics.config import SemanticsConfig
+from semslam.core.types import LabelMap
+from semslam.config import SemanticsConfig
 
 
 class _NetSegmenter:
@@ -25,16 +25,17 @@ class _NetSegmenter:
         labels, names, confidence = self.impl.segment_with_confidence(rgb)
         return LabelMap(labels, dict(names), confidence)
 
+    def close(self) -> None:
+        """Nothing to free: the network is plain PyTorch memory."""
 
-@register_segmenter("stdc")
-def _stdc(cfg: SemanticsConfig) -> _NetSegmenter:
+
+def create_stdc(cfg: SemanticsConfig) -> _NetSegmenter:
     from semslam.nets.segmenters import StdcSegmenter
 
     return _NetSegmenter(StdcSegmenter(cfg.weights or None, cfg.threshold, cfg.input_width), "stdc")
 
 
-@register_segmenter("dunet")
-def _dunet(cfg: SemanticsConfig) -> _NetSegmenter:
+def create_dunet(cfg: SemanticsConfig) -> _NetSegmenter:
     from semslam.nets.segmenters import DunetSegmenter
 
     return _NetSegmenter(DunetSegmenter(cfg.weights or None, cfg.threshold, cfg.input_width), "dunet")

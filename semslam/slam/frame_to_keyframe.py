@@ -11,18 +11,22 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SystemConfig
+from semslam.core.protocols import DynamicStage, FramePacket
+from semslam.errors import ConfigError, DataError
+from semslam.io.trajectory import Trajectory
 from semslam.features.base import Keypoints, create_extractor
 from semslam.features.matching import match_brute_force, match_candidates, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose, rotation_angle
-from semslam.io.sequence import Frame
-from semslam.slam.types import TrackingState, TrackResult
+from semslam.core.types import Frame
+from semslam.core.types import TrackingState, TrackResult
 
 
 @dataclass
@@ -54,15 +58,33 @@ def _rvec_tvec_to_pose(rvec: NDArray[np.float64], tvec: NDArray[np.float64]) -> 
     return make_pose(rot, tvec.reshape(3))
 
 
+def create_tracker(config: SystemConfig, camera: PinholeCamera, dynamics: DynamicStage | None = None,
+                   map_path: Path | None = None) -> "FrameToKeyframeTracker":
+    """The registry's factory: refuses what this tracker cannot do, with the key to change."""
+    if config.sensor != "rgbd":
+        raise ConfigError(f"sensor: {config.sensor!r} is not supported by tracking.method=frame_to_keyframe "
+                          "(RGB-D only; monocular tracking is not built yet)")
+    if dynamics is not None:
+        raise ConfigError("dynamics: the frame_to_keyframe tracker has no dynamic-scene handling; "
+                          "use tracking.method=orb_slam (e.g. --preset default)")
+    if map_path is not None:
+        raise ConfigError("--load-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+    return FrameToKeyframeTracker(config, camera)
+
+
 class FrameToKeyframeTracker:
     """Tracks each frame against the current keyframe; see the module docstring."""
 
+    has_map = False
+
     def __init__(self, config: SystemConfig, camera: PinholeCamera) -> None:
-        self.cfg = config.tracking
+        self.cfg = config.frame_to_keyframe
         self.camera = camera
         self.extractor = create_extractor(config.features)
         self.keyframe: _Keyframe | None = None
         self.n_keyframes = 0
+        self._poses: list[tuple[float, NDArray[np.float64]]] = []  # every frame with a pose
+        self._keyframe_poses: list[tuple[float, NDArray[np.float64]]] = []
         self._last_pose: NDArray[np.float64] | None = None
         self._velocity: NDArray[np.float64] | None = None  # T_last,prev: motion of the last step
         self._rng_seed = config.seed
@@ -80,6 +102,7 @@ class FrameToKeyframeTracker:
         pts_w = pts_c[valid] @ pose_wc[:3, :3].T + pose_wc[:3, 3]
         self.keyframe = _Keyframe(frame.timestamp, pose_wc.copy(), pts_w, kps.descriptors[valid])
         self.n_keyframes += 1
+        self._keyframe_poses.append((frame.timestamp, pose_wc.copy()))
 
     def _predict(self) -> NDArray[np.float64] | None:
         if self._last_pose is None:
@@ -89,9 +112,10 @@ class FrameToKeyframeTracker:
         return self._last_pose @ self._velocity
 
     # -- main entry --------------------------------------------------------------------
-    def track(self, frame: Frame) -> TrackResult:
+    def track(self, packet: FramePacket) -> TrackResult:
+        frame = packet.frame
         if frame.depth is None:
-            raise ValueError("the frame-to-keyframe tracker needs RGB-D frames")
+            raise DataError(frame.rgb_path or "frame", "no depth image: the frame_to_keyframe tracker needs RGB-D frames")
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         kps = self.extractor.extract(frame.gray)
@@ -104,6 +128,7 @@ class FrameToKeyframeTracker:
                 return TrackResult(frame.timestamp, None, TrackingState.NOT_INITIALIZED, n_keypoints=len(kps), timings=timings)
             self._make_keyframe(frame, kps, pose)
             self._last_pose = pose
+            self._poses.append((frame.timestamp, pose))
             return TrackResult(frame.timestamp, pose, TrackingState.OK, n_keypoints=len(kps), is_keyframe=True, timings=timings)
 
         predicted = self._predict()
@@ -125,8 +150,28 @@ class FrameToKeyframeTracker:
             self._make_keyframe(frame, kps, pose)
             timings["keyframe"] = (time.perf_counter() - t0) * 1e3
             is_kf = True
-        return TrackResult(frame.timestamp, pose, state, n_matches=n_matches, n_inliers=n_inl,
+        # A lost frame keeps the prediction internally (to try again from there) but has no pose.
+        pose_out = pose if state is TrackingState.OK else None
+        if pose_out is not None:
+            self._poses.append((frame.timestamp, pose_out))
+        return TrackResult(frame.timestamp, pose_out, state, n_matches=n_matches, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, timings=timings)
+
+    # -- Tracker contract --------------------------------------------------------------
+    def trajectory(self) -> Trajectory:
+        return Trajectory.from_poses(self._poses)
+
+    def keyframe_trajectory(self) -> Trajectory:
+        return Trajectory.from_poses(self._keyframe_poses)
+
+    def stats(self) -> dict[str, object]:
+        return {}
+
+    def save_map(self, path: Path) -> None:
+        raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+
+    def shutdown(self) -> None:
+        """Nothing runs in the background."""
 
     def _estimate_pose(self, frame: Frame, kps: Keypoints, predicted: NDArray[np.float64] | None,
                        timings: dict[str, float]) -> tuple[NDArray[np.float64] | None, NDArray[np.bool_] | None, int]:

@@ -1,27 +1,102 @@
-"""A keyframe consumer that runs in its own thread, or inline when started without one
-(ORB-SLAM's local mapping and loop closing share this shape)."""
+"""Keyframe consumers (ORB-SLAM's local mapping and loop closing share this shape): a
+``KeyframeInbox`` of waiting keyframes and a ``KeyframeWorker`` that drains it in its own
+thread, or processes each keyframe inline when it was never started (``--sequential``).
+
+Waiting is on a condition variable, never polling: ``wait_idle`` wakes when the worker has
+nothing queued and nothing in hand, or when its thread has ended.
+"""
 
 from __future__ import annotations
 
 import logging
-import queue
 import threading
-import time
+from collections import deque
+from typing import Protocol
 
 from semslam.slam.map import KeyFrame
 
 log = logging.getLogger(__name__)
 
 
+class KeyframeSink(Protocol):
+    """Where tracking (or local mapping) hands a finished keyframe on."""
+
+    def insert(self, kf: KeyFrame) -> None: ...
+
+    def idle(self) -> bool: ...
+
+    def queue_size(self) -> int: ...
+
+
+class KeyframeInbox:
+    """Keyframes waiting for one worker and whether it is busy, under one condition.
+
+    Shared read-only with others that must wait for the worker (loop closing waits for
+    local mapping to go idle before it corrects a loop, as ORB-SLAM's RequestStop does).
+    """
+
+    def __init__(self) -> None:
+        self._items: deque[KeyFrame] = deque()
+        self._cond = threading.Condition()
+        self._busy = False
+        self._closed = False
+
+    def put(self, kf: KeyFrame) -> None:
+        with self._cond:
+            self._items.append(kf)
+            self._busy = True
+            self._cond.notify_all()
+
+    def take(self) -> KeyFrame | None:
+        """The next keyframe; None once closed and drained."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._items or self._closed)
+            if not self._items:
+                return None
+            return self._items.popleft()
+
+    def done(self) -> None:
+        """The worker finished a keyframe; idle if nothing else is queued."""
+        with self._cond:
+            if not self._items:
+                self._busy = False
+                self._cond.notify_all()
+
+    def close(self, discard: bool = False) -> None:
+        """No more keyframes: the worker finishes the queued ones (or drops them) and ends."""
+        with self._cond:
+            self._closed = True
+            if discard:
+                self._items.clear()
+                self._busy = False
+            self._cond.notify_all()
+
+    def idle(self) -> bool:
+        with self._cond:
+            return not self._busy and not self._items
+
+    def queue_size(self) -> int:
+        with self._cond:
+            return len(self._items)
+
+    def has_pending(self) -> bool:
+        """More keyframes are waiting (local mapping then skips BA, as ORB-SLAM does)."""
+        return self.queue_size() > 0
+
+    def wait_idle(self, timeout: float | None = 60.0) -> bool:
+        """Block until the worker is idle (or closed and discarded); False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._busy and not self._items, timeout)
+
+
 class KeyframeWorker:
-    """``insert(kf)`` queues a keyframe for ``process`` (inline until ``start()``)."""
+    """Processes keyframes from its inbox: in its own thread after ``start()``, else inline."""
 
     thread_name = "keyframe-worker"
 
-    def __init__(self) -> None:
-        self.queue: "queue.Queue[KeyFrame | None]" = queue.Queue()
+    def __init__(self, inbox: KeyframeInbox) -> None:
+        self.inbox = inbox
         self._thread: threading.Thread | None = None
-        self._busy = threading.Event()
         self.error: BaseException | None = None
 
     def process(self, kf: KeyFrame) -> None:
@@ -32,42 +107,32 @@ class KeyframeWorker:
         self._thread.start()
 
     def _run(self) -> None:
-        while True:
-            kf = self.queue.get()
-            if kf is None:
-                return
-            self._busy.set()
+        while (kf := self.inbox.take()) is not None:
             try:
                 self.process(kf)
-            except BaseException as exc:  # surfaced by the System on the next frame
+            except BaseException as exc:  # surfaced by the system on the next frame and at shutdown
                 log.exception("%s failed", self.thread_name)
                 self.error = exc
+                self.inbox.close(discard=True)
                 return
             finally:
-                if self.queue.empty():
-                    self._busy.clear()
+                self.inbox.done()
 
     def insert(self, kf: KeyFrame) -> None:
         if self._thread is None:
             self.process(kf)
         else:
-            self._busy.set()
-            self.queue.put(kf)
+            self.inbox.put(kf)
 
     def idle(self) -> bool:
-        return not self._busy.is_set() and self.queue.empty()
+        return self.inbox.idle()
 
     def queue_size(self) -> int:
-        return self.queue.qsize()
+        return self.inbox.queue_size()
 
-    def wait_idle(self, timeout: float = 60.0) -> None:
-        end = time.time() + timeout
-        while not self.idle() and time.time() < end and self._thread is not None and self._thread.is_alive():
-            time.sleep(0.002)
-
-    def stop(self) -> None:
-        """Finish the queued keyframes, then end the thread."""
+    def stop(self, discard: bool = False) -> None:
+        """Finish the queued keyframes (or drop them), then end the thread."""
         if self._thread is not None:
-            self.queue.put(None)
+            self.inbox.close(discard=discard)
             self._thread.join()
             self._thread = None

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,7 +18,8 @@ from semslam.config import SystemConfig
 from semslam.features.matching import match_candidates
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.frame_state import PyramidInfo
-from semslam.slam.keyframe_worker import KeyframeWorker
+from semslam.slam.fusion import PointFusion
+from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
 from semslam.slam.search import TH_LOW, project
 
@@ -67,18 +67,20 @@ class LocalMapping(KeyframeWorker):
 
     thread_name = "local-mapping"
 
-    def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary") -> None:
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
+                 ba: BundleAdjustmentRunner, fusion: PointFusion, inbox: KeyframeInbox, next_stage: KeyframeSink) -> None:
         self.cfg = config.slam
         self.camera = camera
         self.map = slam_map
         self.voc = vocabulary
         self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
-        super().__init__()
+        super().__init__(inbox)
+        self.ba = ba
+        self.fusion = fusion
+        self.next_stage = next_stage
         self.recent_points: list[MapPoint] = []
-        self.on_keyframe_done: Callable[[KeyFrame], None] = lambda kf: None
-        self.stats = {"local_ba": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0, "fused": 0}
-        self.ba = BundleAdjustmentRunner(use_process=False)
+        self.stats = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0}
 
     # ---------------------------------------------------------------- one keyframe
     def process(self, kf: KeyFrame) -> None:
@@ -89,7 +91,7 @@ class LocalMapping(KeyframeWorker):
             self._cull_points(kf)
             if self.cfg.triangulation:
                 self._create_new_points(kf)
-        if self.queue.empty():
+        if not self.inbox.has_pending():
             with self.map.lock:
                 self._search_in_neighbours(kf)
             if self.cfg.local_ba and len(self.map.keyframes) > 2:
@@ -97,7 +99,7 @@ class LocalMapping(KeyframeWorker):
             if self.cfg.keyframe_culling:
                 with self.map.lock:
                     self._cull_keyframes(kf)
-        self.on_keyframe_done(kf)
+        self.next_stage.insert(kf)
 
     def _process_new_keyframe(self, kf: KeyFrame) -> None:
         if kf.bow is None:
@@ -238,75 +240,17 @@ class LocalMapping(KeyframeWorker):
         pts = kf.valid_points()
         touched: dict[int, MapPoint] = {}
         for t in targets:
-            self._fuse(t, pts, touched=touched)
+            self.fusion.fuse(t, pts, touched=touched)
         cand: dict[int, MapPoint] = {}
         for t in targets:
             for p in t.valid_points():
                 cand.setdefault(p.id, p)
-        self._fuse(kf, list(cand.values()), touched=touched)
+        self.fusion.fuse(kf, list(cand.values()), touched=touched)
         changed = [p for p in touched.values() if not p.bad]
         for p in changed:
             p.compute_distinctive_descriptor()
         update_normals_and_depths(changed, self.pyr.scales)
         kf.update_connections()
-
-    def _fuse(self, kf: KeyFrame, points: list[MapPoint], th: float = 3.0, touched: dict[int, MapPoint] | None = None) -> int:
-        """Project points into ``kf``; merge with the point already at the matched keypoint
-        (keep the one with more observations) or add the observation (ORB-SLAM Fuse)."""
-        cand = [p for p in points if not p.bad and kf not in p.observations]
-        if not cand:
-            return 0
-        fx, fy, cx, cy = self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy
-        pos = np.array([p.pos for p in cand])
-        uv, z = project(kf.T_cw, pos, fx, fy, cx, cy)
-        dist = np.linalg.norm(pos - kf.center, axis=1)
-        max_d = np.array([p.max_dist for p in cand])
-        min_d = np.array([p.min_dist for p in cand])
-        normals = np.array([p.normal for p in cand])
-        view_cos = np.einsum("ij,ij->i", pos - kf.center, normals) / np.maximum(dist, 1e-9)
-        ok = (z > 0) & (dist >= 0.8 * min_d) & (dist <= 1.2 * max_d) & (view_cos >= 0.5)
-        ok &= (uv[:, 0] >= 0) & (uv[:, 0] < 2 * cx + 1) & (uv[:, 1] >= 0) & (uv[:, 1] < 2 * cy + 1)
-        sel = np.nonzero(ok)[0]
-        if len(sel) == 0:
-            return 0
-        level = np.clip(np.ceil(np.log(np.maximum(max_d[sel] / dist[sel], 1e-9)) / self.pyr.log_scale), 0,
-                        self.pyr.n_levels - 1).astype(np.intp)
-        lists = kf.tree().query_ball_point(uv[sel], r=th * self.pyr.scales[level])
-        counts = np.fromiter((len(x) for x in lists), np.intp, len(lists))
-        if counts.sum() == 0:
-            return 0
-        cq = np.repeat(np.arange(len(lists)), counts)
-        ct = np.fromiter((j for x in lists for j in x), np.intp, int(counts.sum()))
-        lvl = kf.keypoints.octave[ct]
-        good = (lvl >= level[cq] - 1) & (lvl <= level[cq])
-        # Reprojection check (chi2 with 3 dof where the keypoint has depth, 2 otherwise).
-        e = ((uv[sel][cq] - kf.xy[ct]) ** 2).sum(1)
-        ur_pred = uv[sel][cq, 0] - self.cfg.bf / np.maximum(z[sel][cq], 1e-9)
-        has_r = kf.ur[ct] >= 0
-        e = e + np.where(has_r, (ur_pred - kf.ur[ct]) ** 2, 0.0)
-        e = e * self.pyr.inv_sigma2[lvl]
-        good &= np.where(has_r, e < 7.8, e < 5.99)
-        cq, ct = cq[good], ct[good]
-        desc = np.stack([cand[s].descriptor for s in sel])
-        qi, ti, _ = match_candidates(desc, kf.keypoints.descriptors, cq, ct, TH_LOW, 1.0)
-        n = 0
-        for q, t in zip(qi, ti):
-            p = cand[sel[q]]
-            if p.bad:
-                continue
-            existing = kf.points[t]
-            if existing is not None and not existing.bad:
-                keep, drop = (existing, p) if len(existing.observations) > len(p.observations) else (p, existing)
-                self.map.replace_point(drop, keep)
-            else:
-                p.add_observation(kf, int(t))
-                kf.points[t] = p
-                keep = p
-            if touched is not None:
-                touched[keep.id] = keep
-            n += 1
-        self.stats["fused"] += n
-        return n
 
     # ---------------------------------------------------------------- local BA
     def _local_bundle_adjustment(self, kf: KeyFrame) -> None:
@@ -331,6 +275,8 @@ class LocalMapping(KeyframeWorker):
             problem, obs_ref = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)
             gen = self.map.generation
         result: BAResult = self.ba.run(problem)
+        if not result.converged:
+            self.stats["local_ba_failed"] += 1
         with self.map.lock:
             if self.map.generation != gen:
                 return
@@ -347,7 +293,7 @@ class LocalMapping(KeyframeWorker):
                 if not p.bad:
                     p.pos = pos
             update_normals_and_depths([p for p in points if not p.bad], self.pyr.scales)
-        self.stats["local_ba"] += 1
+        self.stats["local_ba"] += int(result.converged)
         self.stats["local_ba_ms"].append((time.perf_counter() - t0) * 1e3)
 
     # ---------------------------------------------------------------- keyframe culling

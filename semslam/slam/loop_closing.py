@@ -14,14 +14,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_graph import optimize_pose_graph
+from semslam.backend.pose_graph import PoseGraphFailed, optimize_pose_graph
+from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.geometry.alignment import umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
 from semslam.slam.frame_state import PyramidInfo
-from semslam.slam.keyframe_worker import KeyframeWorker
-from semslam.slam.local_mapping import LocalMapping, build_ba_problem
+from semslam.slam.fusion import PointFusion
+from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
+from semslam.slam.local_mapping import build_ba_problem
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
 from semslam.slam.search import TH_HIGH, project, search_by_bow, search_by_projection
 
@@ -77,19 +79,23 @@ class LoopClosing(KeyframeWorker):
     thread_name = "loop-closing"
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, database: "KeyframeDatabase",
-                 mapper: LocalMapping) -> None:
-        super().__init__()
+                 ba: BundleAdjustmentRunner, fusion: PointFusion, inbox: KeyframeInbox, mapping: KeyframeInbox) -> None:
+        super().__init__(inbox)
         self.cfg = config.slam
         self.camera = camera
         self.map = slam_map
         self.db = database
-        self.mapper = mapper
+        self.ba = ba
+        self.fusion = fusion
+        # Local mapping's inbox: a loop is corrected only once local mapping is idle.
+        self.mapping = mapping
         self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
         self.rng = np.random.default_rng(config.seed)
         self.last_loop_kf_id = 0
         self.consistent_groups: list[tuple[set[KeyFrame], int]] = []
         self.loops: list[tuple[int, int]] = []
-        self.stats = {"loops": 0, "global_ba": 0, "global_ba_ms": [], "pose_graph_ms": []}
+        self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
+                      "global_ba_ms": [], "pose_graph_ms": []}
 
     # ---------------------------------------------------------------- per keyframe
     def process(self, kf: KeyFrame) -> None:
@@ -170,7 +176,7 @@ class LoopClosing(KeyframeWorker):
         pts = list(loop_points.values())
         pos = np.array([p.pos for p in pts])
         uv, z = project(T_cw_corr, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
-        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < 2 * self.camera.cx + 1) & (uv[:, 1] >= 0) & (uv[:, 1] < 2 * self.camera.cy + 1)
+        inside = (z > 0) & self.camera.in_image(uv)
         sel = np.nonzero(inside)[0]
         if len(sel) == 0:
             return None
@@ -190,7 +196,8 @@ class LoopClosing(KeyframeWorker):
     # ---------------------------------------------------------------- correction
     def _correct_loop(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]) -> None:
         t0 = time.perf_counter()
-        self.mapper.wait_idle()
+        if not self.mapping.wait_idle(timeout=60.0):
+            log.warning("local mapping still busy after 60 s; correcting the loop anyway")
         with self.map.lock:
             self.map.generation += 1
             kf.update_connections()
@@ -225,7 +232,7 @@ class LoopClosing(KeyframeWorker):
                     kf.points[idx] = lp
             loop_pts = list({p.id: p for k in [cand, *cand.covisibles_with_weight(0)] for p in k.valid_points()}.values())
             for k in connected:
-                self.mapper._fuse(k, loop_pts, th=4.0)
+                self.fusion.fuse(k, loop_pts, th=4.0)
             before = {k: set(k.covis) for k in connected}
             for k in connected:
                 k.update_connections()
@@ -269,24 +276,29 @@ class LoopClosing(KeyframeWorker):
             meas.append(T_ab)
 
         for k, links in new_links.items():
-            for l in links:
-                Twk, Twl = invert(corrected.get(k, k.T_cw)), invert(corrected.get(l, l.T_cw))
-                add(k, l, invert(Twk) @ Twl)
+            for other in links:
+                Twk, Twl = invert(corrected.get(k, k.T_cw)), invert(corrected.get(other, other.T_cw))
+                add(k, other, invert(Twk) @ Twl)
         for k in kfs:
             if k.parent is not None and not k.parent.bad:
                 add(k, k.parent, invert(ref_wc[k]) @ ref_wc[k.parent])
-            for l in k.loop_edges:
-                if l is loop_kf and k in corrected:  # the new loop edge: measured after correction
-                    add(k, l, corrected[k] @ invert(l.T_cw))
+            for other in k.loop_edges:
+                if other is loop_kf and k in corrected:  # the new loop edge: measured after correction
+                    add(k, other, corrected[k] @ invert(other.T_cw))
                 else:
-                    add(k, l, invert(ref_wc[k]) @ ref_wc[l])
-            for l in k.covisibles_with_weight(100):
-                add(k, l, invert(ref_wc[k]) @ ref_wc[l])
+                    add(k, other, invert(ref_wc[k]) @ ref_wc[other])
+            for other in k.covisibles_with_weight(100):
+                add(k, other, invert(ref_wc[k]) @ ref_wc[other])
         if not edges:
             return
         weights = np.ones(len(edges))
         fixed = [index[loop_kf]] + ([index[kfs[0]]] if kfs[0] is not loop_kf else [])
-        poses_wc = optimize_pose_graph(init_wc, np.asarray(edges, np.intp), np.stack(meas), weights, fixed)
+        try:
+            poses_wc = optimize_pose_graph(init_wc, np.asarray(edges, np.intp), np.stack(meas), weights, fixed)
+        except PoseGraphFailed as exc:  # keep the loop-corrected poses rather than stop loop closing
+            log.warning("essential graph optimisation failed (%s); loop-corrected poses kept", exc)
+            self.stats["pose_graph_failed"] += 1
+            poses_wc = init_wc
         # Move each point with its reference keyframe (from its pre-graph pose).
         for k, T_wc_new in zip(kfs, poses_wc):
             delta = T_wc_new @ invert(init_wc[index[k]])
@@ -309,7 +321,9 @@ class LoopClosing(KeyframeWorker):
             free, fixed = kfs[1:], kfs[:1]
             problem, _ = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)
             before = {k: k.T_cw.copy() for k in kfs}
-        result = self.mapper.ba.run(problem, iterations=(10, 0), remove_outliers=False)  # ORB-SLAM GBA: 10 iterations
+        result = self.ba.run(problem, iterations=(10, 0), remove_outliers=False)  # ORB-SLAM GBA: 10 iterations
+        if not result.converged:
+            self.stats["global_ba_failed"] += 1
         with self.map.lock:
             if self.map.generation != gen:
                 log.info("global BA discarded: map corrected meanwhile")
@@ -339,5 +353,5 @@ class LoopClosing(KeyframeWorker):
                     delta = invert(after[p.ref_kf]) @ before[p.ref_kf]
                     p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
             update_normals_and_depths(list(self.map.points.values()), self.pyr.scales)
-        self.stats["global_ba"] += 1
+        self.stats["global_ba"] += int(result.converged)
         self.stats["global_ba_ms"].append((time.perf_counter() - t0) * 1e3)

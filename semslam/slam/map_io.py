@@ -38,7 +38,7 @@ def save_map(slam_map: Map, path: str | Path) -> Path:
             "kf_T_cw": np.stack([k.T_cw for k in kfs]) if kfs else np.zeros((0, 4, 4)),
             "kf_parent": np.array([k.parent.id if k.parent is not None and not k.parent.bad else -1 for k in kfs], np.int64),
             "kf_n_keypoints": counts,
-            "kf_loop_edges": np.array([(k.id, l.id) for k in kfs for l in k.loop_edges if not l.bad], np.int64).reshape(-1, 2),
+            "kf_loop_edges": np.array([(k.id, e.id) for k in kfs for e in k.loop_edges if not e.bad], np.int64).reshape(-1, 2),
             "kp_xy_raw": np.concatenate([k.keypoints.xy for k in kfs]) if kfs else np.zeros((0, 2), np.float32),
             "kp_xy": np.concatenate([k.xy for k in kfs]) if kfs else np.zeros((0, 2)),
             "kp_octave": np.concatenate([k.keypoints.octave for k in kfs]) if kfs else np.zeros(0, np.int32),

@@ -1,84 +1,69 @@
-"""The System: one object that takes frames and keeps the trajectory.
+"""The System: one object that takes frame packets and keeps the results.
 
-``System.track(frame)`` is the only call a driver needs; which tracker runs behind it is
-chosen by ``config.tracking.method`` (later issues add ORB-SLAM-class tracking, local
-mapping and loop closing behind the same call).
+It builds the dynamic stage and the tracker named by ``tracking.method`` through the
+registry, and calls only what ``core.protocols`` promises. Which tracker runs behind it is
+configuration; adding one is a module with a ``create_tracker`` factory plus a registry line.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-
-import numpy as np
+from typing import Any
 
 from semslam.config import SystemConfig
+from semslam.core import registry
+from semslam.core.protocols import FramePacket, Tracker
+from semslam.core.types import Frame, TrackingState, TrackResult
+from semslam.dynamics.stage import create_dynamic_stage
 from semslam.errors import ConfigError
 from semslam.geometry.camera import PinholeCamera
-from semslam.io.sequence import Frame
 from semslam.io.trajectory import Trajectory
-from semslam.slam.types import TrackingState, TrackResult
-
-
-def _frame_to_keyframe(config: SystemConfig, camera: PinholeCamera):  # type: ignore[no-untyped-def]
-    from semslam.slam.frame_to_keyframe import FrameToKeyframeTracker
-
-    return FrameToKeyframeTracker(config, camera)
-
-
-def _orb_slam(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None):  # type: ignore[no-untyped-def]
-    from semslam.slam.orb_slam import OrbSlam
-
-    slam_map = None
-    if map_path is not None:
-        from semslam.slam.frame_state import PyramidInfo
-        from semslam.slam.map_io import load_map
-
-        slam_map = load_map(map_path, PyramidInfo(config.features.scale_factor, config.features.n_levels).scales)
-    return OrbSlam(config, camera, slam_map)
-
-
-TRACKERS: dict[str, Callable] = {"frame_to_keyframe": _frame_to_keyframe, "orb_slam": _orb_slam}  # type: ignore[type-arg]
 
 
 class System:
-    """Runs one tracker over frames and records every result."""
+    """Runs one tracker over frames and records every result; owns what it builds."""
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None) -> None:
-        if config.tracking.method not in TRACKERS:
-            raise ConfigError(f"tracking.method: unknown tracker {config.tracking.method!r} (known: {', '.join(TRACKERS)})")
-        if config.sensor != "rgbd":
-            raise ConfigError(f"sensor: {config.sensor!r} is not supported yet (rgbd only)")
+        create_tracker = registry.load("tracker", config.tracking.method)
         self.config = config
         self.camera = camera
-        if map_path is not None and config.tracking.method != "orb_slam":
-            raise ConfigError("--load-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
-        self.tracker = TRACKERS[config.tracking.method](config, camera, *([map_path] if map_path else []))
+        self.dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
+                                             threaded=not config.slam.sequential)
+        try:
+            self.tracker: Tracker = create_tracker(config, camera, self.dynamics, map_path)
+        except BaseException:
+            if self.dynamics is not None:
+                self.dynamics.close()
+            raise
         self.results: list[TrackResult] = []
 
-    def prepare(self, frame: Frame) -> Frame:
-        """Start per-frame work that can run ahead of tracking (segmentation), from the reader."""
-        fn = getattr(self.tracker, "prepare", None)
-        return fn(frame) if fn else frame
+    @property
+    def has_map(self) -> bool:
+        return self.tracker.has_map
 
-    def track(self, frame: Frame) -> TrackResult:
-        result = self.tracker.track(frame)
+    def prepare(self, packet: FramePacket) -> FramePacket:
+        """Start per-frame work that can run ahead of tracking (segmentation), from the reader."""
+        if self.dynamics is not None:
+            self.dynamics.prepare(packet)
+        return packet
+
+    def track(self, frame: FramePacket | Frame) -> TrackResult:
+        """Track one frame (a bare ``Frame`` from user code is wrapped in a packet)."""
+        packet = frame if isinstance(frame, FramePacket) else FramePacket(frame)
+        result = self.tracker.track(packet)
         self.results.append(result)
         return result
 
     @property
     def n_keyframes(self) -> int:
-        return int(getattr(self.tracker, "n_keyframes", 0))
+        return self.tracker.n_keyframes
 
     def trajectory(self) -> Trajectory:
-        """Poses of every frame that has one (all frames after initialisation); for trackers
-        with a map, after their final optimisation."""
-        if hasattr(self.tracker, "trajectory"):
-            return self.tracker.trajectory()
-        rows = [r for r in self.results if r.pose_wc is not None]
-        if not rows:
-            return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
-        return Trajectory(np.array([r.timestamp for r in rows]), np.stack([r.pose_wc for r in rows]))
+        """Poses of every frame that has one (lost frames are left out), after the final optimisation."""
+        return self.tracker.trajectory()
+
+    def keyframe_trajectory(self) -> Trajectory:
+        return self.tracker.keyframe_trajectory()
 
     def counts(self) -> dict[str, int]:
         states = [r.state for r in self.results]
@@ -90,22 +75,18 @@ class System:
             "keyframes": self.n_keyframes,
         }
 
-    def keyframe_trajectory(self) -> Trajectory | None:
-        fn = getattr(self.tracker, "keyframe_trajectory", None)
-        return fn() if fn else None
-
-    def extra_stats(self) -> dict[str, object]:
-        fn = getattr(self.tracker, "extra_stats", None)
-        return fn() if fn else {}
+    def stats(self) -> dict[str, Any]:
+        return {**self.tracker.stats(), **(self.dynamics.stats() if self.dynamics is not None else {})}
 
     def save_map(self, path: Path) -> None:
-        fn = getattr(self.tracker, "save_map", None)
-        if fn is None:
+        if not self.has_map:
             raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
-        fn(path)
+        self.tracker.save_map(path)
 
     def shutdown(self) -> None:
-        """Stop background work: let local mapping and loop closing finish their queues."""
-        fn = getattr(self.tracker, "shutdown", None)
-        if fn:
-            fn()
+        """Stop the tracker's threads and processes, then the dynamic stage; safe to call twice."""
+        try:
+            self.tracker.shutdown()
+        finally:
+            if self.dynamics is not None:
+                self.dynamics.close()

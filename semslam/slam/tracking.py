@@ -7,7 +7,6 @@ The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comm
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import cv2
@@ -15,17 +14,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.pose_only import optimize_pose
-from semslam.dynamics.masks import dilate, extractor_mask, keypoints_in_mask
-from semslam.dynamics.multiview import MultiViewParams, multiview_mask
 from semslam.config import SystemConfig
-from semslam.features.base import create_extractor
+from semslam.core.protocols import DynamicStage, Extractor, FramePacket
+from semslam.dynamics.masks import keypoints_in_mask
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
-from semslam.io.sequence import Frame
 from semslam.slam.frame_state import FrameState, PyramidInfo
+from semslam.slam.keyframe_worker import KeyframeSink
 from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.search import TH_HIGH, project, rotation_consistent, search_by_bow, search_by_projection
-from semslam.slam.types import TrackingState, TrackResult
+from semslam.core.types import TrackingState, TrackResult
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
@@ -35,15 +33,20 @@ if TYPE_CHECKING:
 class Tracking:
     """Owns the current frame and decides when to make keyframes; see the module docstring."""
 
-    def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map,
-                 vocabulary: "Vocabulary", database: "KeyframeDatabase") -> None:
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
+                 database: "KeyframeDatabase", extractor: Extractor, keyframes: KeyframeSink,
+                 dynamics: DynamicStage | None) -> None:
         self.cfg = config.slam
         self.dyn = config.dynamics
         self.camera = camera
         self.map = slam_map
         self.voc = vocabulary
         self.db = database
-        self.extractor = create_extractor(config.features)
+        self.extractor = extractor
+        # Where new keyframes go (local mapping, or only the place database when it is off);
+        # tracking also asks it whether it is idle (ORB-SLAM's AcceptKeyFrames).
+        self.keyframes = keyframes
+        self.dynamics = dynamics
         self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
         self.seed = config.seed
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
@@ -58,26 +61,27 @@ class Tracking:
         self.n_relocalisations = 0
         self.n_matches_inliers = 0
         self.n_culled_dynamic_points = 0
-        self.mv_params = MultiViewParams(parallax_deg=self.dyn.parallax_deg, depth_threshold_m=self.dyn.depth_threshold_m,
-                                         depth_threshold_rel=self.dyn.depth_threshold_rel, edge_m=self.dyn.edge_m)
-        # Dynamic mask of a frame (set by the System when semantics are on): (mask | None, wait ms).
-        self.semantic_mask: Callable[[Frame], tuple[NDArray[np.bool_] | None, float]] = lambda f: (None, 0.0)
         self.last_dynamic_ratio = 0.0
-        # Hooks set by the System: hand keyframes to local mapping and ask whether it is idle.
-        self.insert_keyframe = lambda kf: None
-        self.mapping_idle = lambda: True
-        self.mapping_queue_size = lambda: 0
-        # Per frame: (frame timestamp, reference keyframe, T_c_ref, lost flag) for the trajectory.
-        self.trajectory_refs: list[tuple[float, KeyFrame, NDArray[np.float64], bool]] = []
+        # Per tracked frame: (timestamp, reference keyframe, T_c_ref) for the trajectory.
+        # Lost frames have no pose and are not recorded (ORB-SLAM's SaveTrajectoryTUM skips them).
+        self.trajectory_refs: list[tuple[float, KeyFrame, NDArray[np.float64]]] = []
+
+    def start_lost_in(self, ref_kf: KeyFrame) -> None:
+        """A loaded map: start lost (the camera is nowhere until it relocalises) with this
+        keyframe as the reference."""
+        self.state = TrackingState.LOST
+        self.ref_kf = ref_kf
 
     # ------------------------------------------------------------------ entry point
-    def track(self, frame: Frame) -> TrackResult:
+    def track(self, packet: FramePacket) -> TrackResult:
+        frame = packet.frame
         timings: dict[str, float] = {}
-        dynamic, wait_ms = self.semantic_mask(frame)
-        if dynamic is not None:
-            timings["semantic_wait"] = wait_ms
+        dynamic, mask = None, None
+        if self.dynamics is not None:
+            dynamic, mask, wait_ms = self.dynamics.before_extraction(packet)
+            if dynamic is not None:
+                timings["semantic_wait"] = wait_ms
         t0 = time.perf_counter()
-        mask = extractor_mask(dynamic, self.dyn.border_px) if dynamic is not None else None
         kps = self.extractor.extract(frame.gray, mask)
         cur = FrameState.create(frame.index, frame.timestamp, kps, frame.depth, self.camera, self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
@@ -97,9 +101,9 @@ class Tracking:
                     t0 = time.perf_counter()
                     ok = self._track_local_map(cur)
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
-                if ok and self.dyn.multiview and frame.depth is not None:
+                if ok and self.dyn.multiview and self.dynamics is not None and frame.depth is not None:
                     t0 = time.perf_counter()
-                    dynamic = self._multiview_check(cur, frame.depth, dynamic)
+                    dynamic = self._remove_moving(cur, frame.depth, dynamic)
                     timings["multiview"] = (time.perf_counter() - t0) * 1e3
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
@@ -119,35 +123,36 @@ class Tracking:
                         cur.T_cw = self.last.T_cw.copy() if self.last is not None and self.last.T_cw is not None else np.eye(4)
             if cur.ref_kf is None:
                 cur.ref_kf = self.ref_kf
-            self._record(cur, lost=self.state is not TrackingState.OK)
+            if self.state is TrackingState.OK:
+                self._record(cur)
             self.last = cur
             n_inl = sum(1 for i, p in enumerate(cur.points) if p is not None and not cur.outlier[i])
-        pose_wc = invert(cur.T_cw) if cur.T_cw is not None else None
+        pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
                            timings=timings)
 
     # ------------------------------------------------------------------ dynamics
-    def _multiview_check(self, cur: FrameState, depth: NDArray[np.float32],
-                         dynamic: NDArray[np.bool_] | None) -> NDArray[np.bool_] | None:
-        """DDL-SLAM's multi-view geometry with the pose just tracked: keypoints in newly
-        found moving regions (and their border band) are dropped and the pose re-optimised."""
+    def _remove_moving(self, cur: FrameState, depth: NDArray[np.float32],
+                       dynamic: NDArray[np.bool_] | None) -> NDArray[np.bool_] | None:
+        """With the pose just tracked, the dynamic stage finds moving regions (DDL-SLAM's
+        multi-view geometry); keypoints there (and in their border band) are dropped, the map
+        points matched inside are culled and the pose re-optimised."""
         ref = self.ref_kf
-        if ref is None or cur.T_cw is None:
+        if ref is None or cur.T_cw is None or self.dynamics is None:
             return dynamic
         # Reference keyframes with the highest overlap: the reference and its best covisibles.
         kfs = [ref, *ref.best_covisibles(self.dyn.multiview_keyframes - 1)]
         refs = [(k.T_cw, k.xy, k.depth) for k in kfs if not k.bad]
-        res = multiview_mask(cur.T_cw, depth, self.camera, refs, self.mv_params)
-        if not res.mask.any():
+        regions = self.dynamics.after_pose(cur.T_cw, depth, refs)
+        if regions is None:
             return dynamic
-        moving = dilate(res.mask, self.dyn.border_px)
-        drop = keypoints_in_mask(cur.keypoints.xy, moving)
+        drop = keypoints_in_mask(cur.keypoints.xy, regions.drop)
         if drop.any():
             # A map point matched inside a region found moving is on the mover: it was
             # mapped while the object stood still and would keep pulling the pose.
-            inside = keypoints_in_mask(cur.keypoints.xy, res.mask)
+            inside = keypoints_in_mask(cur.keypoints.xy, regions.moving)
             for i in np.nonzero(inside)[0]:
                 p = cur.points[i]
                 if p is not None and not p.bad and not cur.outlier[i]:
@@ -155,13 +160,13 @@ class Tracking:
                     self.n_culled_dynamic_points += 1
             cur.drop(~drop)
             self._optimize(cur)
-        return res.mask if dynamic is None else (dynamic | res.mask)
+        return regions.moving if dynamic is None else (dynamic | regions.moving)
 
-    def _record(self, cur: FrameState, lost: bool) -> None:
+    def _record(self, cur: FrameState) -> None:
         ref = cur.ref_kf or self.ref_kf
         if ref is None or cur.T_cw is None:
             return
-        self.trajectory_refs.append((cur.timestamp, ref, cur.T_cw @ ref.T_wc, lost))
+        self.trajectory_refs.append((cur.timestamp, ref, cur.T_cw @ ref.T_wc))
 
     # ------------------------------------------------------------------ initialisation
     def _initialize(self, cur: FrameState) -> bool:
@@ -175,7 +180,7 @@ class Tracking:
         for i, pw in zip(idx, pts):
             self._new_point_from_keyframe(kf, cur, int(i), pw)
         self.map.add_keyframe(kf)
-        self.insert_keyframe(kf)
+        self.keyframes.insert(kf)
         self.ref_kf = kf
         cur.ref_kf = kf
         self.last_kf_frame = cur.index
@@ -280,8 +285,7 @@ class Tracking:
         return self._discard_outliers(cur) >= 10
 
     def _inside(self, uv: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.bool_]:
-        h_lim, w_lim = 2 * self.camera.cy + 1, 2 * self.camera.cx + 1
-        return (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w_lim) & (uv[:, 1] >= 0) & (uv[:, 1] < h_lim)
+        return (z > 0) & self.camera.in_image(uv)
 
     def _search(self, cur: FrameState, uv: NDArray[np.float64], radius: NDArray[np.float64], lo: NDArray[np.intp],
                 hi: NDArray[np.intp], desc: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -403,7 +407,7 @@ class Tracking:
             return True
         min_obs = 3 if n_kfs > 2 else 2
         ref_matches = self.ref_kf.tracked_points(min_obs)
-        idle = self.mapping_idle()
+        idle = self.keyframes.idle()
         close = (cur.depth > 0) & (cur.depth < self.th_depth_m)
         tracked = np.array([p is not None and not cur.outlier[i] for i, p in enumerate(cur.points)], bool)
         n_tracked_close = int((close & tracked).sum())
@@ -416,7 +420,7 @@ class Tracking:
         c1c = inl < ref_matches * 0.25 or need_close
         c2 = (inl < ref_matches * th_ref or need_close) and inl > 15
         if (c1a or c1b or c1c) and c2:
-            return idle or self.mapping_queue_size() < 3
+            return idle or self.keyframes.queue_size() < 3
         return False
 
     def _create_keyframe(self, cur: FrameState) -> None:
@@ -443,7 +447,7 @@ class Tracking:
         self.ref_kf = kf
         cur.ref_kf = kf
         self.last_kf_frame = cur.index
-        self.insert_keyframe(kf)
+        self.keyframes.insert(kf)
 
     # ------------------------------------------------------------------ relocalisation
     def _relocalise(self, cur: FrameState) -> bool:

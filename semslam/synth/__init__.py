@@ -6,7 +6,7 @@ through the view (cut out of real TUM photos when available) and an optional unl
 moving object, with Kinect-like depth and per-pixel class labels.
 """
 
-from semslam.synth.render import Frame, Renderer, render_sequence
+from semslam.synth.render import Frame, Renderer, ensure_rendered, needs_render, render_sequence
 from semslam.synth.sequences import MOTIONS, SEQUENCES, SynthConfig, get_sequence
 
 __all__ = [
@@ -16,5 +16,7 @@ __all__ = [
     "Renderer",
     "SynthConfig",
     "get_sequence",
+    "ensure_rendered",
+    "needs_render",
     "render_sequence",
 ]

@@ -8,8 +8,9 @@ config.
 from __future__ import annotations
 
 import functools
+import json
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -175,3 +176,25 @@ def render_sequence(
         },
     )
     return out
+
+
+def needs_render(seq_dir: Path, cfg: SynthConfig) -> bool:
+    """True unless ``seq_dir`` holds this exact configuration, completely rendered."""
+    meta = seq_dir / "sequence.json"
+    if not meta.is_file() or not (seq_dir / "groundtruth.txt").is_file():
+        return True
+    try:
+        saved = json.loads(meta.read_text())
+    except (OSError, json.JSONDecodeError):
+        return True
+    wanted = json.loads(json.dumps(asdict(cfg)))
+    return saved.get("config", saved) != wanted
+
+
+def ensure_rendered(cfg: SynthConfig, seq_dir: str | Path, progress: bool = False) -> bool:
+    """Render ``cfg`` into ``seq_dir`` unless it is already there; True if it rendered."""
+    seq_dir = Path(seq_dir)
+    if not needs_render(seq_dir, cfg):
+        return False
+    render_sequence(cfg, seq_dir, progress=progress)
+    return True

@@ -1,9 +1,10 @@
-"""The semantic thread (STDC-SLAM Fig. 1): segment each frame in a thread of its own as
-soon as it is decoded, so segmentation of frame k+1 runs while frame k is tracked;
-tracking waits only for what it needs, the mask of its own frame.
+"""STDC-SLAM's semantic thread (Fig. 1): segment each frame in a thread of its own as soon
+as it is decoded, so segmentation of frame k+1 runs while frame k is tracked; tracking
+waits only for what it needs, the mask of its own frame.
 
-The mask is the segmenter's a-priori dynamic classes, optionally grown over depth by the
-Segmentation Refinement Module.
+The mask is the segmenter's a-priori dynamic classes, grown over depth by STDC-SLAM's
+Segmentation Refinement Module (``dynamics/srm.py``) when it is on; both run in this
+thread, ahead of tracking. The mask travels on the pipeline's ``FramePacket``.
 """
 
 from __future__ import annotations
@@ -14,17 +15,19 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.io.sequence import Frame
+from semslam.config import SemanticsConfig
+from semslam.core.protocols import FramePacket
+from semslam.core.types import Frame
 
 
-class SemanticWorker:
-    """``prepare(frame)`` starts segmenting; ``mask(frame)`` returns (mask, ms waited)."""
+class SemanticThread:
+    """``prepare(packet)`` starts segmenting; ``mask(packet)`` returns (mask, ms waited)."""
 
-    def __init__(self, semantics_cfg, threaded: bool = True) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, cfg: SemanticsConfig, threaded: bool = True) -> None:
         from semslam.semantics.base import create_segmenter
 
-        self.cfg = semantics_cfg
-        self.segmenter = create_segmenter(semantics_cfg)
+        self.cfg = cfg
+        self.segmenter = create_segmenter(cfg)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="semantic") if threaded else None
         self.segment_ms: list[float] = []
         self.refine_ms: list[float] = []
@@ -38,26 +41,25 @@ class SemanticWorker:
         t1 = time.perf_counter()
         self.segment_ms.append((t1 - t0) * 1e3)
         if self.cfg.srm and frame.depth is not None and mask.any():
-            from semslam.semantics.refinement import refine_segmentation
+            from semslam.dynamics.srm import refine_segmentation
 
             mask = refine_segmentation(mask, frame.depth, window=self.cfg.srm_window, tau=self.cfg.srm_tau_m)
             self.refine_ms.append((time.perf_counter() - t1) * 1e3)
         return mask
 
-    def prepare(self, frame: Frame) -> Frame:
-        """Start segmenting ``frame`` (call from the reader, right after decoding)."""
-        if self._pool is not None and frame.dynamic_mask is None:
-            frame.dynamic_mask = self._pool.submit(self._compute, frame)
-        return frame
+    def prepare(self, packet: FramePacket) -> None:
+        """Start segmenting the packet's frame (called from the reader, right after decoding)."""
+        if self._pool is not None and packet.dynamic is None:
+            packet.dynamic = self._pool.submit(self._compute, packet.frame)
 
-    def mask(self, frame: Frame) -> tuple[NDArray[np.bool_], float]:
+    def mask(self, packet: FramePacket) -> tuple[NDArray[np.bool_], float]:
         t0 = time.perf_counter()
-        m = frame.dynamic_mask
+        m = packet.dynamic
         if isinstance(m, Future):
             m = m.result()
         elif m is None:
-            m = self._compute(frame)
-        frame.dynamic_mask = m
+            m = self._compute(packet.frame)
+        packet.dynamic = m
         return m, (time.perf_counter() - t0) * 1e3
 
     def stats(self) -> dict[str, float]:
@@ -69,3 +71,5 @@ class SemanticWorker:
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        self.segmenter.close()

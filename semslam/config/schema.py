@@ -1,0 +1,169 @@
+"""The config tree: one dataclass per component, each the ``section:`` of a preset.
+
+Components receive their own section (``FeatureConfig`` for an extractor, ``SlamConfig``
+for the ORB-SLAM core, ...), never the whole tree, unless they wire other components.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from semslam.core.labels import DDL_SLAM_DYNAMIC_CLASSES
+from semslam.errors import ConfigError
+
+#: Sensors the schema knows; a tracker refuses the ones it cannot run yet.
+SENSORS = ("rgbd", "mono")
+
+
+@dataclass
+class FeatureConfig:
+    """Keypoint extractor. Defaults are ORB-SLAM2's for 640x480 RGB-D."""
+
+    extractor: str = "orb_opencv"
+    n_features: int = 1000
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    fast_threshold: int = 20
+    fast_min_threshold: int = 7
+
+
+@dataclass
+class TrackingConfig:
+    """Which tracker runs (a registry name: ``orb_slam``, ``frame_to_keyframe``)."""
+
+    method: str = "frame_to_keyframe"
+
+
+@dataclass
+class FrameToKeyframeConfig:
+    """The foundation tracker (preset ``f2kf``): PnP-RANSAC on depth-backed keyframe points."""
+
+    # Hamming distances: ORB-SLAM uses TH_LOW=50 for guided search, TH_HIGH=100 otherwise.
+    max_hamming: int = 64
+    ratio: float = 0.8
+    # Search radius in pixels around the motion-model prediction (ORB-SLAM: 7-15 px x scale).
+    search_radius_px: float = 24.0
+    # After an unguided pose, re-match by projection within this radius (ORB-SLAM: 10 px).
+    refine_radius_px: float = 10.0
+    ransac_reprojection_px: float = 3.0
+    ransac_iterations: int = 200
+    ransac_confidence: float = 0.999
+    # A matched point whose measured depth disagrees with the estimated pose by more than
+    # this (metres, plus 3 % of depth for Kinect noise) is an outlier.
+    depth_check_m: float = 0.05
+    min_inliers: int = 20
+    # Without a motion prior a wrong pose can gather a few dozen inliers; ORB-SLAM's
+    # relocalisation asks for 50.
+    min_inliers_unguided: int = 50
+    min_depth_m: float = 0.2
+    max_depth_m: float = 6.0
+    # New keyframe when the tracked points fall below this or the camera moved this far.
+    keyframe_min_inliers: int = 200
+    keyframe_max_translation_m: float = 0.25
+    keyframe_max_rotation_deg: float = 15.0
+
+
+@dataclass
+class SlamConfig:
+    """ORB-SLAM2-class core (tracking.method = orb_slam). Defaults are ORB-SLAM2's TUM RGB-D settings."""
+
+    # Virtual stereo baseline x fx (ORB-SLAM TUM yaml Camera.bf = 40): ur = u - bf / z.
+    bf: float = 40.0
+    # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
+    th_depth: float = 40.0
+    # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).
+    min_frames: int = 0
+    max_frames: int = 30
+    min_init_keypoints: int = 500
+    local_mapping: bool = True
+    local_ba: bool = True
+    # ORB-SLAM optimises all covisible keyframes; when keyframes pile up (a large mover
+    # makes tracking weak), that grew to seconds per BA here. Cap the window (best
+    # covisibles first) and the fixed keyframes (most observations first).
+    local_ba_max_keyframes: int = 20
+    local_ba_max_fixed: int = 20
+    triangulation: bool = True
+    keyframe_culling: bool = True
+    loop_closing: bool = True
+    global_ba: bool = True
+    # Loop detection: keyframes since the last loop before a new one is searched.
+    loop_min_keyframes: int = 10
+    loop_consistency: int = 3
+    loop_min_matches: int = 40
+    vocabulary: str = "default"
+    # Run local mapping and loop closing as threads (ORB-SLAM) or inline (deterministic).
+    sequential: bool = False
+    localization_only: bool = False
+
+
+@dataclass
+class DynamicsConfig:
+    """What to do about moving content (DDL-SLAM, STDC-SLAM). Off in the plain presets."""
+
+    # Reject keypoints on a-priori dynamic classes found by the segmenter (semantics: section).
+    semantic: bool = False
+    # Reject keypoints in a band this wide around dynamic masks (DDL-SLAM: mask borders).
+    border_px: int = 8
+    # DDL-SLAM's multi-view geometry check against the best-overlapping keyframes.
+    multiview: bool = False
+    multiview_keyframes: int = 5
+    parallax_deg: float = 30.0
+    depth_threshold_m: float = 0.15
+    depth_threshold_rel: float = 0.03
+    edge_m: float = 0.05
+
+
+@dataclass
+class SemanticsConfig:
+    """Segmenter backend, the a-priori dynamic classes and STDC-SLAM's refinement (SRM)."""
+
+    # Registered backend: mediapipe_person (bundled person model, offline, ~10 ms/frame),
+    # mediapipe_person_fast (~3 ms, misses people cut by the border), ground_truth (the
+    # sequence's own semantic/ labels: an oracle for ablations and tests).
+    backend: str = "mediapipe_person"
+    # Class names treated as dynamic a priori. Default: DDL-SLAM's movable PASCAL VOC classes.
+    dynamic_classes: list[str] = field(default_factory=lambda: list(DDL_SLAM_DYNAMIC_CLASSES))
+    # Weights file for trained networks (unused by mediapipe_person / ground_truth).
+    weights: str = ""
+    # A pixel is labelled with a class when the backend's confidence exceeds this.
+    threshold: float = 0.5
+    # STDC-SLAM Segmentation Refinement Module: grow the dynamic mask along continuous depth.
+    srm: bool = False
+    srm_window: int = 17
+    srm_tau_m: float = 0.1
+    # Resize to this width before inference (0 = native resolution); masks come back native.
+    input_width: int = 0
+
+    def check(self) -> None:
+        """Raise ConfigError on values no backend can use (the config loader checks types only)."""
+        if not self.backend:
+            raise ConfigError("semantics.backend: empty backend name")
+        if not isinstance(self.dynamic_classes, list) or not all(isinstance(c, str) for c in self.dynamic_classes):
+            raise ConfigError(
+                f"semantics.dynamic_classes: expected a list of class names, got {self.dynamic_classes!r}"
+            )
+        if not 0.0 <= self.threshold < 1.0:
+            raise ConfigError(f"semantics.threshold: expected a value in [0, 1), got {self.threshold}")
+        if self.srm_window < 1 or self.srm_window % 2 == 0:
+            raise ConfigError(f"semantics.srm_window: expected an odd window size >= 1, got {self.srm_window}")
+        if not self.srm_tau_m > 0.0:
+            raise ConfigError(f"semantics.srm_tau_m: expected a positive depth step in metres, got {self.srm_tau_m}")
+        if self.input_width < 0:
+            raise ConfigError(f"semantics.input_width: expected 0 (native) or a width in px, got {self.input_width}")
+
+
+@dataclass
+class SystemConfig:
+    """Root of the config tree."""
+
+    preset: str = "custom"
+    # rgbd, or mono (accepted by the schema; refused by the trackers until one is built).
+    sensor: str = "rgbd"
+    seed: int = 0
+    depth_scale: float = 5000.0
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    frame_to_keyframe: FrameToKeyframeConfig = field(default_factory=FrameToKeyframeConfig)
+    slam: SlamConfig = field(default_factory=SlamConfig)
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
+    semantics: SemanticsConfig = field(default_factory=SemanticsConfig)

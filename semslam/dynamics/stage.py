@@ -1,0 +1,69 @@
+"""The dynamic-scene stage around tracking: one object, two hooks.
+
+Before extraction (``before_extraction``): STDC-SLAM's semantic thread gives the mask of
+a-priori dynamic classes, refined by SRM (``semantic_thread.py``, ``srm.py``), and DDL-SLAM's
+border band grows it (``masks.py``); no keypoint is extracted there.
+After the pose (``after_pose``): DDL-SLAM's multi-view geometry (``multiview.py``, III-D)
+compares the frame's depth with the best-overlapping keyframes and returns the moving
+regions; the tracker drops keypoints there and culls the map points matched inside.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.config import DynamicsConfig, SemanticsConfig
+from semslam.core.protocols import FramePacket, MovingRegions
+from semslam.dynamics.masks import dilate, extractor_mask
+from semslam.dynamics.multiview import MultiViewParams, multiview_mask
+from semslam.geometry.camera import PinholeCamera
+
+Reference = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]
+
+
+class SceneDynamics:
+    """``DynamicStage`` for the presets: semantic thread + SRM + border band, multi-view geometry."""
+
+    def __init__(self, dyn: DynamicsConfig, sem: SemanticsConfig, camera: PinholeCamera, threaded: bool) -> None:
+        from semslam.dynamics.semantic_thread import SemanticThread
+
+        self.border_px = dyn.border_px
+        self.camera = camera
+        self.semantic = SemanticThread(sem, threaded=threaded) if dyn.semantic else None
+        self.multiview = MultiViewParams.from_config(dyn) if dyn.multiview else None
+
+    def prepare(self, packet: FramePacket) -> None:
+        if self.semantic is not None:
+            self.semantic.prepare(packet)
+
+    def before_extraction(self, packet: FramePacket) -> tuple[NDArray[np.bool_] | None, NDArray[np.uint8] | None, float]:
+        if self.semantic is None:
+            return None, None, 0.0
+        dynamic, wait_ms = self.semantic.mask(packet)
+        return dynamic, extractor_mask(dynamic, self.border_px), wait_ms
+
+    def after_pose(self, T_cw: NDArray[np.float64], depth: NDArray[np.float32],
+                   references: list[Reference]) -> MovingRegions | None:
+        if self.multiview is None:
+            return None
+        res = multiview_mask(T_cw, depth, self.camera, references, self.multiview)
+        if not res.mask.any():
+            return None
+        return MovingRegions(res.mask, dilate(res.mask, self.border_px))
+
+    def stats(self) -> dict[str, float]:
+        return self.semantic.stats() if self.semantic is not None else {}
+
+    def close(self) -> None:
+        if self.semantic is not None:
+            self.semantic.close()
+            self.semantic = None
+
+
+def create_dynamic_stage(dyn: DynamicsConfig, sem: SemanticsConfig, camera: PinholeCamera,
+                         threaded: bool) -> SceneDynamics | None:
+    """The stage the config asks for, or None when dynamics handling is off."""
+    if not (dyn.semantic or dyn.multiview):
+        return None
+    return SceneDynamics(dyn, sem, camera, threaded)

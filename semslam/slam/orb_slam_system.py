@@ -1,0 +1,197 @@
+"""The ORB-SLAM2-class RGB-D system: the one place that wires tracking, local mapping and
+loop closing over one map (as ORB-SLAM3's System constructor does).
+
+Tracking runs in the caller's thread; local mapping and loop closing run in their own
+threads (or inline with ``slam.sequential``); one bundle-adjustment runner (a worker process
+when threaded: GTSAM holds the GIL) is owned here and shared by both. Everything that can
+fail to build is built before any thread or process starts, and ``shutdown`` stops and
+closes everything on every path.
+
+Trajectory output follows ORB-SLAM's SaveTrajectoryTUM: every tracked frame is stored
+relative to its reference keyframe and composed with that keyframe's final pose (walking up
+the spanning tree when the keyframe was culled); lost frames have no pose and are left out.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semslam.backend.worker import BundleAdjustmentRunner
+from semslam.config import SystemConfig
+from semslam.core.protocols import DynamicStage, FramePacket
+from semslam.core.types import TrackResult
+from semslam.errors import ConfigError, SemslamError
+from semslam.features.base import create_extractor
+from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.se3 import invert
+from semslam.io.trajectory import Trajectory
+from semslam.place.database import KeyframeDatabase
+from semslam.place.vocabulary import Vocabulary, load_default_vocabulary
+from semslam.slam.frame_state import PyramidInfo
+from semslam.slam.fusion import PointFusion
+from semslam.slam.keyframe_worker import KeyframeInbox
+from semslam.slam.local_mapping import LocalMapping
+from semslam.slam.loop_closing import LoopClosing
+from semslam.slam.map import KeyFrame, Map
+from semslam.slam.tracking import Tracking
+
+log = logging.getLogger(__name__)
+
+
+class WorkerFailed(SemslamError):
+    """Local mapping or loop closing raised; the run stops after writing what it has."""
+
+
+class PlaceIndexer:
+    """The keyframe sink when local mapping (or loop closing) is off: keyframes still go into
+    the place-recognition database, so relocalisation works."""
+
+    def __init__(self, vocabulary: Vocabulary, database: KeyframeDatabase) -> None:
+        self.vocabulary = vocabulary
+        self.database = database
+
+    def insert(self, kf: KeyFrame) -> None:
+        if kf.bow is None:
+            kf.bow, kf.featvec = self.vocabulary.transform(kf.keypoints.descriptors)
+        self.database.add(kf.id, kf.bow)
+
+    def idle(self) -> bool:
+        return True
+
+    def queue_size(self) -> int:
+        return 0
+
+
+def create_tracker(config: SystemConfig, camera: PinholeCamera, dynamics: DynamicStage | None = None,
+                   map_path: Path | None = None) -> "OrbSlamSystem":
+    """The registry's factory: refuses a sensor it cannot run, loads a saved map."""
+    if config.sensor != "rgbd":
+        raise ConfigError(f"sensor: {config.sensor!r} is not supported by tracking.method=orb_slam yet "
+                          "(RGB-D only; monocular tracking is not built yet)")
+    slam_map = None
+    if map_path is not None:
+        from semslam.slam.map_io import load_map
+
+        slam_map = load_map(map_path, PyramidInfo(config.features.scale_factor, config.features.n_levels).scales)
+    return OrbSlamSystem(config, camera, dynamics, slam_map)
+
+
+class OrbSlamSystem:
+    """Tracking + local mapping + loop closing over one map (``core.protocols.Tracker``)."""
+
+    has_map = True
+
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, dynamics: DynamicStage | None = None,
+                 slam_map: Map | None = None) -> None:
+        self.config = config
+        self.camera = camera
+        self.threaded = not config.slam.sequential
+        self.mapper: LocalMapping | None = None
+        self.closer: LoopClosing | None = None
+        # One BA runner shared by local mapping and loop closing; owned (and closed) here.
+        self.ba_runner = BundleAdjustmentRunner()
+        self._stopped = False
+        # Built first: everything that can fail on a bad config, before any thread or process.
+        extractor = create_extractor(config.features)
+        voc = config.slam.vocabulary
+        self.vocabulary = load_default_vocabulary() if voc == "default" else Vocabulary.load(voc)
+        self.map = slam_map or Map()
+        self.database = KeyframeDatabase()
+        use_mapping = config.slam.local_mapping and not config.slam.localization_only
+        use_loops = config.slam.loop_closing and not config.slam.localization_only
+        indexer = PlaceIndexer(self.vocabulary, self.database)
+        pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
+        fusion = PointFusion(self.map, camera, pyr, config.slam.bf)
+        mapping_inbox, loop_inbox = KeyframeInbox(), KeyframeInbox()
+        self.closer = LoopClosing(config, camera, self.map, self.database, self.ba_runner, fusion, loop_inbox,
+                                  mapping_inbox)
+        self.mapper = LocalMapping(config, camera, self.map, self.vocabulary, self.ba_runner, fusion, mapping_inbox,
+                                   next_stage=self.closer if use_loops else indexer)
+        self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database, extractor,
+                                 keyframes=self.mapper if use_mapping else indexer, dynamics=dynamics)
+        if slam_map is not None:
+            for kf in self.map.all_keyframes():
+                indexer.insert(kf)
+            if self.map.keyframes:
+                self.tracking.start_lost_in(self.map.all_keyframes()[-1])
+        # Last: the BA worker process and the threads (nothing below can fail on the config).
+        self.ba_runner.start(use_process=self.threaded)
+        if self.threaded:
+            if use_mapping:
+                self.mapper.start()
+            if use_loops:
+                self.closer.start()
+
+    # ------------------------------------------------------------------ Tracker contract
+    def track(self, packet: FramePacket) -> TrackResult:
+        self._raise_worker_error()
+        return self.tracking.track(packet)
+
+    @property
+    def n_keyframes(self) -> int:
+        return len(self.map.keyframes)
+
+    def _raise_worker_error(self) -> None:
+        for worker in (self.mapper, self.closer):
+            if worker is not None and worker.error is not None:
+                raise WorkerFailed(f"{worker.thread_name} thread failed: "
+                                   f"{type(worker.error).__name__}: {worker.error}") from worker.error
+
+    def shutdown(self) -> None:
+        """Let local mapping and loop closing finish their queues (ORB-SLAM's Shutdown waits for
+        them too), stop the BA process; raise WorkerFailed afterwards if a thread failed."""
+        if self._stopped:
+            return
+        self._stopped = True
+        try:
+            for worker in (self.mapper, self.closer):
+                if worker is not None:
+                    worker.stop()
+        finally:
+            self.ba_runner.close()
+        self._raise_worker_error()
+
+    def trajectory(self) -> Trajectory:
+        stamped = []
+        with self.map.lock:
+            for t, ref, T_cr in self.tracking.trajectory_refs:
+                T = T_cr
+                k = ref
+                while k.bad and k.parent is not None and k.T_cp is not None:
+                    T = T @ k.T_cp
+                    k = k.parent
+                stamped.append((t, invert(T @ k.T_cw)))
+        return Trajectory.from_poses(stamped)
+
+    def keyframe_trajectory(self) -> Trajectory:
+        return Trajectory.from_poses([(k.timestamp, k.T_wc) for k in self.map.all_keyframes()])
+
+    def stats(self) -> dict[str, Any]:
+        mapper, closer = self.mapper, self.closer
+        assert mapper is not None and closer is not None
+        lba = mapper.stats["local_ba_ms"]
+        return {
+            "map_points": len(self.map.points),
+            "loops": closer.stats["loops"],
+            "loop_pairs": closer.loops,
+            "relocalisations": self.tracking.n_relocalisations,
+            "local_ba": mapper.stats["local_ba"],
+            "local_ba_failed": mapper.stats["local_ba_failed"],
+            "local_ba_ms_median": float(np.median(lba)) if lba else 0.0,
+            "global_ba": closer.stats["global_ba"],
+            "global_ba_failed": closer.stats["global_ba_failed"],
+            "pose_graph_failed": closer.stats["pose_graph_failed"],
+            "culled_keyframes": mapper.stats["culled_keyframes"],
+            "triangulated_points": mapper.stats["triangulated"],
+            "culled_dynamic_points": self.tracking.n_culled_dynamic_points,
+            "threaded": self.threaded,
+        }
+
+    def save_map(self, path: Path) -> None:
+        from semslam.slam.map_io import save_map
+
+        save_map(self.map, path)
