@@ -69,14 +69,15 @@ def run_slam(
     if config.sensor == "rgbd" and not sequence.has_depth:
         raise DataError(sequence.root, "no depth images: this is a monocular sequence, and monocular tracking is "
                                        "not built yet (RGB-D only for now)")
-    out.mkdir(parents=True, exist_ok=True)
     system = System(config, sequence.camera, Path(load_map) if load_map else None)
+    if save_map and not system.has_map:  # before any frame, not after the whole run
+        system.close()
+        raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+    out.mkdir(parents=True, exist_ok=True)
     n_total = len(sequence) if max_frames is None else min(max_frames, len(sequence))
     timing = _RunTiming()
     error: BaseException | None = None
     try:
-        if save_map and not system.has_map:
-            raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
         _track_all(system, sequence, config, n_total, timing, progress)
     except BaseException as exc:
         error = exc
@@ -144,6 +145,7 @@ def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out
     if len(kf_traj):
         write_tum(out / "keyframes.txt", kf_traj)
         paths["keyframes"] = str(out / "keyframes.txt")
+    paths.update({name: str(p) for name, p in system.write_maps(out / "map").items()})
     n = len(timing.frame_ms)
     cam = sequence.camera
     result = RunResult(

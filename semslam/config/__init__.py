@@ -3,9 +3,11 @@
 from semslam.config.load import PRESET_DIR, available_presets, config_to_dict, load_config, parse_override
 from semslam.config.schema import (
     SENSORS,
+    DepthConfig,
     DynamicsConfig,
     FeatureConfig,
     FrameToKeyframeConfig,
+    MapsConfig,
     SemanticsConfig,
     SlamConfig,
     SystemConfig,
@@ -13,7 +15,7 @@ from semslam.config.schema import (
 )
 
 __all__ = [
-    "PRESET_DIR", "SENSORS", "DynamicsConfig", "FeatureConfig", "FrameToKeyframeConfig", "SemanticsConfig",
+    "PRESET_DIR", "SENSORS", "DepthConfig", "DynamicsConfig", "MapsConfig", "FeatureConfig", "FrameToKeyframeConfig", "SemanticsConfig",
     "SlamConfig", "SystemConfig", "TrackingConfig", "available_presets", "config_to_dict", "load_config",
     "parse_override",
 ]

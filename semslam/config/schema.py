@@ -153,6 +153,20 @@ class SemanticsConfig:
 
 
 @dataclass
+class DepthConfig:
+    """Where metric depth comes from (a registry name): the sensor's depth image for RGB-D."""
+
+    source: str = "sensor"
+
+
+@dataclass
+class MapsConfig:
+    """Map builders fed with keyframe snapshots (registry names); they write OUT/map/."""
+
+    builders: list[str] = field(default_factory=list)
+
+
+@dataclass
 class SystemConfig:
     """Root of the config tree."""
 
@@ -167,3 +181,5 @@ class SystemConfig:
     slam: SlamConfig = field(default_factory=SlamConfig)
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     semantics: SemanticsConfig = field(default_factory=SemanticsConfig)
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    maps: MapsConfig = field(default_factory=MapsConfig)

@@ -75,6 +75,16 @@ class MovingRegions:
     drop: BoolImage
 
 
+@dataclass
+class TrackerInputs:
+    """What the System builds and hands every tracker: where depth comes from, the dynamic
+    stage (None when dynamics handling is off) and the map builders fed with keyframes."""
+
+    depth: "DepthSource"
+    dynamics: "DynamicStage | None" = None
+    map_builders: "list[MapBuilder]" = field(default_factory=list)
+
+
 # ---------------------------------------------------------------------------- contracts
 @runtime_checkable
 class SequenceSource(Protocol):

@@ -39,11 +39,14 @@ PLUGINS: dict[str, dict[str, str]] = {
     "depth_source": {
         "sensor": "semslam.io.depth:SensorDepth",
     },
+    "map_builder": {
+        "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",
+    },
 }
 
 #: The config field that names each kind's backend (for error messages).
 KEYS = {"tracker": "tracking.method", "extractor": "features.extractor", "matcher": "descriptor kind",
-        "segmenter": "semantics.backend", "depth_source": "depth.source"}
+        "segmenter": "semantics.backend", "depth_source": "depth.source", "map_builder": "maps.builders"}
 
 #: Old names still accepted in presets and --set (renamed to say what they are).
 ALIASES: dict[str, dict[str, str]] = {"extractor": {"orb_slam": "orb_slam2"}}

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SystemConfig
-from semslam.core.protocols import DynamicStage, FramePacket
+from semslam.core.protocols import FramePacket, TrackerInputs
 from semslam.errors import ConfigError, DataError
 from semslam.io.trajectory import Trajectory
 from semslam.features.base import Keypoints, create_extractor
@@ -58,15 +58,18 @@ def _rvec_tvec_to_pose(rvec: NDArray[np.float64], tvec: NDArray[np.float64]) -> 
     return make_pose(rot, tvec.reshape(3))
 
 
-def create_tracker(config: SystemConfig, camera: PinholeCamera, dynamics: DynamicStage | None = None,
+def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerInputs | None = None,
                    map_path: Path | None = None) -> "FrameToKeyframeTracker":
     """The registry's factory: refuses what this tracker cannot do, with the key to change."""
     if config.sensor != "rgbd":
         raise ConfigError(f"sensor: {config.sensor!r} is not supported by tracking.method=frame_to_keyframe "
                           "(RGB-D only; monocular tracking is not built yet)")
-    if dynamics is not None:
+    if inputs is not None and inputs.dynamics is not None:
         raise ConfigError("dynamics: the frame_to_keyframe tracker has no dynamic-scene handling; "
                           "use tracking.method=orb_slam (e.g. --preset default)")
+    if inputs is not None and inputs.map_builders:
+        raise ConfigError("maps.builders: the frame_to_keyframe tracker feeds no map builders; "
+                          "use tracking.method=orb_slam (e.g. --preset orb)")
     if map_path is not None:
         raise ConfigError("--load-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
     return FrameToKeyframeTracker(config, camera)

@@ -22,12 +22,13 @@ import numpy as np
 
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
-from semslam.core.protocols import DynamicStage, FramePacket
+from semslam.core.protocols import FramePacket, KeyframeSnapshot, TrackerInputs
 from semslam.core.types import TrackResult
 from semslam.errors import ConfigError, SemslamError
 from semslam.features.base import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
+from semslam.io.depth import SensorDepth
 from semslam.io.trajectory import Trajectory
 from semslam.place.database import KeyframeDatabase
 from semslam.place.vocabulary import Vocabulary, load_default_vocabulary
@@ -40,6 +41,16 @@ from semslam.slam.map import KeyFrame, Map
 from semslam.slam.tracking import Tracking
 
 log = logging.getLogger(__name__)
+
+
+def _pose_cw_through_tree(T_c_ref: np.ndarray, ref: KeyFrame) -> np.ndarray:
+    """``T_cw`` of a camera known relative to ``ref``, walking up the spanning tree while the
+    keyframe was culled (ORB-SLAM's SaveTrajectoryTUM)."""
+    T, k = T_c_ref, ref
+    while k.bad and k.parent is not None and k.T_cp is not None:
+        T = T @ k.T_cp
+        k = k.parent
+    return T @ k.T_cw
 
 
 class WorkerFailed(SemslamError):
@@ -66,7 +77,7 @@ class PlaceIndexer:
         return 0
 
 
-def create_tracker(config: SystemConfig, camera: PinholeCamera, dynamics: DynamicStage | None = None,
+def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerInputs | None = None,
                    map_path: Path | None = None) -> "OrbSlamSystem":
     """The registry's factory: refuses a sensor it cannot run, loads a saved map."""
     if config.sensor != "rgbd":
@@ -77,7 +88,7 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, dynamics: Dynami
         from semslam.slam.map_io import load_map
 
         slam_map = load_map(map_path, PyramidInfo(config.features.scale_factor, config.features.n_levels).scales)
-    return OrbSlamSystem(config, camera, dynamics, slam_map)
+    return OrbSlamSystem(config, camera, inputs or TrackerInputs(SensorDepth()), slam_map)
 
 
 class OrbSlamSystem:
@@ -85,10 +96,12 @@ class OrbSlamSystem:
 
     has_map = True
 
-    def __init__(self, config: SystemConfig, camera: PinholeCamera, dynamics: DynamicStage | None = None,
+    def __init__(self, config: SystemConfig, camera: PinholeCamera, inputs: TrackerInputs,
                  slam_map: Map | None = None) -> None:
         self.config = config
         self.camera = camera
+        self.map_builders = inputs.map_builders
+        self._fed_keyframes: list[KeyFrame] = []  # culled ones too: their points stay in the maps
         self.threaded = not config.slam.sequential
         self.mapper: LocalMapping | None = None
         self.closer: LoopClosing | None = None
@@ -112,7 +125,8 @@ class OrbSlamSystem:
         self.mapper = LocalMapping(config, camera, self.map, self.vocabulary, self.ba_runner, fusion, mapping_inbox,
                                    next_stage=self.closer if use_loops else indexer)
         self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database, extractor,
-                                 keyframes=self.mapper if use_mapping else indexer, dynamics=dynamics)
+                                 keyframes=self.mapper if use_mapping else indexer, depth=inputs.depth,
+                                 dynamics=inputs.dynamics)
         if slam_map is not None:
             for kf in self.map.all_keyframes():
                 indexer.insert(kf)
@@ -129,7 +143,27 @@ class OrbSlamSystem:
     # ------------------------------------------------------------------ Tracker contract
     def track(self, packet: FramePacket) -> TrackResult:
         self._raise_worker_error()
-        return self.tracking.track(packet)
+        result = self.tracking.track(packet)
+        if result.is_keyframe and self.map_builders:
+            self._feed_builders(packet)
+        return result
+
+    def _feed_builders(self, packet: FramePacket) -> None:
+        """A snapshot of the keyframe just made (its frame, pose and final dynamic mask)."""
+        kf = self.tracking.ref_kf
+        assert kf is not None
+        dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
+        snap = KeyframeSnapshot(kf.id, kf.timestamp, kf.T_wc, packet.frame.rgb, self.tracking.depth.depth(packet.frame),
+                                dynamic, packet.labels, self.camera)
+        for builder in self.map_builders:
+            builder.add_keyframe(snap)
+        self._fed_keyframes.append(kf)
+
+    def final_keyframe_poses(self) -> dict[int, np.ndarray]:
+        """``T_wc`` of every keyframe after the final optimisation (culled ones through the
+        spanning tree, as the trajectory does)."""
+        with self.map.lock:
+            return {kf.id: invert(_pose_cw_through_tree(np.eye(4), kf)) for kf in self._fed_keyframes}
 
     @property
     def n_keyframes(self) -> int:
@@ -153,18 +187,15 @@ class OrbSlamSystem:
                     worker.stop()
         finally:
             self.ba_runner.close()
+        if self.map_builders:
+            poses = self.final_keyframe_poses()
+            for builder in self.map_builders:
+                builder.correct_poses(poses)
         self._raise_worker_error()
 
     def trajectory(self) -> Trajectory:
-        stamped = []
         with self.map.lock:
-            for t, ref, T_cr in self.tracking.trajectory_refs:
-                T = T_cr
-                k = ref
-                while k.bad and k.parent is not None and k.T_cp is not None:
-                    T = T @ k.T_cp
-                    k = k.parent
-                stamped.append((t, invert(T @ k.T_cw)))
+            stamped = [(t, invert(_pose_cw_through_tree(T_cr, ref))) for t, ref, T_cr in self.tracking.trajectory_refs]
         return Trajectory.from_poses(stamped)
 
     def keyframe_trajectory(self) -> Trajectory:

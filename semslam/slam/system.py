@@ -12,7 +12,7 @@ from typing import Any
 
 from semslam.config import SystemConfig
 from semslam.core import registry
-from semslam.core.protocols import FramePacket, Tracker
+from semslam.core.protocols import DepthSource, FramePacket, MapBuilder, Tracker, TrackerInputs
 from semslam.core.types import Frame, TrackingState, TrackResult
 from semslam.dynamics.stage import create_dynamic_stage
 from semslam.errors import ConfigError
@@ -27,13 +27,15 @@ class System:
         create_tracker = registry.load("tracker", config.tracking.method)
         self.config = config
         self.camera = camera
+        depth: DepthSource = registry.create("depth_source", config.depth.source)
+        builders: list[MapBuilder] = [registry.create("map_builder", name) for name in config.maps.builders]
         self.dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
                                              threaded=not config.slam.sequential)
+        self.inputs = TrackerInputs(depth, self.dynamics, builders)
         try:
-            self.tracker: Tracker = create_tracker(config, camera, self.dynamics, map_path)
+            self.tracker: Tracker = create_tracker(config, camera, self.inputs, map_path)
         except BaseException:
-            if self.dynamics is not None:
-                self.dynamics.close()
+            self._close_parts()
             raise
         self.results: list[TrackResult] = []
 
@@ -84,9 +86,33 @@ class System:
         self.tracker.save_map(path)
 
     def shutdown(self) -> None:
-        """Stop the tracker's threads and processes, then the dynamic stage; safe to call twice."""
+        """Stop the tracker's threads and processes (map builders get the final keyframe
+        poses), then the dynamic stage; safe to call twice."""
         try:
             self.tracker.shutdown()
         finally:
             if self.dynamics is not None:
                 self.dynamics.close()
+
+    def write_maps(self, out_dir: Path) -> dict[str, Path]:
+        """Each map builder writes its files under ``out_dir``, then is closed."""
+        paths: dict[str, Path] = {}
+        try:
+            for builder in self.inputs.map_builders:
+                paths.update(builder.finish(out_dir))
+        finally:
+            self._close_parts()
+        return paths
+
+    def close(self) -> None:
+        """Stop and free everything without writing maps (a run that never started)."""
+        try:
+            self.shutdown()
+        finally:
+            self._close_parts()
+
+    def _close_parts(self) -> None:
+        for builder in self.inputs.map_builders:
+            builder.close()
+        if self.dynamics is not None:
+            self.dynamics.close()

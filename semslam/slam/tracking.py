@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from semslam.backend.pose_only import optimize_pose
 from semslam.config import SystemConfig
-from semslam.core.protocols import DynamicStage, Extractor, FramePacket
+from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket
 from semslam.dynamics.masks import keypoints_in_mask
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
@@ -35,7 +35,7 @@ class Tracking:
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
                  database: "KeyframeDatabase", extractor: Extractor, keyframes: KeyframeSink,
-                 dynamics: DynamicStage | None) -> None:
+                 depth: DepthSource, dynamics: DynamicStage | None) -> None:
         self.cfg = config.slam
         self.dyn = config.dynamics
         self.camera = camera
@@ -46,6 +46,7 @@ class Tracking:
         # Where new keyframes go (local mapping, or only the place database when it is off);
         # tracking also asks it whether it is idle (ORB-SLAM's AcceptKeyFrames).
         self.keyframes = keyframes
+        self.depth = depth
         self.dynamics = dynamics
         self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
         self.seed = config.seed
@@ -83,7 +84,8 @@ class Tracking:
                 timings["semantic_wait"] = wait_ms
         t0 = time.perf_counter()
         kps = self.extractor.extract(frame.gray, mask)
-        cur = FrameState.create(frame.index, frame.timestamp, kps, frame.depth, self.camera, self.cfg.bf)
+        depth = self.depth.depth(frame)
+        cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
         is_kf = False
         with self.map.lock:
@@ -101,9 +103,9 @@ class Tracking:
                     t0 = time.perf_counter()
                     ok = self._track_local_map(cur)
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
-                if ok and self.dyn.multiview and self.dynamics is not None and frame.depth is not None:
+                if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
                     t0 = time.perf_counter()
-                    dynamic = self._remove_moving(cur, frame.depth, dynamic)
+                    dynamic = self._remove_moving(cur, depth, dynamic)
                     timings["multiview"] = (time.perf_counter() - t0) * 1e3
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
@@ -129,6 +131,8 @@ class Tracking:
             n_inl = sum(1 for i, p in enumerate(cur.points) if p is not None and not cur.outlier[i])
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
+        if dynamic is not None:
+            packet.dynamic = dynamic  # the final mask (semantic + moving regions) for map builders
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
                            timings=timings)
