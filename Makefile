@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 # build; open3d will need libusb-1.0-0). Installed with apt-get when running as root.
 APT_PACKAGES :=
 
-.PHONY: demo test bench setup clean
+.PHONY: demo test lint bench setup clean
 
 $(STAMP): pyproject.toml
 	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
@@ -27,11 +27,18 @@ setup: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/semslam demo
 
+# Guard rails first (seconds): lint and the import layers / no-cycles contracts (.importlinter).
 test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
 
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/lint-imports
+
 bench: $(STAMP)
-	$(BIN)/python benchmarks/synthetic.py --presets f2kf,orb --variant "orb-noloop:orb:slam.loop_closing=false" --json out/bench/results.json
+	$(BIN)/semslam bench --presets f2kf,orb --variant "orb-noloop:orb:slam.loop_closing=false" --json out/bench/results.json
 
 clean:
 	rm -rf $(VENV) out
