@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark: ORB-SLAM's extractor (``semslam.features.orb_slam``) against
+"""Benchmark: ORB-SLAM's extractor (``semslam.features.orb_slam2``) against
 ``cv2.ORB_create(n)`` on 640x480 frames: ms per frame (wall and CPU), per-stage
 breakdown, keypoints per level against ORB-SLAM's formula, spatial uniformity (fraction
 of occupied cells of an 8x6 grid, coefficient of variation of the counts per cell) and
@@ -29,7 +29,8 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from semslam.features.orb_slam import OrbSlamExtractor, features_per_level
+from semslam.features.orb import features_per_level
+from semslam.features.orb_slam2 import OrbSlamExtractor
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 GRID = (8, 6)

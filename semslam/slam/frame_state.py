@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.features.base import Keypoints
+from semslam.core.types import Keypoints
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.frame_to_keyframe import sample_depth
 from semslam.slam.map import KeyFrame, MapPoint

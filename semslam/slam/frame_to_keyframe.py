@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SystemConfig
-from semslam.features.base import Keypoints, create_extractor
+from semslam.core.types import Keypoints
+from semslam.features import create_extractor
 from semslam.features.matching import match_brute_force, match_candidates, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose, rotation_angle

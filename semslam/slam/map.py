@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.features.base import Keypoints
+from semslam.core.types import Keypoints
 from semslam.features.matching import hamming_pairs
 from semslam.geometry.se3 import invert
 

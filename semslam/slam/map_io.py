@@ -13,7 +13,7 @@ import numpy as np
 
 import semslam
 from semslam.errors import DataError
-from semslam.features.base import Keypoints
+from semslam.core.types import Keypoints
 from semslam.slam.map import KeyFrame, Map
 
 FORMAT = "semslam-map-1"

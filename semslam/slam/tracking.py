@@ -18,7 +18,7 @@ from semslam.backend.pose_only import optimize_pose
 from semslam.dynamics.masks import dilate, extractor_mask, keypoints_in_mask
 from semslam.dynamics.multiview import MultiViewParams, multiview_mask
 from semslam.config import SystemConfig
-from semslam.features.base import create_extractor
+from semslam.features import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.io.sequence import Frame
