@@ -10,7 +10,13 @@ import pytest
 
 from semslam.core.protocols import Matcher
 from semslam.core.types import DescriptorKind, FeatureSpec, orb_spec
-from semslam.features.matching import HammingMatcher, L2Matcher, match_brute_force, match_candidates, matcher_for
+from semslam.features.matching import (
+    HammingMatcher,
+    L2Matcher,
+    match_brute_force,
+    match_candidates,
+    matcher_for,
+)
 
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
 
@@ -30,7 +36,8 @@ def _old_match_candidates(desc_query, desc_train, cand_q, cand_t, max_distance, 
     """The module-level code before the matchers (commit fc1265b), verbatim."""
     if len(cand_q) == 0:
         return np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0, np.int32)
-    dist = _POPCOUNT[np.bitwise_xor(desc_query[cand_q], desc_train[cand_t])].sum(axis=1, dtype=np.int32)
+    dist = _POPCOUNT[np.bitwise_xor(desc_query[cand_q], desc_train[cand_t])].sum(axis=1,
+                                                                                   dtype=np.int32)
     order = np.lexsort((dist, cand_q))
     q, t, d = cand_q[order], cand_t[order], dist[order]
     first = np.r_[True, q[1:] != q[:-1]]
@@ -63,8 +70,8 @@ def _l2(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(a.astype(np.float64) - b.astype(np.float64)))
 
 
-def _bf_l2_reference(desc_query: np.ndarray, desc_train: np.ndarray, max_distance: float, ratio: float
-                     ) -> dict[tuple[int, int], float]:
+def _bf_l2_reference(desc_query: np.ndarray, desc_train: np.ndarray, max_distance: float,
+                     ratio: float) -> dict[tuple[int, int], float]:
     """OpenCV's brute force (NORM_L2, k = 2) with the ratio test and one query per train."""
     knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc_query, desc_train, k=2)
     best: dict[int, tuple[float, int]] = {}
@@ -91,7 +98,8 @@ def _near_copies(base: np.ndarray, rng: np.random.Generator, noise: float) -> np
 def sift_pair(shared_data) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
     paths = sorted((shared_data / "kinect_rgbd_5frames" / "color").glob("*.png"))[:2]
     sift = cv2.SIFT_create(500)
-    descs = [sift.detectAndCompute(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), None)[1] for p in paths]
+    grays = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
+    descs = [sift.detectAndCompute(g, None)[1] for g in grays]
     return descs[0], descs[1]
 
 
@@ -118,7 +126,8 @@ def test_hamming_candidates_unchanged(seed: int) -> None:
         old = _old_match_candidates(a, b, cq, ct, max_d, ratio)
         for x, y in zip(new, old):
             assert x.dtype == y.dtype and np.array_equal(x, y)
-        assert all(np.array_equal(x, y) for x, y in zip(match_candidates(a, b, cq, ct, max_d, ratio), old))
+        shortcut = match_candidates(a, b, cq, ct, max_d, ratio)
+        assert all(np.array_equal(x, y) for x, y in zip(shortcut, old))
     assert HammingMatcher().distances(a, a).sum() == 0
 
 
@@ -141,7 +150,8 @@ def test_l2_brute_force_equals_opencv(noise: float) -> None:
         qi, ti, dd = L2Matcher().match_brute_force(a, b, max_d, ratio)
         ref = _bf_l2_reference(a, b, max_d, ratio)
         assert set(zip(qi.tolist(), ti.tolist())) == set(ref)
-        assert np.allclose(dd, [ref[(q, t)] for q, t in zip(qi.tolist(), ti.tolist())], rtol=1e-5, atol=1e-5)
+        expected = [ref[(q, t)] for q, t in zip(qi.tolist(), ti.tolist())]
+        assert np.allclose(dd, expected, rtol=1e-5, atol=1e-5)
     assert len(L2Matcher().match_brute_force(a, b[:1], np.inf, 0.8)[0]) == 0
 
 
@@ -166,16 +176,19 @@ def test_l2_candidates_equal_reference(dense: bool) -> None:
         ct = rng.integers(0, len(b), len(cq))
         ct[::4] = np.minimum(np.arange(200), len(b) - 1)
     for max_d, ratio in ((np.inf, 0.8), (1.0, 0.9), (2.0, 1.0)):
-        qi, ti, dd = L2Matcher().match_candidates(a, b, cq.astype(np.intp), ct.astype(np.intp), max_d, ratio)
+        qi, ti, dd = L2Matcher().match_candidates(a, b, cq.astype(np.intp), ct.astype(np.intp),
+                                                  max_d, ratio)
         ref = _reference_candidates(_l2, a, b, cq, ct, max_d, ratio)
         assert set(zip(qi.tolist(), ti.tolist())) == ref
         assert np.allclose(dd, [_l2(a[q], b[t]) for q, t in zip(qi, ti)], rtol=1e-5, atol=1e-5)
-    assert len(L2Matcher().match_candidates(a, b, np.zeros(0, np.intp), np.zeros(0, np.intp), 1.0, 0.8)[0]) == 0
+    none = np.zeros(0, np.intp)
+    assert len(L2Matcher().match_candidates(a, b, none, none, 1.0, 0.8)[0]) == 0
 
 
 def test_l2_distances() -> None:
     rng = np.random.default_rng(9)
     a, b = rng.random((50, 128), dtype=np.float32), rng.random((60, 128), dtype=np.float32)
     full = L2Matcher().distance_matrix(a, b)
-    assert np.allclose(full, np.linalg.norm(a[:, None].astype(np.float64) - b[None], axis=2), atol=1e-5)
+    exact = np.linalg.norm(a[:, None].astype(np.float64) - b[None], axis=2)
+    assert np.allclose(full, exact, atol=1e-5)
     assert np.allclose(L2Matcher().distances(a, b[:50]), np.diag(full[:, :50]), atol=1e-5)

@@ -16,7 +16,8 @@ if TYPE_CHECKING:
     from semslam.core.types import FeatureSpec
 
 
-def create_extractor(cfg: "FeatureConfig", image_size: tuple[int, int] | None = None) -> "Extractor":
+def create_extractor(cfg: "FeatureConfig", image_size: tuple[int, int] | None = None
+                     ) -> "Extractor":
     """The extractor ``cfg.extractor`` names (ConfigError if unknown); ``image_size`` is
     (width, height) where known (qtree_orb's eq. 2 level count depends on it)."""
     return registry.create("extractor", cfg.extractor, cfg, image_size)

@@ -45,8 +45,8 @@ def _unique_train(qi: NDArray[np.intp], ti: NDArray[np.intp], dd: NDArray[Any]) 
     return qi[first], ti[first], dd[first]
 
 
-def _select_candidates(cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], dist: NDArray[Any], max_distance: float,
-                       ratio: float) -> Matches:
+def _select_candidates(cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], dist: NDArray[Any],
+                       max_distance: float, ratio: float) -> Matches:
     """Best train point per query among its candidate pairs (ties: the first candidate),
     the ratio test against the second-best candidate, each train point used at most once.
     Integer distances are compared in int64 (exact), float ones in float64."""
@@ -75,16 +75,17 @@ class HammingMatcher:
         """Hamming distance between row ``k`` of ``a`` and row ``k`` of ``b``."""
         return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=1, dtype=np.int32)
 
-    def match_candidates(self, desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8], cand_q: NDArray[np.intp],
-                         cand_t: NDArray[np.intp], max_distance: float, ratio: float) -> Matches:
+    def match_candidates(self, desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8],
+                         cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], max_distance: float,
+                         ratio: float) -> Matches:
         """Best train point per query among its candidate pairs (see the module doc)."""
         if len(cand_q) == 0:
             return _empty()
         dist = self.distances(desc_query[cand_q], desc_train[cand_t])
         return _select_candidates(cand_q, cand_t, dist, max_distance, ratio)
 
-    def match_brute_force(self, desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8], max_distance: float,
-                          ratio: float) -> Matches:
+    def match_brute_force(self, desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8],
+                          max_distance: float, ratio: float) -> Matches:
         """Nearest neighbour per query passing the ratio test; each train point used once."""
         if len(desc_query) == 0 or len(desc_train) < 2:
             return _empty()
@@ -119,7 +120,8 @@ class L2Matcher:
         d = np.asarray(a, np.float32) - np.asarray(b, np.float32)
         return np.sqrt(np.einsum("ij,ij->i", d, d).astype(np.float64))
 
-    def distance_matrix(self, a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float64]:
+    def distance_matrix(self, a: NDArray[np.floating], b: NDArray[np.floating]
+                        ) -> NDArray[np.float64]:
         """All L2 distances (len(a) x len(b)) by one matrix product."""
         a = np.asarray(a, np.float64)
         b = np.asarray(b, np.float64)
@@ -128,8 +130,8 @@ class L2Matcher:
         return np.sqrt(np.maximum(d2, 0.0))
 
     def match_candidates(self, desc_query: NDArray[np.floating], desc_train: NDArray[np.floating],
-                         cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], max_distance: float, ratio: float
-                         ) -> Matches:
+                         cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], max_distance: float,
+                         ratio: float) -> Matches:
         """Best train point per query among its candidate pairs (see the module doc)."""
         if len(cand_q) == 0:
             return _empty(np.float64)
@@ -154,8 +156,8 @@ class L2Matcher:
             return _empty(np.float64)
         parts = []
         for i in range(0, len(desc_query), self._ROWS):
-            qi, ti, dd = _select_dense(self.distance_matrix(desc_query[i:i + self._ROWS], desc_train),
-                                       max_distance, ratio)
+            block = self.distance_matrix(desc_query[i:i + self._ROWS], desc_train)
+            qi, ti, dd = _select_dense(block, max_distance, ratio)
             parts.append((qi + i, ti, dd))
         qi, ti, dd = (np.concatenate([p[k] for p in parts]) for k in range(3))
         return _unique_train(qi, ti, dd)
@@ -189,20 +191,21 @@ def hamming_pairs(a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int3
     return _HAMMING.distances(a, b)
 
 
-def match_brute_force(desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8], max_distance: int,
-                      ratio: float) -> Matches:
+def match_brute_force(desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8],
+                      max_distance: int, ratio: float) -> Matches:
     """``HammingMatcher().match_brute_force``."""
     return _HAMMING.match_brute_force(desc_query, desc_train, max_distance, ratio)
 
 
-def match_candidates(desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8], cand_q: NDArray[np.intp],
-                     cand_t: NDArray[np.intp], max_distance: int, ratio: float) -> Matches:
+def match_candidates(desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8],
+                     cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], max_distance: int,
+                     ratio: float) -> Matches:
     """``HammingMatcher().match_candidates``."""
     return _HAMMING.match_candidates(desc_query, desc_train, cand_q, cand_t, max_distance, ratio)
 
 
-def pairs_within_radius(xy_query: NDArray[np.floating], xy_train: NDArray[np.floating], radius: float
-                        ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+def pairs_within_radius(xy_query: NDArray[np.floating], xy_train: NDArray[np.floating],
+                        radius: float) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """All (query, train) index pairs closer than ``radius`` pixels."""
     if len(xy_query) == 0 or len(xy_train) == 0:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)

@@ -37,6 +37,7 @@ class OpenCvOrbExtractor:
         )
 
 
-def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None) -> OpenCvOrbExtractor:
+def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None
+                     ) -> OpenCvOrbExtractor:
     """The registry's factory (``features.extractor: orb_opencv``); the image size is not needed."""
     return OpenCvOrbExtractor(cfg)

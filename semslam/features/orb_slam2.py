@@ -31,8 +31,8 @@ Stages and where they differ from ORB-SLAM (all else is meant to be identical):
   corner at threshold t iff its score is >= t;
 - mask: FAST's own mask (applied after its non-max suppression) so masked corners
   neither count for a cell nor reach the quadtree and the budget goes to allowed pixels;
-- quadtree: ``semslam.features.orb.quadtree`` (``SplitRule.ORB_SLAM``) (ties between equal-sized nodes broken by
-  position instead of heap address);
+- quadtree: ``semslam.features.orb.quadtree`` (``SplitRule.ORB_SLAM``; ties between
+  equal-sized nodes broken by position instead of heap address);
 - orientation: ``IC_Angle`` with ORB-SLAM's ``umax`` circle, as one gather + matmul
   for all levels (levels stacked in one buffer, ``orb.pyramid.StackedPyramid``);
   ``cv2.phase`` gives OpenCV's ``fastAtan2`` (what ORB-SLAM calls);
@@ -152,6 +152,7 @@ class OrbSlamExtractor:
                          angle=angle.astype(np.float32), descriptors=desc)
 
 
-def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None) -> OrbSlamExtractor:
+def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None
+                     ) -> OrbSlamExtractor:
     """The registry's factory (``features.extractor: orb_slam2``); the image size is not needed."""
     return OrbSlamExtractor(cfg.n_features, cfg.scale_factor, cfg.n_levels, cfg.fast_threshold, cfg.fast_min_threshold)

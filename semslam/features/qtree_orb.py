@@ -262,7 +262,8 @@ def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer],
     a node is split only if it holds > 1 points *and* >= 1 high-quality point and is
     larger than 1x1 px; the level stops at ``n_wanted`` nodes or when no node can split
     (instead of ORB-SLAM's "a pass changed nothing"); ``response`` is Harris."""
-    return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high, SplitRule.HIGH_QUALITY)
+    return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high,
+                                      SplitRule.HIGH_QUALITY)
 
 
 # --------------------------------------------------------------------------- metrics
@@ -352,7 +353,8 @@ class QtreeOrbExtractor:
 
     def __init__(self, n_features: int = 1000, scale_factor: float = 1.2, n_levels: int = 8,
                  fast_threshold: int = 20, fast_min_threshold: int = 7, levels_from_image_size: bool = True,
-                 budget: Literal["paper", "orb_slam"] = "paper", image_size: tuple[int, int] | None = None) -> None:
+                 budget: Literal["paper", "orb_slam"] = "paper",
+                 image_size: tuple[int, int] | None = None) -> None:
         if n_levels < 1 or scale_factor <= 1.0 or n_features < 0:
             raise ValueError("need n_levels >= 1, scale_factor > 1 and n_features >= 0")
         if not 0 < fast_min_threshold <= fast_threshold:
@@ -406,9 +408,11 @@ class QtreeOrbExtractor:
 
     def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
         gray, mask = check_extractor_inputs(gray, mask)
-        if self.levels_from_image_size and self.image_size not in (None, (gray.shape[1], gray.shape[0])):
-            raise ValueError(f"qtree_orb was made for {self.image_size[0]}x{self.image_size[1]} images (eq. 2 levels), "
-                             f"got {gray.shape[1]}x{gray.shape[0]}")
+        size = (gray.shape[1], gray.shape[0])
+        if self.levels_from_image_size and self.image_size not in (None, size):
+            w, h = self.image_size
+            raise ValueError(f"qtree_orb was made for {w}x{h} images (eq. 2 levels), "
+                             f"got {size[0]}x{size[1]}")
         if gray.size == 0 or self.n_features == 0:
             return self._reset()
 
@@ -456,7 +460,8 @@ class QtreeOrbExtractor:
                          angle=angle.astype(np.float32), descriptors=desc)
 
 
-def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None) -> QtreeOrbExtractor:
+def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None
+                     ) -> QtreeOrbExtractor:
     """The registry's factory (``features.extractor: qtree_orb``). With the image size
     (width, height) the level count is the paper's eq. 2 for it; without it,
     ``cfg.n_levels`` (the ``stdc`` preset sets 6, eq. 2's value at 640x480). Either way

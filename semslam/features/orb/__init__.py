@@ -3,7 +3,15 @@ scale pyramid, FAST detection per cell, the quadtree with its split rule, IC ang
 steered rBRIEF. Each extractor module is then only its own choices on top of these.
 """
 
-from semslam.features.orb.descriptors import BIT_PATTERN_31, PATCH, Scratch, SteeredBrief, ic_angles, orb_descriptors, umax
+from semslam.features.orb.descriptors import (
+    BIT_PATTERN_31,
+    PATCH,
+    Scratch,
+    SteeredBrief,
+    ic_angles,
+    orb_descriptors,
+    umax,
+)
 from semslam.features.orb.detection import (
     BORDER,
     CELL_SIZE,
@@ -42,10 +50,11 @@ from semslam.features.orb.quadtree import (
 )
 
 __all__ = [
-    "BIT_PATTERN_31", "BORDER", "CELL_SIZE", "EDGE_THRESHOLD", "EMPTY_DETECTION", "HALF_PATCH_SIZE", "PATCH",
-    "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief", "build_pyramid", "cell_grid",
-    "detect_level", "detect_level_reference", "detect_levels", "detection_levels", "detection_region",
-    "distribute_quadtree", "distribute_quadtree_leaves", "distribute_quadtree_levels", "fast_points",
-    "features_per_level", "ic_angles", "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask",
-    "level_masks", "level_sigma2", "level_sizes", "orb_descriptors", "region_sizes", "scale_factors", "umax",
+    "BIT_PATTERN_31", "BORDER", "CELL_SIZE", "EDGE_THRESHOLD", "EMPTY_DETECTION", "HALF_PATCH_SIZE",
+    "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
+    "build_pyramid", "cell_grid", "detect_level", "detect_level_reference", "detect_levels",
+    "detection_levels", "detection_region", "distribute_quadtree", "distribute_quadtree_leaves",
+    "distribute_quadtree_levels", "fast_points", "features_per_level", "ic_angles",
+    "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_masks",
+    "level_sigma2", "level_sizes", "orb_descriptors", "region_sizes", "scale_factors", "umax",
 ]

@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 
 from semslam.features.orb.pyramid import HALF_PATCH_SIZE, StackedPyramid
 
-__all__ = ["BIT_PATTERN_31", "PATCH", "Scratch", "SteeredBrief", "ic_angles", "orb_descriptors", "umax"]
+__all__ = ["BIT_PATTERN_31", "PATCH", "Scratch", "SteeredBrief", "ic_angles", "orb_descriptors",
+           "umax"]
 
 # ORB's learned 256 test pairs for a 31x31 patch (OpenCV orb.cpp ``bit_pattern_31_``,
 # BSD licence, copied by ORB-SLAM), as x1,y1, x2,y2 per test.

@@ -17,15 +17,17 @@ from numpy.typing import NDArray
 
 from semslam.features.orb.pyramid import EDGE_THRESHOLD
 
-__all__ = ["BORDER", "CELL_SIZE", "CellGrid", "EMPTY_DETECTION", "cell_grid", "detect_level", "detect_level_reference",
-           "detect_levels", "detection_levels", "detection_region", "fast_points", "region_sizes"]
+__all__ = ["BORDER", "CELL_SIZE", "CellGrid", "EMPTY_DETECTION", "cell_grid", "detect_level",
+           "detect_level_reference", "detect_levels", "detection_levels", "detection_region",
+           "fast_points", "region_sizes"]
 
 CELL_SIZE = 30  # ORB-SLAM's W: side of the FAST cells in level pixels
 BORDER = EDGE_THRESHOLD - 3  # ORB-SLAM's minBorderX: FAST's own 3 px margin inside it
 
 
-def fast_points(detector: cv2.FastFeatureDetector, image: NDArray[np.uint8], mask: NDArray[np.uint8] | None
-          ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]:
+def fast_points(detector: cv2.FastFeatureDetector, image: NDArray[np.uint8],
+                mask: NDArray[np.uint8] | None
+                ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]:
     """FAST keypoints as integer x, y and float32 score arrays (row-major order)."""
     kps = detector.detect(image, mask)
     if not kps:

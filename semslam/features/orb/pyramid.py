@@ -140,12 +140,13 @@ def level_mask(mask: NDArray[np.uint8], level_shape: tuple[int, int], scale: flo
 
 
 
-def level_masks(mask: NDArray[np.uint8] | None, images: list[NDArray[np.uint8]], scales: NDArray[np.float64]
-                ) -> list[NDArray[np.uint8]] | None:
+def level_masks(mask: NDArray[np.uint8] | None, images: list[NDArray[np.uint8]],
+                scales: NDArray[np.float64]) -> list[NDArray[np.uint8]] | None:
     """``level_mask`` for every level image (level 0 is the mask itself); None without a mask."""
     if mask is None:
         return None
-    return [mask if level == 0 else level_mask(mask, image.shape, scales[level]) for level, image in enumerate(images)]
+    return [mask if level == 0 else level_mask(mask, image.shape, scales[level])
+            for level, image in enumerate(images)]
 
 
 def level0_xy(x: NDArray[np.integer], y: NDArray[np.integer], level: NDArray[np.integer],

@@ -66,16 +66,18 @@ _MAX_ROUNDS = 256  # safety net only: every split shrinks a node, so depth is ~l
 def distribute_quadtree_levels(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                level: NDArray[np.integer], widths: NDArray[np.integer],
                                heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
-                               high: NDArray[np.bool_] | None = None, rule: SplitRule = SplitRule.ORB_SLAM
-                               ) -> NDArray[np.intp]:
+                               high: NDArray[np.bool_] | None = None,
+                               rule: SplitRule = SplitRule.ORB_SLAM) -> NDArray[np.intp]:
     """See ``distribute_quadtree_leaves``; returns the kept indices only."""
-    return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high, rule)[0]
+    return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high,
+                                      rule)[0]
 
 
 def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                level: NDArray[np.integer], widths: NDArray[np.integer],
                                heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
-                               high: NDArray[np.bool_] | None = None, rule: SplitRule = SplitRule.ORB_SLAM
+                               high: NDArray[np.bool_] | None = None,
+                               rule: SplitRule = SplitRule.ORB_SLAM
                                ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
     """Indices (sorted) of the points the quadtree keeps, for all levels at once.
 
@@ -118,7 +120,8 @@ def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], r
     strip_i = (np.arange(first[-1]) - first[strip_level]).astype(np.float32)
     strip_x0 = (strip_i * hx[strip_level]).astype(np.int64)
     strip_x1 = ((strip_i + 1) * hx[strip_level]).astype(np.int64)
-    strip = np.minimum((x_in[idx].astype(np.float32) / hx[lv]).astype(np.int64), n_ini[lv] - 1) + first[lv]
+    strip = (np.minimum((x_in[idx].astype(np.float32) / hx[lv]).astype(np.int64), n_ini[lv] - 1)
+             + first[lv])
     counts = np.bincount(strip, minlength=first[-1])
     nonempty = np.flatnonzero(counts)  # empty nodes are dropped
     remap = np.full(first[-1], -1, np.int64)
@@ -168,8 +171,9 @@ def _splittable(leaves: _Leaves, node_of: NDArray[np.int64], rule: SplitRule,
     return multi & (leaf_high > 0) & ((leaves.x1 - leaves.x0 > 1) | (leaves.y1 - leaves.y0 > 1))
 
 
-def _advance(state: NDArray[np.int64], leaves: _Leaves, can: NDArray[np.bool_], prev: NDArray[np.int64],
-             n_wanted: NDArray[np.int64], rule: SplitRule) -> NDArray[np.int64]:
+def _advance(state: NDArray[np.int64], leaves: _Leaves, can: NDArray[np.bool_],
+             prev: NDArray[np.int64], n_wanted: NDArray[np.int64], rule: SplitRule
+             ) -> NDArray[np.int64]:
     """State update after a round (in place) and the new leaf count per level.
 
     Stop at ``n_wanted`` nodes, or when the level is stuck: ORB-SLAM's "the pass did not
