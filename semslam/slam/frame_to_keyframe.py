@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SystemConfig
-from semslam.core.types import Keypoints
+from semslam.core.types import DescriptorKind, Keypoints
+from semslam.errors import ConfigError
 from semslam.features import create_extractor
 from semslam.features.matching import match_brute_force, match_candidates, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
@@ -62,6 +63,10 @@ class FrameToKeyframeTracker:
         self.cfg = config.tracking
         self.camera = camera
         self.extractor = create_extractor(config.features)
+        if self.extractor.spec.kind is not DescriptorKind.BINARY:
+            raise ConfigError("tracking.method: frame_to_keyframe matches binary descriptors "
+                              "(tracking.max_hamming), features.extractor "
+                              f"{config.features.extractor} makes float ones; use orb_slam")
         self.keyframe: _Keyframe | None = None
         self.n_keyframes = 0
         self._last_pose: NDArray[np.float64] | None = None

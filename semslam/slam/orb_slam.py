@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from semslam.config import SystemConfig
-from semslam.errors import SemslamError
+from semslam.errors import ConfigError, SemslamError
+from semslam.features import feature_spec
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.io.sequence import Frame
@@ -33,19 +34,23 @@ class OrbSlam:
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map | None = None) -> None:
         from semslam.place.database import KeyframeDatabase
-        from semslam.place.vocabulary import Vocabulary, load_default_vocabulary
+        from semslam.place.flat import vocabulary_for
 
         self.config = config
         self.camera = camera
-        self.map = slam_map or Map()
-        voc = config.slam.vocabulary
-        self.vocabulary = load_default_vocabulary() if voc == "default" else Vocabulary.load(voc)
+        self.map = slam_map or Map(feature_spec(config.features))
+        self.vocabulary = vocabulary_for(self.map.spec, config.slam.vocabulary)
         self.database = KeyframeDatabase()
         self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database)
         self.mapper = LocalMapping(config, camera, self.map, self.vocabulary)
         self.closer = LoopClosing(config, camera, self.map, self.database, self.mapper)
         use_mapping = config.slam.local_mapping and not config.slam.localization_only
         use_loops = config.slam.loop_closing and not config.slam.localization_only
+        if use_loops and not self.vocabulary.recognises_places:
+            raise ConfigError("slam.loop_closing: no bag-of-words vocabulary for "
+                              f"{self.map.spec.kind.value} descriptors "
+                              f"(features.extractor: {config.features.extractor}); "
+                              "set slam.loop_closing=false")
         if use_mapping:
             self.tracking.insert_keyframe = self.mapper.insert
             self.tracking.mapping_idle = self.mapper.idle

@@ -31,10 +31,10 @@ def _orb_slam(config: SystemConfig, camera: PinholeCamera, map_path: Path | None
 
     slam_map = None
     if map_path is not None:
-        from semslam.slam.frame_state import PyramidInfo
+        from semslam.features import feature_spec
         from semslam.slam.map_io import load_map
 
-        slam_map = load_map(map_path, PyramidInfo(config.features.scale_factor, config.features.n_levels).scales)
+        slam_map = load_map(map_path, feature_spec(config.features))
     return OrbSlam(config, camera, slam_map)
 
 
