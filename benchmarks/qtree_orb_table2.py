@@ -41,8 +41,8 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from semslam.features.base import Keypoints
-from semslam.features.orb_slam import OrbSlamExtractor
+from semslam.core.types import Keypoints
+from semslam.features.orb_slam2 import OrbSlamExtractor
 from semslam.features.qtree_orb import QtreeOrbExtractor, distribution_uniformity, fast_quality
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

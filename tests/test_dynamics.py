@@ -14,7 +14,7 @@ from semslam.config import load_config
 from semslam.dynamics.masks import dilate, extractor_mask, keypoints_in_mask
 from semslam.dynamics.multiview import MultiViewParams, multiview_mask
 from semslam.eval.metrics import ate
-from semslam.features.base import create_extractor
+from semslam.features import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.core.types import Frame

@@ -15,21 +15,25 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from semslam.config import FeatureConfig
-from semslam.features import orb_slam
-from semslam.features.base import _REGISTRY, Keypoints
-from semslam.features.orb_slam import (
-    OrbSlamExtractor,
+from semslam.core.types import Keypoints
+from semslam.features import create_extractor, orb
+from semslam.features.orb import (
+    build_pyramid,
     detect_level,
     detect_level_reference,
+    distribute_quadtree,
+    distribute_quadtree_leaves,
+    distribute_quadtree_levels,
     features_per_level,
     ic_angles,
     inv_level_sigma2,
+    level_mask,
     level_sigma2,
+    level_sizes,
     orb_descriptors,
     scale_factors,
 )
-from semslam.features.pyramid import build_pyramid, level_mask, level_sizes
-from semslam.features.quadtree import distribute_quadtree, distribute_quadtree_leaves, distribute_quadtree_levels
+from semslam.features.orb_slam2 import OrbSlamExtractor
 
 N = 1000
 
@@ -135,7 +139,7 @@ def reference_octtree(x, y, response, width, height, n_wanted) -> np.ndarray:
 
 def reference_ic_angle(image: np.ndarray, x: int, y: int) -> float:
     """Literal port of ORB-SLAM2 ``IC_Angle``."""
-    umax = orb_slam._umax()
+    umax = orb.umax()
     img = image.astype(np.int64)
     m10 = sum(u * img[y, x + u] for u in range(-15, 16))
     m01 = 0
@@ -154,7 +158,7 @@ def reference_descriptor(blurred: np.ndarray, x: int, y: int, angle: float) -> n
     """Literal port of ORB-SLAM2 ``computeOrbDescriptor`` (float maths, cvRound)."""
     rad = np.float32(angle) * np.float32(math.pi / 180.0)
     a, b = np.float32(math.cos(rad)), np.float32(math.sin(rad))
-    pattern = orb_slam._BIT_PATTERN_31
+    pattern = orb.BIT_PATTERN_31
     out = np.zeros(32, np.uint8)
 
     def value(i):
@@ -321,7 +325,7 @@ def test_detection_close_to_per_cell_reference(real_gray: np.ndarray, extractor:
 def test_detection_order_is_cell_by_cell(real_gray: np.ndarray, extractor: OrbSlamExtractor) -> None:
     image = build_pyramid(real_gray, 8, 1.2).levels[0]
     x, y, _ = detect_level(image, 20, 7)
-    grid = orb_slam._CellGrid(image.shape[1] - 32, image.shape[0] - 32)
+    grid = orb.CellGrid(image.shape[1] - 32, image.shape[0] - 32)
     key = (grid.cell_of(x, y) * 10_000 + y) * 10_000 + x
     assert np.all(np.diff(key) > 0)
     assert x.min() >= 3 and y.min() >= 3  # level pixels >= EDGE_THRESHOLD
@@ -471,10 +475,14 @@ def test_deterministic(real_gray: np.ndarray, extractor: OrbSlamExtractor) -> No
 
 
 def test_registered_factory_uses_the_config(real_gray: np.ndarray) -> None:
-    cfg = FeatureConfig(extractor="orb_slam", n_features=500, scale_factor=1.3, n_levels=6,
+    cfg = FeatureConfig(extractor="orb_slam2", n_features=500, scale_factor=1.3, n_levels=6,
                         fast_threshold=25, fast_min_threshold=5)
-    ex = _REGISTRY["orb_slam"](cfg)
+    ex = create_extractor(cfg)
     assert isinstance(ex, OrbSlamExtractor)
+    old_name = create_extractor(FeatureConfig(extractor="orb_slam"))
+    assert isinstance(old_name, OrbSlamExtractor)
+    spec = ex.spec
+    assert (spec.kind.value, spec.dim, spec.n_levels, spec.scale_factor) == ("binary", 32, 6, 1.3)
     assert (ex.n_features, ex.scale_factor, ex.n_levels, ex.fast_threshold, ex.fast_min_threshold) == (
         500, 1.3, 6, 25, 5)
     kp = ex.extract(real_gray)

@@ -13,9 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from semslam.config import FeatureConfig
-from semslam.features.base import _REGISTRY, Keypoints
-from semslam.features.orb_slam import _BORDER, OrbSlamExtractor, _fast
-from semslam.features.pyramid import build_pyramid
+from semslam.core.types import Keypoints
+from semslam.features import create_extractor
+from semslam.features.orb import BORDER, build_pyramid
+from semslam.features.orb import fast_points as _fast
+from semslam.features.orb_slam2 import OrbSlamExtractor
 from semslam.features.qtree_orb import (
     QtreeOrbExtractor,
     detect_two_thresholds,
@@ -105,7 +107,7 @@ def test_eq5_numbers_at_640x480() -> None:
 def test_fast_score_does_not_depend_on_threshold(real_gray: np.ndarray) -> None:
     """The basis of the single low-threshold pass: FAST at T_L restricted to scores >= T_H
     is exactly FAST at T_H (same non-max suppression survivors, same scores)."""
-    crop = real_gray[_BORDER:-_BORDER, _BORDER:-_BORDER]
+    crop = real_gray[BORDER:-BORDER, BORDER:-BORDER]
     hi = cv2.FastFeatureDetector_create(20, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     lo = cv2.FastFeatureDetector_create(7, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     hx, hy, hs = _fast(hi, crop, None)
@@ -133,7 +135,7 @@ def test_low_pass_only_when_needed_and_stops_at_budget(real_gray: np.ndarray) ->
                 assert det.n_low[level] == 0  # enough strong corners: no low pass
                 continue
             # Low pass: either it reached N_i or it used every low point of the level.
-            crop = pyr.levels[level][_BORDER:-_BORDER, _BORDER:-_BORDER]
+            crop = pyr.levels[level][BORDER:-BORDER, BORDER:-BORDER]
             _, _, s_all = _fast(fast_lo, crop, None)
             n_low_available = int((s_all < 20).sum())
             assert (det.n_high[level] + det.n_low[level] >= wanted[level]
@@ -145,7 +147,7 @@ def test_low_pass_only_when_needed_and_stops_at_budget(real_gray: np.ndarray) ->
 
 
 def test_low_points_come_from_a_prefix_of_cells(real_gray: np.ndarray) -> None:
-    from semslam.features.orb_slam import _cell_grid
+    from semslam.features.orb import cell_grid as _cell_grid
 
     fast_hi = cv2.FastFeatureDetector_create(20, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     fast_lo = cv2.FastFeatureDetector_create(7, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
@@ -153,8 +155,8 @@ def test_low_points_come_from_a_prefix_of_cells(real_gray: np.ndarray) -> None:
     det = detect_two_thresholds([image], np.array([344]), fast_hi, fast_lo)
     assert 0 < det.n_low[0]
     h, w = image.shape
-    grid = _cell_grid(w - 2 * _BORDER, h - 2 * _BORDER)
-    crop = image[_BORDER:-_BORDER, _BORDER:-_BORDER]
+    grid = _cell_grid(w - 2 * BORDER, h - 2 * BORDER)
+    crop = image[BORDER:-BORDER, BORDER:-BORDER]
     lx, ly, ls = _fast(fast_lo, crop, None)
     lcell = grid.cell_of(lx[ls < 20], ly[ls < 20])
     got_cells = np.unique(grid.cell_of(det.x[~det.high], det.y[~det.high]))
@@ -320,9 +322,9 @@ def test_kept_point_is_the_max_harris_of_its_leaf(real_gray: np.ndarray) -> None
     fast_lo = cv2.FastFeatureDetector_create(7, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     image = cv2.GaussianBlur(real_gray, (0, 0), 1.2)  # gives a mix of high and low points
     det = detect_two_thresholds([image], np.array([344]), fast_hi, fast_lo)
-    harris = harris_responses(image, det.x + _BORDER, det.y + _BORDER)
+    harris = harris_responses(image, det.x + BORDER, det.y + BORDER)
     keep, leaf = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level,
-                                              [image.shape[1] - 2 * _BORDER], [image.shape[0] - 2 * _BORDER], [344])
+                                              [image.shape[1] - 2 * BORDER], [image.shape[0] - 2 * BORDER], [344])
     assert (~det.high).any() and det.high.any()
     assert len(np.unique(leaf[keep])) == len(keep) == len(np.unique(leaf))
     best = np.full(leaf.max() + 1, -np.inf)
@@ -370,7 +372,7 @@ def test_more_high_fewer_low_than_orb_slam(real_grays: list[np.ndarray], synth_g
     for gray in frames:
         k0 = orb.extract(gray)
         q0 = fast_quality(k0)
-        k1 = extractor.extract(gray)
+        extractor.extract(gray)
         c = extractor.last_counts
         assert c.L <= int((~q0).sum())
         assert c.H / c.T >= q0.mean()
@@ -422,12 +424,17 @@ def test_deterministic_and_registered(real_gray: np.ndarray, extractor: QtreeOrb
         assert np.array_equal(getattr(a, name), getattr(b, name))
     cfg = FeatureConfig(extractor="qtree_orb", n_features=500, scale_factor=1.3, n_levels=4,
                         fast_threshold=25, fast_min_threshold=5)
-    ex = _REGISTRY["qtree_orb"](cfg)
+    ex = create_extractor(cfg)
     assert isinstance(ex, QtreeOrbExtractor)
     assert (ex.n_features, ex.scale_factor, ex.fast_threshold, ex.fast_min_threshold) == (500, 1.3, 25, 5)
     kp = ex.extract(real_gray)
-    # The registry follows the config's n_levels (SLAM sizes its tables from it), not eq. 2.
-    assert kp.octave.max() == 3
+    # Without the image size the factory follows the config's n_levels, not eq. 2 ...
+    assert kp.octave.max() == 3 and ex.spec.n_levels == 4
+    # ... with it, eq. 2 (6 levels at 640x480), and the spec says so.
+    sized = create_extractor(cfg, image_size=(640, 480))
+    assert sized.spec.n_levels == 6 and sized.extract(real_gray).octave.max() == 5
+    with pytest.raises(ValueError, match="640x480"):
+        sized.extract(real_gray[:240])
     assert 500 <= len(kp) <= 500 + 12
     assert QtreeOrbExtractor().extract(real_gray).octave.max() == 5  # eq. 2: 6 levels at 640x480
     fixed = QtreeOrbExtractor(n_levels=4, levels_from_image_size=False).extract(real_gray)

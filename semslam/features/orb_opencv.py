@@ -7,13 +7,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import FeatureConfig
-from semslam.features.base import Keypoints, register_extractor
+from semslam.core.types import FeatureSpec, Keypoints, orb_spec
 
 
 class OpenCvOrbExtractor:
     """cv2.ORB with ORB-SLAM's pyramid settings (8 levels, scale 1.2, FAST threshold 20)."""
 
     def __init__(self, cfg: FeatureConfig) -> None:
+        self.spec: FeatureSpec = orb_spec(float(cfg.scale_factor), int(cfg.n_levels))
         self._orb = cv2.ORB_create(
             nfeatures=cfg.n_features,
             scaleFactor=cfg.scale_factor,
@@ -36,6 +37,7 @@ class OpenCvOrbExtractor:
         )
 
 
-@register_extractor("orb_opencv")
-def _make(cfg: FeatureConfig) -> OpenCvOrbExtractor:
+def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None
+                     ) -> OpenCvOrbExtractor:
+    """The registry's factory (``features.extractor: orb_opencv``); the image size is not needed."""
     return OpenCvOrbExtractor(cfg)

@@ -9,11 +9,9 @@ Why: ORB-SLAM's quadtree spreads the points so evenly that it keeps many weak (l
 threshold) corners in texture-poor cells; the paper trades a little uniformity for more
 strong corners (its Table 2: 155 -> 183 high, 63 -> 35 low of ~218 per frame).
 
-What is reused (imported, not copied): the stacked pyramid (``pyramid.build_pyramid``,
-``level_mask``), FAST wrapper and ORB-SLAM's cell grid (``orb_slam._fast``,
-``orb_slam._cell_grid``, ``orb_slam._detection_region``), the leaf bookkeeping of the
-vectorised quadtree (``quadtree._Leaves``, ``_split``, ``_best_per_leaf``), IC angle and
-steered rBRIEF (``orb_slam.ic_angles``, ``orb_slam.orb_descriptors``).
+What is reused (imported from ``semslam.features.orb``, not copied): the stacked pyramid,
+the FAST wrapper and ORB-SLAM's cell grid and detection region, the vectorised quadtree
+(Algorithm 3 is its ``SplitRule.HIGH_QUALITY``), IC angle and steered rBRIEF.
 
 The paper's equations and how ``s`` relates to ORB-SLAM's ``scale_factor``:
 - eq. 2: ``M = Round(max(W, H) / 100)`` levels (6 at 640x480, 12 at 1241x376);
@@ -54,8 +52,8 @@ Consequences worth knowing: on textured 640x480 frames every level has ``|P^H| >
 so the low pass never runs and no low-quality point is kept; on texture-poor frames a
 level can end with fewer than ``N_i`` points, because nodes holding only low-quality
 points are never split (one point each). With eq. 2 the number of levels depends on
-the image size (6 at 640x480, 12 at 1241x376), so whatever sizes per-level tables from
-``FeatureConfig.n_levels`` must use ``levels_for`` instead (or turn eq. 2 off).
+the image size (6 at 640x480, 12 at 1241x376); the extractor's ``spec`` says the
+pyramid it really extracts with, and the SLAM core sizes its per-level tables from it.
 """
 
 from __future__ import annotations
@@ -70,23 +68,30 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import FeatureConfig
-from semslam.features.base import Keypoints, register_extractor
-from semslam.features.orb_slam import (
-    check_extractor_inputs,
-    _BORDER,
+from semslam.core.types import FeatureSpec, Keypoints, orb_spec
+from semslam.features.inputs import check_extractor_inputs
+from semslam.features.orb import (
+    BORDER,
     Scratch,
-    _cell_grid,
-    _detection_region,
-    _fast,
-    ic_angles,
-    orb_descriptors,
+    SplitRule,
+    SteeredBrief,
+    build_pyramid,
+    cell_grid,
+    detection_levels,
+    detection_region,
+    distribute_quadtree_leaves,
+    fast_points,
+    features_per_level,
+    level0_xy,
+    level_masks,
+    region_sizes,
+    scale_factors,
 )
-from semslam.features.pyramid import build_pyramid, features_per_level, level_mask, scale_factors
-from semslam.features.quadtree import _best_per_leaf, _Leaves, _split_round
 
 __all__ = [
     "Detection", "QtreeOrbCounts", "QtreeOrbExtractor", "detect_two_thresholds", "distribute_improved_quadtree",
     "distribution_uniformity", "fast_quality", "harris_responses", "levels_for_image", "paper_features_per_level",
+    "create_extractor",
 ]
 
 PIXELS_PER_LEVEL = 100  # eq. 2's divisor
@@ -200,14 +205,14 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
     level_first_cell = []
     cell_base = 0
     for level, image in enumerate(images):
-        region = _detection_region(image)
+        region = detection_region(image)
         assert region is not None, "levels without a detection region must be left out"
         width, height = region
-        crop = image[_BORDER:_BORDER + height, _BORDER:_BORDER + width]
+        crop = image[BORDER:BORDER + height, BORDER:BORDER + width]
         mask = None if masks is None else masks[level]
-        cmask = None if mask is None else mask[_BORDER:_BORDER + height, _BORDER:_BORDER + width]
-        grid = _cell_grid(width, height)
-        x, y, s = _fast(fast_hi, crop, cmask)
+        cmask = None if mask is None else mask[BORDER:BORDER + height, BORDER:BORDER + width]
+        grid = cell_grid(width, height)
+        x, y, s = fast_points(fast_hi, crop, cmask)
         n_high[level] = len(x)
         xs.append(x)
         ys.append(y)
@@ -216,7 +221,7 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
         cells.append(grid.cell_of(x, y) + cell_base)
         deficit = int(n_wanted[level]) - len(x)
         if deficit > 0:
-            lx, ly, ls = _fast(fast_lo, crop, cmask)
+            lx, ly, ls = fast_points(fast_lo, crop, cmask)
             low = ls < t_high  # the others are exactly P^H again
             lx, ly, ls = lx[low], ly[low], ls[low]
             lcell = grid.cell_of(lx, ly)
@@ -244,10 +249,6 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
 
 # --------------------------------------------------------------------------- Algorithm 3
 
-_MAIN, _FINE, _DONE = 0, 1, 2
-_MAX_ROUNDS = 256  # safety net only: every split shrinks a node, so depth is ~log2(size)
-
-
 def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                  high: NDArray[np.bool_], level: NDArray[np.integer], widths: NDArray[np.integer],
                                  heights: NDArray[np.integer], n_wanted: NDArray[np.integer]
@@ -255,84 +256,14 @@ def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer],
     """Algorithm 3 for all levels at once: the indices (sorted) of the kept points and
     every point's final leaf (-1 for levels with ``n_wanted <= 0``, which keep nothing).
 
-    Same frame, initial nodes, split lines, ORB-SLAM-style last phase and tie rule
-    (first in input order) as ``quadtree.distribute_quadtree_leaves``; the differences:
+    ``semslam.features.orb.distribute_quadtree_leaves`` with ``SplitRule.HIGH_QUALITY``:
+    same frame, initial nodes, split lines, ORB-SLAM-style last phase and tie rule
+    (first in input order) as ORB-SLAM's quadtree; the differences:
     a node is split only if it holds > 1 points *and* >= 1 high-quality point and is
     larger than 1x1 px; the level stops at ``n_wanted`` nodes or when no node can split
     (instead of ORB-SLAM's "a pass changed nothing"); ``response`` is Harris."""
-    x_in = np.asarray(x)
-    y_in = np.asarray(y)
-    level_in = np.asarray(level, np.int64)
-    widths = np.asarray(widths, np.int64)
-    heights = np.asarray(heights, np.int64)
-    n_wanted = np.asarray(n_wanted, np.int64)
-    n_levels = len(n_wanted)
-    leaf_all = np.full(len(x_in), -1, np.int64)
-    idx = np.flatnonzero(n_wanted[level_in] > 0) if len(x_in) else np.zeros(0, np.intp)
-    if len(idx) == 0:
-        return np.zeros(0, np.intp), leaf_all
-    lv = level_in[idx]
-    resp = np.asarray(response, np.float64)[idx]
-    hi_idx = np.flatnonzero(np.asarray(high, bool)[idx])
-    px = np.floor(x_in[idx]).astype(np.int64)
-    py = np.floor(y_in[idx]).astype(np.int64)
-
-    # Initial nodes as ORB-SLAM: round(W/H) vertical strips, bounds int(hX i), float32.
-    n_ini = np.maximum(1, np.floor(widths / np.maximum(heights, 1) + 0.5).astype(np.int64))
-    hx = widths.astype(np.float32) / n_ini.astype(np.float32)
-    first = np.concatenate([[0], np.cumsum(n_ini)])
-    strip_level = np.repeat(np.arange(n_levels), n_ini)
-    strip_i = (np.arange(first[-1]) - first[strip_level]).astype(np.float32)
-    strip_x0 = (strip_i * hx[strip_level]).astype(np.int64)
-    strip_x1 = ((strip_i + 1) * hx[strip_level]).astype(np.int64)
-    strip = np.minimum((px.astype(np.float32) / hx[lv]).astype(np.int64), n_ini[lv] - 1) + first[lv]
-    counts = np.bincount(strip, minlength=first[-1])
-    nonempty = np.flatnonzero(counts)  # Algorithm 3 case 2: empty nodes are dropped
-    remap = np.full(first[-1], -1, np.int64)
-    remap[nonempty] = np.arange(len(nonempty))
-    node_of = remap[strip]
-    sl = strip_level[nonempty]
-    # n_old = 0: the initial nodes count as "just made", so the state update below can
-    # send a level straight to the last phase (ORB-SLAM always runs one full pass first;
-    # the results differ only for budgets below ~4 nodes per strip).
-    leaves = _Leaves(strip_x0[nonempty], np.zeros(len(nonempty), np.int64), strip_x1[nonempty], heights[sl],
-                     counts[nonempty], sl, 0)
-
-    def splittable(lv_: _Leaves, high_count: NDArray[np.int64]) -> NDArray[np.bool_]:
-        # Algorithm 3 case 1 (> 1 points and >= 1 high-quality point); a 1x1 node holds
-        # at most one distinct pixel, so refusing it only guards against duplicates.
-        return (lv_.count > 1) & (high_count > 0) & ((lv_.x1 - lv_.x0 > 1) | (lv_.y1 - lv_.y0 > 1))
-
-    state = np.full(n_levels, _MAIN, np.int64)
-    state[np.bincount(lv, minlength=n_levels) == 0] = _DONE
-    leaf_high = np.bincount(node_of[hi_idx], minlength=len(leaves))
-    can = splittable(leaves, leaf_high)
-    prev = np.zeros(n_levels, np.int64)
-    for _ in range(_MAX_ROUNDS):
-        # State update after the initial nodes / the last round: stop at n_wanted nodes
-        # or when nothing can split (splittable leaves are always ones made by the last
-        # round: the others were split or cannot be); go to the last phase when a full
-        # pass could overshoot.
-        now = np.bincount(leaves.level, minlength=n_levels)
-        n_expandable = np.bincount(leaves.level[leaves.n_old:][can[leaves.n_old:]], minlength=n_levels)
-        stop = (now >= n_wanted) | (n_expandable == 0)
-        to_fine = (state == _MAIN) & ~stop & (now + 3 * n_expandable > n_wanted)
-        state[stop] = _DONE
-        state[to_fine] = _FINE
-        prev = now
-        if (state == _DONE).all():
-            break
-        lstate = state[leaves.level]
-        which = can & (lstate == _MAIN)
-        fine_cand = can & (lstate == _FINE)
-        fine_cand[:leaves.n_old] = False
-        leaves, node_of = _split_round(leaves, node_of, px, py, which, fine_cand, prev, n_wanted, heights, widths)
-        leaf_high = np.bincount(node_of[hi_idx], minlength=len(leaves))
-        can = splittable(leaves, leaf_high)
-
-    keep = _best_per_leaf(node_of, resp, len(leaves))
-    leaf_all[idx] = node_of
-    return idx[keep], leaf_all
+    return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high,
+                                      SplitRule.HIGH_QUALITY)
 
 
 # --------------------------------------------------------------------------- metrics
@@ -416,11 +347,14 @@ class QtreeOrbExtractor:
     ``last_counts`` (``QtreeOrbCounts``), ``last_stage_ms``.
 
     ``levels_from_image_size=False`` uses ``n_levels`` instead of eq. 2;
-    ``budget="orb_slam"`` uses ORB-SLAM's per-level budgets instead of eq. 5."""
+    ``budget="orb_slam"`` uses ORB-SLAM's per-level budgets instead of eq. 5.
+    ``image_size`` (width, height) fixes the image size: with eq. 2 the pyramid, hence
+    ``spec``, depends on it, so ``spec`` needs it and ``extract`` then refuses other sizes."""
 
     def __init__(self, n_features: int = 1000, scale_factor: float = 1.2, n_levels: int = 8,
                  fast_threshold: int = 20, fast_min_threshold: int = 7, levels_from_image_size: bool = True,
-                 budget: Literal["paper", "orb_slam"] = "paper") -> None:
+                 budget: Literal["paper", "orb_slam"] = "paper",
+                 image_size: tuple[int, int] | None = None) -> None:
         if n_levels < 1 or scale_factor <= 1.0 or n_features < 0:
             raise ValueError("need n_levels >= 1, scale_factor > 1 and n_features >= 0")
         if not 0 < fast_min_threshold <= fast_threshold:
@@ -434,16 +368,26 @@ class QtreeOrbExtractor:
         self.fast_min_threshold = int(fast_min_threshold)
         self.levels_from_image_size = bool(levels_from_image_size)
         self.budget = budget
+        self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
         self._fast_hi = cv2.FastFeatureDetector_create(self.fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
         self._fast_lo = cv2.FastFeatureDetector_create(self.fast_min_threshold, True,
                                                        cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
-        self._scratch = Scratch()
+        self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
-        self._blur_buffer: NDArray[np.uint8] | None = None
         self.last_quality: NDArray[np.bool_] = np.zeros(0, bool)
         self.last_fast_score: NDArray[np.float32] = np.zeros(0, np.float32)
         self.last_counts = QtreeOrbCounts()
         self.last_stage_ms: dict[str, float] = {}
+
+    @property
+    def spec(self) -> FeatureSpec:
+        """ORB descriptors on the pyramid this extractor really uses: eq. 2's level count
+        for ``image_size`` when it is on, else ``n_levels``."""
+        if not self.levels_from_image_size:
+            return orb_spec(self.scale_factor, self.n_levels)
+        if self.image_size is None:
+            raise ValueError("qtree_orb with eq. 2 levels needs image_size to know its pyramid")
+        return orb_spec(self.scale_factor, self.levels_for(*self.image_size))
 
     def levels_for(self, width: int, height: int) -> int:
         """Number of pyramid levels for an image (eq. 2, or ``n_levels``)."""
@@ -464,6 +408,11 @@ class QtreeOrbExtractor:
 
     def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
         gray, mask = check_extractor_inputs(gray, mask)
+        size = (gray.shape[1], gray.shape[0])
+        if self.levels_from_image_size and self.image_size not in (None, size):
+            w, h = self.image_size
+            raise ValueError(f"qtree_orb was made for {w}x{h} images (eq. 2 levels), "
+                             f"got {size[0]}x{size[1]}")
         if gray.size == 0 or self.n_features == 0:
             return self._reset()
 
@@ -474,26 +423,20 @@ class QtreeOrbExtractor:
         self._pyramid_buffer = pyr.buffer
         scales = scale_factors(n_levels, self.scale_factor)
         clock.append(time.perf_counter())
-        images: list[NDArray[np.uint8]] = []
-        for image in pyr.levels:  # ORB-SLAM stops at the first level without a region
-            if _detection_region(image) is None:
-                break
-            images.append(image)
+        images = detection_levels(pyr.levels)
         if not images:
             return self._reset()
         n_used = len(images)
         wanted = wanted_all[:n_used]
-        masks = None if mask is None else [
-            mask if level == 0 else level_mask(mask, image.shape, scales[level]) for level, image in enumerate(images)]
+        masks = level_masks(mask, images, scales)
         det = detect_two_thresholds(images, wanted, self._fast_hi, self._fast_lo, masks)
         clock.append(time.perf_counter())
         # Harris on the level images in the stacked buffer (the points are >= 19 px inside
         # their level, so the 9x9 windows never reach the padding or another level).
-        sx_all, sy_all = det.x + _BORDER + pyr.pad, det.y + _BORDER + pyr.rows[det.level]
-        harris = harris_responses(pyr.buffer, sx_all, sy_all, scratch=self._scratch)
+        sx_all, sy_all = det.x + BORDER + pyr.pad, det.y + BORDER + pyr.rows[det.level]
+        harris = harris_responses(pyr.buffer, sx_all, sy_all, scratch=self._brief.scratch)
         clock.append(time.perf_counter())
-        widths = np.array([im.shape[1] - 2 * _BORDER for im in images])
-        heights = np.array([im.shape[0] - 2 * _BORDER for im in images])
+        widths, heights = region_sizes(images)
         keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted)
         clock.append(time.perf_counter())
         klv = det.level[keep]
@@ -506,20 +449,9 @@ class QtreeOrbExtractor:
             self.last_quality = np.zeros(0, bool)
             self.last_fast_score = np.zeros(0, np.float32)
             return Keypoints.empty()
-        kx, ky = det.x[keep] + _BORDER, det.y[keep] + _BORDER
-        sx, sy = sx_all[keep], sy_all[keep]
-        angle = ic_angles(pyr.buffer, sx, sy, self._scratch)
-        clock.append(time.perf_counter())
-        if self._blur_buffer is None or self._blur_buffer.shape != pyr.buffer.shape:
-            self._blur_buffer = np.empty_like(pyr.buffer)
-        # One 7x7 blur of the stacked levels (pad 3, BORDER_REFLECT_101) = ORB-SLAM's
-        # per-level blur.
-        blurred = cv2.GaussianBlur(pyr.buffer, (7, 7), 2, dst=self._blur_buffer, sigmaY=2,
-                                   borderType=cv2.BORDER_REFLECT_101)
-        clock.append(time.perf_counter())
-        desc = orb_descriptors(blurred, sx, sy, angle, self._scratch)
-        scale = scales.astype(np.float32)[klv]
-        xy = np.stack([kx, ky], axis=1).astype(np.float32) * scale[:, None]
+        kx, ky = det.x[keep] + BORDER, det.y[keep] + BORDER
+        angle, desc = self._brief.compute(pyr, sx_all[keep], sy_all[keep], clock)
+        xy = level0_xy(kx, ky, klv, scales)
         clock.append(time.perf_counter())
         self.last_stage_ms = dict(zip(_STAGES, (1e3 * np.diff(clock)).tolist()))
         self.last_quality = quality
@@ -528,10 +460,12 @@ class QtreeOrbExtractor:
                          angle=angle.astype(np.float32), descriptors=desc)
 
 
-@register_extractor("qtree_orb")
-def _make(cfg: FeatureConfig) -> QtreeOrbExtractor:
-    """From ``FeatureConfig``. The level count comes from the config, not eq. 2, because
-    tracking and mapping size their per-level tables from it: the ``stdc`` preset sets
-    ``n_levels: 6``, eq. 2's value at 640x480 (``levels_for(W, H)`` gives it for others)."""
+def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None
+                     ) -> QtreeOrbExtractor:
+    """The registry's factory (``features.extractor: qtree_orb``). With the image size
+    (width, height) the level count is the paper's eq. 2 for it; without it,
+    ``cfg.n_levels`` (the ``stdc`` preset sets 6, eq. 2's value at 640x480). Either way
+    ``spec`` says the pyramid it extracts with."""
     return QtreeOrbExtractor(cfg.n_features, cfg.scale_factor, cfg.n_levels, cfg.fast_threshold,
-                             cfg.fast_min_threshold, levels_from_image_size=False)
+                             cfg.fast_min_threshold, levels_from_image_size=image_size is not None,
+                             image_size=image_size)

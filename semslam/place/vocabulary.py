@@ -20,7 +20,7 @@ import json
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -111,6 +111,9 @@ class Vocabulary:
     and ``node_word`` gives its word id (-1 for inner nodes). Leaves can sit above the
     last level when a node had too few descriptors to split (as in DBoW2).
     """
+
+    #: Tells places apart (relocalisation, loop closing); ``place.flat.FlatVocabulary`` does not.
+    recognises_places: ClassVar[bool] = True
 
     k: int
     levels: int

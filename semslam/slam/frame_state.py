@@ -8,23 +8,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.features.base import Keypoints
+from semslam.core.types import Keypoints
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.frame_to_keyframe import sample_depth
 from semslam.slam.map import KeyFrame, MapPoint
-
-
-@dataclass
-class PyramidInfo:
-    """Per-level scale factors and observation weights (ORB-SLAM mvScaleFactor, mvInvLevelSigma2)."""
-
-    scale_factor: float
-    n_levels: int
-
-    def __post_init__(self) -> None:
-        self.scales = self.scale_factor ** np.arange(self.n_levels)
-        self.inv_sigma2 = 1.0 / self.scales**2
-        self.log_scale = float(np.log(self.scale_factor))
 
 
 @dataclass(eq=False)

@@ -19,9 +19,10 @@ from numpy.typing import NDArray
 
 from semslam.config import SystemConfig
 from semslam.core.protocols import FramePacket, TrackerInputs
+from semslam.core.types import DescriptorKind, Keypoints
 from semslam.errors import ConfigError, DataError
+from semslam.features import create_extractor
 from semslam.io.trajectory import Trajectory
-from semslam.features.base import Keypoints, create_extractor
 from semslam.features.matching import match_brute_force, match_candidates, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose, rotation_angle
@@ -84,6 +85,10 @@ class FrameToKeyframeTracker:
         self.cfg = config.frame_to_keyframe
         self.camera = camera
         self.extractor = create_extractor(config.features)
+        if self.extractor.spec.kind is not DescriptorKind.BINARY:
+            raise ConfigError("tracking.method: frame_to_keyframe matches binary descriptors "
+                              "(frame_to_keyframe.max_hamming), features.extractor "
+                              f"{config.features.extractor} makes float ones; use orb_slam")
         self.keyframe: _Keyframe | None = None
         self.n_keyframes = 0
         self._poses: list[tuple[float, NDArray[np.float64]]] = []  # every frame with a pose

@@ -6,20 +6,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from semslam.features.matching import match_candidates
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.frame_state import PyramidInfo
 from semslam.slam.map import KeyFrame, Map, MapPoint
-from semslam.slam.search import TH_LOW, project
+from semslam.slam.search import project
 
 
 class PointFusion:
     """Merges duplicate map points found by projection; counts what it fused."""
 
-    def __init__(self, slam_map: Map, camera: PinholeCamera, pyr: PyramidInfo, bf: float) -> None:
+    def __init__(self, slam_map: Map, camera: PinholeCamera, bf: float) -> None:
         self.map = slam_map
         self.camera = camera
-        self.pyr = pyr
+        self.pyr = slam_map.spec.pyramid  # the pyramid of the map's features
         self.bf = bf
         self.n_fused = 0
 
@@ -42,8 +40,7 @@ class PointFusion:
         sel = np.nonzero(ok)[0]
         if len(sel) == 0:
             return 0
-        level = np.clip(np.ceil(np.log(np.maximum(max_d[sel] / dist[sel], 1e-9)) / self.pyr.log_scale), 0,
-                        self.pyr.n_levels - 1).astype(np.intp)
+        level = self.pyr.predict_level(max_d[sel], dist[sel])
         lists = kf.tree().query_ball_point(uv[sel], r=th * self.pyr.scales[level])
         counts = np.fromiter((len(x) for x in lists), np.intp, len(lists))
         if counts.sum() == 0:
@@ -61,7 +58,8 @@ class PointFusion:
         good &= np.where(has_r, e < 7.8, e < 5.99)
         cq, ct = cq[good], ct[good]
         desc = np.stack([cand[s].descriptor for s in sel])
-        qi, ti, _ = match_candidates(desc, kf.keypoints.descriptors, cq, ct, TH_LOW, 1.0)
+        qi, ti, _ = self.map.matcher.match_candidates(desc, kf.keypoints.descriptors, cq, ct,
+                                                      self.map.spec.th_low, 1.0)
         n = 0
         for q, t in zip(qi, ti):
             p = cand[sel[q]]

@@ -15,13 +15,12 @@ from numpy.typing import NDArray
 from semslam.backend.bundle_adjustment import BAProblem, BAResult
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
-from semslam.features.matching import match_candidates
+from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.frame_state import PyramidInfo
 from semslam.slam.fusion import PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
-from semslam.slam.search import TH_LOW, project
+from semslam.slam.search import project
 
 if TYPE_CHECKING:
     from semslam.place.vocabulary import Vocabulary
@@ -30,7 +29,8 @@ log = logging.getLogger(__name__)
 
 
 def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points: list[MapPoint],
-                     camera: PinholeCamera, pyr: PyramidInfo, bf: float) -> tuple[BAProblem, list[tuple[MapPoint, KeyFrame]]]:
+                     camera: PinholeCamera, pyr: ScalePyramid, bf: float
+                     ) -> tuple[BAProblem, list[tuple[MapPoint, KeyFrame]]]:
     """Arrays of a bundle adjustment over the given keyframes and points (observations of
     the points by keyframes outside both lists are left out)."""
     kfs = kfs_free + kfs_fixed
@@ -73,7 +73,7 @@ class LocalMapping(KeyframeWorker):
         self.camera = camera
         self.map = slam_map
         self.voc = vocabulary
-        self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
+        self.pyr = slam_map.spec.pyramid  # the pyramid of the map's features
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
         super().__init__(inbox)
         self.ba = ba
@@ -110,7 +110,7 @@ class LocalMapping(KeyframeWorker):
                 continue
             if kf not in p.observations:
                 p.add_observation(kf, i)
-                p.compute_distinctive_descriptor()
+                p.compute_distinctive_descriptor(self.map.matcher)
                 matched.append(p)
             else:  # created by tracking for this keyframe
                 self.recent_points.append(p)
@@ -158,7 +158,7 @@ class LocalMapping(KeyframeWorker):
                 p.add_observation(nb, int(b))
                 kf.points[a] = p
                 nb.points[b] = p
-                p.compute_distinctive_descriptor()
+                p.compute_distinctive_descriptor(self.map.matcher)
                 p.update_normal_and_depth(self.pyr.scales)
                 self.recent_points.append(p)
                 free1[a] = False
@@ -195,7 +195,9 @@ class LocalMapping(KeyframeWorker):
         sigma2 = 1.0 / self.pyr.inv_sigma2[kf2.keypoints.octave[cb]]
         # Also skip keypoints too close to the epipole (no parallax).
         ok = dsqr < 3.84 * sigma2
-        qi, ti, _ = match_candidates(kf1.keypoints.descriptors, kf2.keypoints.descriptors, ca[ok], cb[ok], TH_LOW, 0.6)
+        qi, ti, _ = self.map.matcher.match_candidates(kf1.keypoints.descriptors,
+                                                      kf2.keypoints.descriptors, ca[ok], cb[ok],
+                                                      self.map.spec.th_low, 0.6)
         return qi, ti
 
     def _triangulate(self, kf1: KeyFrame, kf2: KeyFrame, i1: NDArray[np.intp], i2: NDArray[np.intp]
@@ -248,7 +250,7 @@ class LocalMapping(KeyframeWorker):
         self.fusion.fuse(kf, list(cand.values()), touched=touched)
         changed = [p for p in touched.values() if not p.bad]
         for p in changed:
-            p.compute_distinctive_descriptor()
+            p.compute_distinctive_descriptor(self.map.matcher)
         update_normals_and_depths(changed, self.pyr.scales)
         kf.update_connections()
 

@@ -20,12 +20,11 @@ from semslam.config import SystemConfig
 from semslam.geometry.alignment import umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
-from semslam.slam.frame_state import PyramidInfo
 from semslam.slam.fusion import PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import build_ba_problem
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
-from semslam.slam.search import TH_HIGH, project, search_by_bow, search_by_projection
+from semslam.slam.search import project, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
@@ -89,7 +88,7 @@ class LoopClosing(KeyframeWorker):
         self.fusion = fusion
         # Local mapping's inbox: a loop is corrected only once local mapping is idle.
         self.mapping = mapping
-        self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
+        self.pyr = slam_map.spec.pyramid  # the pyramid of the map's features
         self.rng = np.random.default_rng(config.seed)
         self.last_loop_kf_id = 0
         self.consistent_groups: list[tuple[set[KeyFrame], int]] = []
@@ -154,7 +153,7 @@ class LoopClosing(KeyframeWorker):
         valid1 = np.array([p is not None and not p.bad for p in kf.points], bool)
         valid2 = np.array([p is not None and not p.bad for p in cand.points], bool)
         i1, i2 = search_by_bow(kf.featvec, kf.keypoints.descriptors, cand.featvec, cand.keypoints.descriptors,
-                               valid1, valid2, ratio=0.75)
+                               valid1, valid2, self.map.matcher, self.map.spec.th_low, ratio=0.75)
         if len(i1) < 20:
             log.debug("kf %d vs %d: %d BoW matches", kf.id, cand.id, len(i1))
             return None
@@ -182,11 +181,11 @@ class LoopClosing(KeyframeWorker):
             return None
         dist = np.linalg.norm(pos[sel] - invert(T_cw_corr)[:3, 3], axis=1)
         max_d = np.array([pts[s].max_dist for s in sel])
-        level = np.clip(np.ceil(np.log(np.maximum(max_d / np.maximum(dist, 1e-9), 1e-9)) / self.pyr.log_scale), 0,
-                        self.pyr.n_levels - 1).astype(np.intp)
+        level = self.pyr.predict_level(max_d, dist)
         qi, ti = search_by_projection(uv[sel], 10.0 * self.pyr.scales[level], level - 1, level + 1,
                                       np.stack([pts[s].descriptor for s in sel]), kf.xy, kf.keypoints.octave,
-                                      kf.keypoints.descriptors, np.ones(len(kf.points), bool), kf.tree(), TH_HIGH, 0.9)
+                                      kf.keypoints.descriptors, np.ones(len(kf.points), bool),
+                                      kf.tree(), self.map.matcher, self.map.spec.th_high, 0.9)
         n_matched = int(inl.sum()) + len(qi)
         log.debug("kf %d vs %d: %d SE3 inliers, %d projected matches", kf.id, cand.id, int(inl.sum()), len(qi))
         if len(qi) < self.cfg.loop_min_matches and n_matched < self.cfg.loop_min_matches:

@@ -14,8 +14,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.features.base import Keypoints
-from semslam.features.matching import hamming_pairs
+from semslam.core.protocols import Matcher
+from semslam.core.types import FeatureSpec, Keypoints
+from semslam.features.matching import matcher_for
 from semslam.geometry.se3 import invert
 
 Array = NDArray[np.float64]
@@ -27,7 +28,7 @@ class MapPoint:
     __slots__ = ("id", "pos", "descriptor", "observations", "normal", "min_dist", "max_dist", "n_visible",
                  "n_found", "ref_kf", "first_kf_id", "bad", "replaced_by", "__weakref__")
 
-    def __init__(self, pid: int, pos: Array, descriptor: NDArray[np.uint8], ref_kf: "KeyFrame") -> None:
+    def __init__(self, pid: int, pos: Array, descriptor: NDArray[Any], ref_kf: "KeyFrame") -> None:
         self.id = pid
         self.pos = np.asarray(pos, dtype=np.float64)
         self.descriptor = descriptor
@@ -68,8 +69,9 @@ class MapPoint:
     def update_normal_and_depth(self, scale_factors: Array) -> None:
         update_normals_and_depths([self], scale_factors)
 
-    def compute_distinctive_descriptor(self) -> None:
-        """The observation descriptor with the least median distance to the others."""
+    def compute_distinctive_descriptor(self, matcher: Matcher) -> None:
+        """The observation descriptor with the least median distance to the others
+        (distances by the matcher of the map's descriptor kind)."""
         descs = [kf.keypoints.descriptors[i] for kf, i in self.observations.items() if not kf.bad]
         if len(descs) < 2:
             if descs:
@@ -78,14 +80,10 @@ class MapPoint:
         d = np.stack(descs)
         n = len(d)
         ii, jj = np.triu_indices(n, 1)
-        dist = np.zeros((n, n), np.int32)
-        dist[ii, jj] = dist[jj, ii] = hamming_pairs(d[ii], d[jj])
+        pair = matcher.distances(d[ii], d[jj])
+        dist = np.zeros((n, n), pair.dtype)
+        dist[ii, jj] = dist[jj, ii] = pair
         self.descriptor = d[int(np.argmin(np.median(dist, axis=1)))].copy()
-
-    def predict_scale(self, dist: float, log_scale: float, n_levels: int) -> int:
-        ratio = self.max_dist / max(dist, 1e-9)
-        level = int(np.ceil(np.log(max(ratio, 1e-9)) / log_scale))
-        return min(max(level, 0), n_levels - 1)
 
 
 def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> None:
@@ -230,9 +228,14 @@ class KeyFrame:
 
 
 class Map:
-    """All keyframes and points; ``lock`` guards structural changes across threads."""
+    """All keyframes and points; ``lock`` guards structural changes across threads.
 
-    def __init__(self) -> None:
+    ``spec`` says what the keyframes' descriptors are (a map holds one kind) and the pyramid
+    their levels refer to; ``matcher`` compares those descriptors."""
+
+    def __init__(self, spec: FeatureSpec) -> None:
+        self.spec = spec
+        self.matcher: Matcher = matcher_for(spec)
         self.keyframes: dict[int, KeyFrame] = {}
         self.points: dict[int, MapPoint] = {}
         self.lock = threading.RLock()
@@ -247,7 +250,7 @@ class Map:
         self._next_kf += 1
         return self._next_kf - 1
 
-    def new_point(self, pos: Array, descriptor: NDArray[np.uint8], ref_kf: KeyFrame) -> MapPoint:
+    def new_point(self, pos: Array, descriptor: NDArray[Any], ref_kf: KeyFrame) -> MapPoint:
         p = MapPoint(self._next_pt, pos, descriptor, ref_kf)
         self._next_pt += 1
         self.points[p.id] = p
@@ -287,7 +290,7 @@ class Map:
         old.bad = True
         old.replaced_by = new
         self.points.pop(old.id, None)
-        new.compute_distinctive_descriptor()
+        new.compute_distinctive_descriptor(self.matcher)
 
     def set_bad_keyframe(self, kf: KeyFrame) -> None:
         """Remove a redundant keyframe, re-parenting its children (ORB-SLAM KeyFrame::SetBadFlag)."""

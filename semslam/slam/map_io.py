@@ -1,7 +1,9 @@
 """Save and load a map (keyframes with features, map points, spanning tree, loop edges)
 as one compressed ``.npz`` file, so a later run can relocalise in it.
 
-Covisibility is not stored: it is recomputed from the observations on load.
+Covisibility is not stored: it is recomputed from the observations on load. The feature
+spec (descriptor kind and size, pyramid) is stored, and a map only loads into a run whose
+extractor makes the same features.
 """
 
 from __future__ import annotations
@@ -12,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 import semslam
-from semslam.errors import DataError
-from semslam.features.base import Keypoints
+from semslam.core.types import FeatureSpec, Keypoints
+from semslam.errors import ConfigError, DataError
 from semslam.slam.map import KeyFrame, Map
 
 FORMAT = "semslam-map-1"
@@ -44,28 +46,35 @@ def save_map(slam_map: Map, path: str | Path) -> Path:
             "kp_octave": np.concatenate([k.keypoints.octave for k in kfs]) if kfs else np.zeros(0, np.int32),
             "kp_response": np.concatenate([k.keypoints.response for k in kfs]) if kfs else np.zeros(0, np.float32),
             "kp_angle": np.concatenate([k.keypoints.angle for k in kfs]) if kfs else np.zeros(0, np.float32),
-            "kp_descriptors": np.concatenate([k.keypoints.descriptors for k in kfs]) if kfs else np.zeros((0, 32), np.uint8),
+            "kp_descriptors": (np.concatenate([k.keypoints.descriptors for k in kfs]) if kfs
+                               else np.zeros((0, slam_map.spec.dim), slam_map.spec.dtype)),
             "kp_depth": np.concatenate([k.depth for k in kfs]) if kfs else np.zeros(0, np.float32),
             "kp_ur": np.concatenate([k.ur for k in kfs]) if kfs else np.zeros(0),
             "kp_point": point_of_kp,
             "pt_id": np.array([p.id for p in pts], np.int64),
             "pt_pos": np.array([p.pos for p in pts]).reshape(-1, 3),
-            "pt_descriptor": np.array([p.descriptor for p in pts], np.uint8).reshape(-1, 32),
+            "pt_descriptor": np.array([p.descriptor for p in pts],
+                                      slam_map.spec.dtype).reshape(-1, slam_map.spec.dim),
             "pt_n_visible": np.array([p.n_visible for p in pts], np.int64),
             "pt_n_found": np.array([p.n_found for p in pts], np.int64),
             "pt_ref_kf": np.array([p.ref_kf.id for p in pts], np.int64),
             "pt_first_kf": np.array([p.first_kf_id for p in pts], np.int64),
         }
         meta = {"format": FORMAT, "semslam_version": semslam.__version__, "keyframes": len(kfs), "points": len(pts),
-                "loops": slam_map.n_loops}
+                "loops": slam_map.n_loops, "features": _spec_meta(slam_map.spec)}
     with open(path, "wb") as f:
         np.savez_compressed(f, meta=np.array(json.dumps(meta)), **arrays)
     return path
 
 
-def load_map(path: str | Path, scale_factors: np.ndarray) -> Map:
-    """Read a map written by :func:`save_map`; ``scale_factors`` are the pyramid's (for
-    the points' distance ranges)."""
+def _spec_meta(spec: FeatureSpec) -> dict[str, object]:
+    return {"kind": spec.kind.value, "dim": spec.dim, "scale_factor": spec.scale_factor,
+            "n_levels": spec.n_levels}
+
+
+def load_map(path: str | Path, spec: FeatureSpec) -> Map:
+    """Read a map written by :func:`save_map` into a run whose extractor makes ``spec``'s
+    features (ConfigError if the map's are others: they could not be matched)."""
     path = Path(path)
     if not path.is_file():
         raise DataError(path, "map file not found")
@@ -76,7 +85,13 @@ def load_map(path: str | Path, scale_factors: np.ndarray) -> Map:
         raise DataError(path, f"not a semslam map ({exc})") from None
     if meta.get("format") != FORMAT:
         raise DataError(path, f"unsupported map format {meta.get('format')!r} (expected {FORMAT})")
-    m = Map()
+    # Maps written before the spec was stored hold ORB-SLAM's ORB features.
+    saved = meta.get("features", {"kind": "binary", "dim": 32, "scale_factor": spec.scale_factor,
+                                  "n_levels": spec.n_levels})
+    if saved != _spec_meta(spec):
+        raise ConfigError(f"--load-map: {path} holds {saved} features, this run's extractor makes "
+                          f"{_spec_meta(spec)}")
+    m = Map(spec)
     offsets = np.r_[0, np.cumsum(data["kf_n_keypoints"])]
     kfs: dict[int, KeyFrame] = {}
     for i, kid in enumerate(data["kf_id"]):
@@ -116,6 +131,6 @@ def load_map(path: str | Path, scale_factors: np.ndarray) -> Map:
     for kf in m.all_keyframes():
         kf.update_connections()
     for p in points:
-        p.update_normal_and_depth(scale_factors)
+        p.update_normal_and_depth(spec.pyramid.scales)
     m.n_loops = int(meta.get("loops", 0))
     return m

@@ -25,14 +25,14 @@ from semslam.config import SystemConfig
 from semslam.core.protocols import FramePacket, KeyframeSnapshot, TrackerInputs
 from semslam.core.types import TrackResult
 from semslam.errors import ConfigError, SemslamError
-from semslam.features.base import create_extractor
+from semslam.features import create_extractor, feature_spec
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.io.depth import SensorDepth
 from semslam.io.trajectory import Trajectory
 from semslam.place.database import KeyframeDatabase
-from semslam.place.vocabulary import Vocabulary, load_default_vocabulary
-from semslam.slam.frame_state import PyramidInfo
+from semslam.place.flat import vocabulary_for
+from semslam.place.vocabulary import Vocabulary
 from semslam.slam.fusion import PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox
 from semslam.slam.local_mapping import LocalMapping
@@ -77,6 +77,10 @@ class PlaceIndexer:
         return 0
 
 
+def _image_size(camera: PinholeCamera) -> tuple[int, int] | None:
+    return (camera.width, camera.height) if camera.width > 0 and camera.height > 0 else None
+
+
 def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerInputs | None = None,
                    map_path: Path | None = None) -> "OrbSlamSystem":
     """The registry's factory: refuses a sensor it cannot run, loads a saved map."""
@@ -87,7 +91,7 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerI
     if map_path is not None:
         from semslam.slam.map_io import load_map
 
-        slam_map = load_map(map_path, PyramidInfo(config.features.scale_factor, config.features.n_levels).scales)
+        slam_map = load_map(map_path, feature_spec(config.features, _image_size(camera)))
     return OrbSlamSystem(config, camera, inputs or TrackerInputs(SensorDepth()), slam_map)
 
 
@@ -109,16 +113,19 @@ class OrbSlamSystem:
         self.ba_runner = BundleAdjustmentRunner()
         self._stopped = False
         # Built first: everything that can fail on a bad config, before any thread or process.
-        extractor = create_extractor(config.features)
-        voc = config.slam.vocabulary
-        self.vocabulary = load_default_vocabulary() if voc == "default" else Vocabulary.load(voc)
-        self.map = slam_map or Map()
+        extractor = create_extractor(config.features, _image_size(camera))
+        self.map = slam_map or Map(extractor.spec)
+        self.vocabulary = vocabulary_for(self.map.spec, config.slam.vocabulary)
         self.database = KeyframeDatabase()
         use_mapping = config.slam.local_mapping and not config.slam.localization_only
         use_loops = config.slam.loop_closing and not config.slam.localization_only
+        if use_loops and not self.vocabulary.recognises_places:
+            raise ConfigError("slam.loop_closing: no bag-of-words vocabulary for "
+                              f"{self.map.spec.kind.value} descriptors "
+                              f"(features.extractor: {config.features.extractor}); "
+                              "set slam.loop_closing=false")
         indexer = PlaceIndexer(self.vocabulary, self.database)
-        pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
-        fusion = PointFusion(self.map, camera, pyr, config.slam.bf)
+        fusion = PointFusion(self.map, camera, config.slam.bf)
         mapping_inbox, loop_inbox = KeyframeInbox(), KeyframeInbox()
         self.closer = LoopClosing(config, camera, self.map, self.database, self.ba_runner, fusion, loop_inbox,
                                   mapping_inbox)

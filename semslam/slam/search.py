@@ -1,19 +1,21 @@
 """ORB-SLAM's matchers, vectorised: search by projection (local map, last frame, fusion)
 and search by bag-of-words, plus the rotation-consistency filter.
 
-All functions take arrays and return index pairs; they never change the map.
+All functions take arrays and return index pairs; they never change the map. Descriptors
+are compared by the ``Matcher`` of their kind, with thresholds in its distance (ORB-SLAM's
+TH_LOW / TH_HIGH are ``FeatureSpec.th_low`` / ``th_high``).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from semslam.features.matching import match_candidates
+from semslam.core.protocols import Matcher
 
-TH_HIGH = 100  # ORB-SLAM ORBmatcher thresholds (Hamming distance of 256-bit descriptors)
-TH_LOW = 50
 HISTO_LENGTH = 30
 
 IntArray = NDArray[np.intp]
@@ -50,13 +52,14 @@ def search_by_projection(
     radius: NDArray[np.float64],
     level_lo: NDArray[np.intp],
     level_hi: NDArray[np.intp],
-    point_desc: NDArray[np.uint8],
+    point_desc: NDArray[Any],
     kp_xy: NDArray[np.float64],
     kp_octave: NDArray[np.int32],
-    kp_desc: NDArray[np.uint8],
+    kp_desc: NDArray[Any],
     kp_free: NDArray[np.bool_],
-    tree: cKDTree | None = None,
-    max_distance: int = TH_HIGH,
+    tree: cKDTree | None,
+    matcher: Matcher,
+    max_distance: float,
     ratio: float = 0.8,
 ) -> tuple[IntArray, IntArray]:
     """Match projected points (each with its own search radius and pyramid-level window)
@@ -74,18 +77,19 @@ def search_by_projection(
     lvl = kp_octave[ct]
     ok = kp_free[ct] & (lvl >= level_lo[cq]) & (lvl <= level_hi[cq])
     cq, ct = cq[ok], ct[ok]
-    qi, ti, _ = match_candidates(point_desc, kp_desc, cq, ct, max_distance, ratio)
+    qi, ti, _ = matcher.match_candidates(point_desc, kp_desc, cq, ct, max_distance, ratio)
     return qi, ti
 
 
 def search_by_bow(
     featvec_a: dict[int, list[int]],
-    desc_a: NDArray[np.uint8],
+    desc_a: NDArray[Any],
     featvec_b: dict[int, list[int]],
-    desc_b: NDArray[np.uint8],
+    desc_b: NDArray[Any],
     valid_a: NDArray[np.bool_],
     free_b: NDArray[np.bool_],
-    max_distance: int = TH_LOW,
+    matcher: Matcher,
+    max_distance: float,
     ratio: float = 0.7,
 ) -> tuple[IntArray, IntArray]:
     """Match features of A (with map points, ``valid_a``) to features of B that fall under
@@ -106,5 +110,5 @@ def search_by_bow(
     if not qa:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)
     cq, ct = np.concatenate(qa), np.concatenate(qb)
-    qi, ti, _ = match_candidates(desc_a, desc_b, cq, ct, max_distance, ratio)
+    qi, ti, _ = matcher.match_candidates(desc_a, desc_b, cq, ct, max_distance, ratio)
     return qi, ti

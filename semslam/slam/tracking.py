@@ -7,7 +7,7 @@ The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comm
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -16,14 +16,14 @@ from numpy.typing import NDArray
 from semslam.backend.pose_only import optimize_pose
 from semslam.config import SystemConfig
 from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket
+from semslam.core.types import TrackingState, TrackResult
 from semslam.dynamics.masks import keypoints_in_mask
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
-from semslam.slam.frame_state import FrameState, PyramidInfo
+from semslam.slam.frame_state import FrameState
 from semslam.slam.keyframe_worker import KeyframeSink
 from semslam.slam.map import KeyFrame, Map, MapPoint
-from semslam.slam.search import TH_HIGH, project, rotation_consistent, search_by_bow, search_by_projection
-from semslam.core.types import TrackingState, TrackResult
+from semslam.slam.search import project, rotation_consistent, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
@@ -43,12 +43,17 @@ class Tracking:
         self.voc = vocabulary
         self.db = database
         self.extractor = extractor
+        # Matching thresholds and per-level tables come from what the extractor really makes.
+        self.spec = self.extractor.spec
+        if self.spec != slam_map.spec:
+            raise ValueError(f"the map holds {slam_map.spec} features, "
+                             f"the extractor makes {self.spec}")
+        self.pyr = self.spec.pyramid
         # Where new keyframes go (local mapping, or only the place database when it is off);
         # tracking also asks it whether it is idle (ORB-SLAM's AcceptKeyFrames).
         self.keyframes = keyframes
         self.depth = depth
         self.dynamics = dynamics
-        self.pyr = PyramidInfo(config.features.scale_factor, config.features.n_levels)
         self.seed = config.seed
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
         self.state = TrackingState.NOT_INITIALIZED
@@ -292,11 +297,13 @@ class Tracking:
         return (z > 0) & self.camera.in_image(uv)
 
     def _search(self, cur: FrameState, uv: NDArray[np.float64], radius: NDArray[np.float64], lo: NDArray[np.intp],
-                hi: NDArray[np.intp], desc: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+                hi: NDArray[np.intp], desc: NDArray[Any]
+                ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         if len(uv) == 0:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
         return search_by_projection(uv, radius, lo, hi, desc, cur.xy, cur.keypoints.octave, cur.keypoints.descriptors,
-                                    cur.free_mask(), cur.tree(), TH_HIGH)
+                                    cur.free_mask(), cur.tree(), self.map.matcher,
+                                    self.spec.th_high)
 
     def _compute_bow(self, cur: FrameState) -> None:
         if cur.bow is None:
@@ -310,7 +317,8 @@ class Tracking:
         self._compute_bow(cur)
         kf_valid = np.array([p is not None and not p.bad for p in kf.points], bool)
         ia, ib = search_by_bow(kf.featvec, kf.keypoints.descriptors, cur.featvec or {}, cur.keypoints.descriptors,
-                               kf_valid, np.ones(len(cur), bool))
+                               kf_valid, np.ones(len(cur), bool), self.map.matcher,
+                               self.spec.th_low)
         keep = rotation_consistent(kf.keypoints.angle[ia], cur.keypoints.angle[ib])
         ia, ib = ia[keep], ib[keep]
         if len(ia) < 15:
@@ -378,8 +386,7 @@ class Tracking:
             for s in sel:
                 cand[s].n_visible += 1
             if len(sel):
-                ratio = max_d[sel] / np.maximum(dist[sel], 1e-9)
-                level = np.clip(np.ceil(np.log(np.maximum(ratio, 1e-9)) / self.pyr.log_scale), 0, self.pyr.n_levels - 1).astype(np.intp)
+                level = self.pyr.predict_level(max_d[sel], dist[sel])
                 th = 5.0 if cur.index < self.last_reloc_frame + 2 else 3.0  # RGB-D: 3 (ORB-SLAM2)
                 # ORB-SLAM also widens the radius for points seen at a grazing angle (cos < 0.998).
                 radius = th * np.where(view_cos[sel] > 0.998, 2.5, 4.0) * self.pyr.scales[level]
@@ -455,8 +462,12 @@ class Tracking:
 
     # ------------------------------------------------------------------ relocalisation
     def _relocalise(self, cur: FrameState) -> bool:
-        """Bag-of-words candidates, PnP-RANSAC, pose optimisation, guided search (>= 50 inliers)."""
+        """Bag-of-words candidates, PnP-RANSAC, pose optimisation, guided search (>= 50 inliers).
+        Off without a vocabulary that tells places apart (float descriptors): stays lost."""
         from semslam.place.database import detect_relocalisation_candidates
+
+        if not self.voc.recognises_places:
+            return False
 
         self._compute_bow(cur)
         def covisibles(kf_id: int, n: int) -> list[int]:
@@ -470,7 +481,8 @@ class Tracking:
                 continue
             kf_valid = np.array([p is not None and not p.bad for p in kf.points], bool)
             ia, ib = search_by_bow(kf.featvec, kf.keypoints.descriptors, cur.featvec or {}, cur.keypoints.descriptors,
-                                   kf_valid, np.ones(len(cur), bool), ratio=0.75)
+                                   kf_valid, np.ones(len(cur), bool), self.map.matcher,
+                                   self.spec.th_low, ratio=0.75)
             if len(ia) < 15:
                 continue
             pts = np.array([kf.points[a].pos for a in ia])  # type: ignore[union-attr]
@@ -517,8 +529,7 @@ class Tracking:
         sel = np.nonzero(ok)[0]
         if len(sel) == 0:
             return 0
-        ratio = max_d[sel] / np.maximum(dist[sel], 1e-9)
-        level = np.clip(np.ceil(np.log(np.maximum(ratio, 1e-9)) / self.pyr.log_scale), 0, self.pyr.n_levels - 1).astype(np.intp)
+        level = self.pyr.predict_level(max_d[sel], dist[sel])
         qi, ti = self._search(cur, uv[sel], th * self.pyr.scales[level], level - 1, level + 1,
                               np.stack([cand[s].descriptor for s in sel]))
         for q, t in zip(qi, ti):

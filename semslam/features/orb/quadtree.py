@@ -1,9 +1,10 @@
-"""ORB-SLAM's quadtree keypoint distribution (``ORBextractor::DistributeOctTree``),
-vectorised: one numpy round splits the leaves of the trees of *all* pyramid levels at
-once (a main-phase pass or a last-phase round per level), so a frame costs about as
-many numpy rounds as the deepest tree instead of one Python step per node.
+"""ORB-SLAM's quadtree keypoint distribution (``ORBextractor::DistributeOctTree``) and
+STDC-SLAM's improved one (Algorithm 3), vectorised: one numpy round splits the leaves of
+the trees of *all* pyramid levels at once (a main-phase pass or a last-phase round per
+level), so a frame costs about as many numpy rounds as the deepest tree instead of one
+Python step per node. The two differ only in their ``SplitRule``.
 
-The semantics per level are ORB-SLAM's:
+The semantics per level are ORB-SLAM's (``SplitRule.ORB_SLAM``):
 - ``round(W/H)`` initial nodes side by side (at least 1), empty ones dropped;
 - a main pass splits every node holding more than one point into its non-empty
   quarters, the split lines at ``ceil(size/2)`` in integer node coordinates (points
@@ -15,12 +16,20 @@ The semantics per level are ORB-SLAM's:
   the children made in the previous round;
 - keep the highest-response point of each node, the first in input order among ties.
 
+``SplitRule.HIGH_QUALITY`` (STDC-SLAM, Hu et al. 2023, Algorithm 3; choices in
+``semslam.features.qtree_orb``): a node splits only if it holds > 1 points *and* >= 1
+high-quality point and is larger than 1x1 px; a level stops at ``n_wanted`` nodes or
+when no node can split (instead of "a pass changed nothing"), and the state is checked
+before the first pass too; the response is Harris.
+
 Deviations: in that last phase ORB-SLAM orders nodes with equal point counts by heap
 address (``std::sort`` of ``pair<int, ExtractorNode*>``), which is arbitrary; we order
 them by their top-left corner in raster order, so the result is deterministic. A level
 with ``n_wanted <= 0`` keeps nothing (ORB-SLAM would still run one pass)."""
 
 from __future__ import annotations
+
+from enum import Enum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,48 +53,63 @@ class _Leaves:
         return len(self.count)
 
 
+class SplitRule(str, Enum):
+    """Which leaves may split and when a level stops; see the module doc."""
+
+    ORB_SLAM = "orb_slam"
+    HIGH_QUALITY = "high_quality"
+
+
+_MAX_ROUNDS = 256  # safety net only: every split shrinks a node, so depth is ~log2(size)
+
+
 def distribute_quadtree_levels(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                level: NDArray[np.integer], widths: NDArray[np.integer],
-                               heights: NDArray[np.integer], n_wanted: NDArray[np.integer]) -> NDArray[np.intp]:
+                               heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
+                               high: NDArray[np.bool_] | None = None,
+                               rule: SplitRule = SplitRule.ORB_SLAM) -> NDArray[np.intp]:
     """See ``distribute_quadtree_leaves``; returns the kept indices only."""
-    return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted)[0]
+    return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high,
+                                      rule)[0]
 
 
 def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                level: NDArray[np.integer], widths: NDArray[np.integer],
-                               heights: NDArray[np.integer], n_wanted: NDArray[np.integer]
+                               heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
+                               high: NDArray[np.bool_] | None = None,
+                               rule: SplitRule = SplitRule.ORB_SLAM
                                ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
-    """Indices (sorted) of the points ORB-SLAM's quadtree keeps, for all levels at once.
+    """Indices (sorted) of the points the quadtree keeps, for all levels at once.
 
     ``x``, ``y``: positions (FAST's are integers) in each level's distribution frame
     (ORB-SLAM: level pixels minus the EDGE_THRESHOLD-3 border), within ``[0, widths[l])
     x [0, heights[l])``; ``level``: each point's level; ``response`` ranks the points of
-    a leaf; ``n_wanted[l]``: the level's feature budget. Within a level the input order
-    is ORB-SLAM's ``vToDistributeKeys`` order (cell by cell, row-major inside a cell) and
+    a leaf; ``n_wanted[l]``: the level's feature budget; ``high``: each point's quality
+    (only ``SplitRule.HIGH_QUALITY`` reads it). Within a level the input order is
+    ORB-SLAM's ``vToDistributeKeys`` order (cell by cell, row-major inside a cell) and
     decides response ties.
 
     Returns the kept indices and every point's final leaf (-1 for points of levels with
-    ``n_wanted <= 0``), e.g. to check that a leaf keeps exactly its best point."""
+    ``n_wanted <= 0``, which keep nothing), e.g. to check that a leaf keeps exactly its
+    best point."""
     x_in = np.asarray(x)
-    level = np.asarray(level, np.int64)
-    response = np.asarray(response, np.float64)
+    level_in = np.asarray(level, np.int64)
     widths = np.asarray(widths, np.int64)
     heights = np.asarray(heights, np.int64)
     n_wanted = np.asarray(n_wanted, np.int64)
     n_levels = len(n_wanted)
-    ok = n_wanted[level] > 0
-    if not ok.all():
-        idx = np.flatnonzero(ok)
-        keep, leaf = distribute_quadtree_leaves(x_in[idx], np.asarray(y)[idx], response[idx], level[idx], widths,
-                                                heights, n_wanted)
-        leaf_all = np.full(len(x_in), -1, np.int64)
-        leaf_all[idx] = leaf
-        return idx[keep], leaf_all
-    if len(x_in) == 0:
-        return np.zeros(0, np.intp), np.zeros(0, np.int64)
+    if rule is SplitRule.HIGH_QUALITY and high is None:
+        raise ValueError("SplitRule.HIGH_QUALITY needs every point's quality (high)")
+    leaf_all = np.full(len(x_in), -1, np.int64)
+    idx = np.flatnonzero(n_wanted[level_in] > 0) if len(x_in) else np.zeros(0, np.intp)
+    if len(idx) == 0:
+        return np.zeros(0, np.intp), leaf_all
+    lv = level_in[idx]
+    resp = np.asarray(response, np.float64)[idx]
+    hi_idx = np.flatnonzero(np.asarray(high, bool)[idx]) if rule is SplitRule.HIGH_QUALITY else None
     # Bounds are integers, so comparing floor(x) is the same as comparing x.
-    px = np.floor(x_in).astype(np.int64)
-    py = np.floor(np.asarray(y)).astype(np.int64)
+    px = np.floor(x_in[idx]).astype(np.int64)
+    py = np.floor(np.asarray(y)[idx]).astype(np.int64)
 
     # Initial nodes: round(W/H) vertical strips (C++ round: half away from zero), bounds
     # int(hX * i) and a point's strip int(x / hX), in float32 like ORB-SLAM.
@@ -96,39 +120,75 @@ def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], r
     strip_i = (np.arange(first[-1]) - first[strip_level]).astype(np.float32)
     strip_x0 = (strip_i * hx[strip_level]).astype(np.int64)
     strip_x1 = ((strip_i + 1) * hx[strip_level]).astype(np.int64)
-    strip = np.minimum((x_in.astype(np.float32) / hx[level]).astype(np.int64), n_ini[level] - 1) + first[level]
+    strip = (np.minimum((x_in[idx].astype(np.float32) / hx[lv]).astype(np.int64), n_ini[lv] - 1)
+             + first[lv])
     counts = np.bincount(strip, minlength=first[-1])
-    nonempty = np.flatnonzero(counts)
+    nonempty = np.flatnonzero(counts)  # empty nodes are dropped
     remap = np.full(first[-1], -1, np.int64)
     remap[nonempty] = np.arange(len(nonempty))
     node_of = remap[strip]
     sl = strip_level[nonempty]
+    # ORB-SLAM always runs one full pass first (the initial nodes are "old"); Algorithm 3
+    # counts them as "just made", so the first state update can send a level straight to
+    # the last phase (the results differ only for budgets below ~4 nodes per strip).
+    n_old = len(nonempty) if rule is SplitRule.ORB_SLAM else 0
     leaves = _Leaves(strip_x0[nonempty], np.zeros(len(nonempty), np.int64), strip_x1[nonempty], heights[sl],
-                     counts[nonempty], sl, len(nonempty))
+                     counts[nonempty], sl, n_old)
 
     state = np.full(n_levels, _MAIN, np.int64)
-    state[np.bincount(level, minlength=n_levels) == 0] = _DONE
+    state[np.bincount(lv, minlength=n_levels) == 0] = _DONE
+    can = _splittable(leaves, node_of, rule, hi_idx)
     prev = np.bincount(leaves.level, minlength=n_levels)
-    while (state != _DONE).any():
-        lstate = state[leaves.level]
-        # Candidates: every splittable leaf of a main-phase level; the multi-point leaves
+    if rule is SplitRule.HIGH_QUALITY:
+        prev = _advance(state, leaves, can, prev, n_wanted, rule)
+    for _ in range(_MAX_ROUNDS):
+        if (state == _DONE).all():
+            break
+        # Candidates: every splittable leaf of a main-phase level; the splittable leaves
         # made by the previous round of a last-phase level.
-        multi = leaves.count > 1
-        which = multi & (lstate == _MAIN)
-        fine_cand = multi & (lstate == _FINE)
+        lstate = state[leaves.level]
+        which = can & (lstate == _MAIN)
+        fine_cand = can & (lstate == _FINE)
         fine_cand[:leaves.n_old] = False
         leaves, node_of = _split_round(leaves, node_of, px, py, which, fine_cand, prev, n_wanted, heights, widths)
+        can = _splittable(leaves, node_of, rule, hi_idx)
+        prev = _advance(state, leaves, can, prev, n_wanted, rule)
 
-        now = np.bincount(leaves.level, minlength=n_levels)
-        new = slice(leaves.n_old, None)
-        n_expandable = np.bincount(leaves.level[new][leaves.count[new] > 1], minlength=n_levels)
-        stop = (now >= n_wanted) | (now == prev)
-        to_fine = (state == _MAIN) & ~stop & (now + 3 * n_expandable > n_wanted)
-        state[stop] = _DONE
-        state[to_fine] = _FINE
-        prev = now
+    keep = _best_per_leaf(node_of, resp, len(leaves))
+    leaf_all[idx] = node_of
+    return idx[keep], leaf_all
 
-    return _best_per_leaf(node_of, response, len(leaves)), node_of
+
+def _splittable(leaves: _Leaves, node_of: NDArray[np.int64], rule: SplitRule,
+                hi_idx: NDArray[np.intp] | None) -> NDArray[np.bool_]:
+    """ORB-SLAM: a leaf with more than one point. Algorithm 3 case 1: also at least one
+    high-quality point, and larger than 1x1 px (a 1x1 node holds at most one distinct
+    pixel, so refusing it only guards against duplicates)."""
+    multi = leaves.count > 1
+    if rule is SplitRule.ORB_SLAM:
+        return multi
+    leaf_high = np.bincount(node_of[hi_idx], minlength=len(leaves))
+    return multi & (leaf_high > 0) & ((leaves.x1 - leaves.x0 > 1) | (leaves.y1 - leaves.y0 > 1))
+
+
+def _advance(state: NDArray[np.int64], leaves: _Leaves, can: NDArray[np.bool_],
+             prev: NDArray[np.int64], n_wanted: NDArray[np.int64], rule: SplitRule
+             ) -> NDArray[np.int64]:
+    """State update after a round (in place) and the new leaf count per level.
+
+    Stop at ``n_wanted`` nodes, or when the level is stuck: ORB-SLAM's "the pass did not
+    change the count", Algorithm 3's "no node can split" (splittable leaves are always
+    ones made by the last round: the others were split or cannot be). Go to the last
+    phase when the next full pass could overshoot (``nodes + 3 * splittable > n_wanted``)."""
+    now = np.bincount(leaves.level, minlength=len(state))
+    new = slice(leaves.n_old, None)
+    n_expandable = np.bincount(leaves.level[new][can[new]], minlength=len(state))
+    stuck = (now == prev) if rule is SplitRule.ORB_SLAM else (n_expandable == 0)
+    stop = (now >= n_wanted) | stuck
+    to_fine = (state == _MAIN) & ~stop & (now + 3 * n_expandable > n_wanted)
+    state[stop] = _DONE
+    state[to_fine] = _FINE
+    return now
 
 
 def _split(leaves: _Leaves, node_of: NDArray[np.int64], moved: NDArray[np.intp], key: NDArray[np.int64],

@@ -138,3 +138,20 @@ def level_mask(mask: NDArray[np.uint8], level_shape: tuple[int, int], scale: flo
     cols = np.minimum(np.rint(np.arange(w, dtype=np.float32) * s).astype(np.intp), mask.shape[1] - 1)
     return np.ascontiguousarray(mask[rows][:, cols])
 
+
+
+def level_masks(mask: NDArray[np.uint8] | None, images: list[NDArray[np.uint8]],
+                scales: NDArray[np.float64]) -> list[NDArray[np.uint8]] | None:
+    """``level_mask`` for every level image (level 0 is the mask itself); None without a mask."""
+    if mask is None:
+        return None
+    return [mask if level == 0 else level_mask(mask, image.shape, scales[level])
+            for level, image in enumerate(images)]
+
+
+def level0_xy(x: NDArray[np.integer], y: NDArray[np.integer], level: NDArray[np.integer],
+              scales: NDArray[np.float64]) -> NDArray[np.float32]:
+    """Level pixels (x, y) at ``level`` as level-0 positions ``(x, y) * s^level`` in float32
+    (ORB-SLAM reports keypoints like this)."""
+    scale = scales.astype(np.float32)[level]
+    return np.stack([x, y], axis=1).astype(np.float32) * scale[:, None]

@@ -1,0 +1,60 @@
+"""The ORB kernels both ORB extractors share (ORB-SLAM2's and STDC-SLAM's Qtree-ORB): the
+scale pyramid, FAST detection per cell, the quadtree with its split rule, IC angle and
+steered rBRIEF. Each extractor module is then only its own choices on top of these.
+"""
+
+from semslam.features.orb.descriptors import (
+    BIT_PATTERN_31,
+    PATCH,
+    Scratch,
+    SteeredBrief,
+    ic_angles,
+    orb_descriptors,
+    umax,
+)
+from semslam.features.orb.detection import (
+    BORDER,
+    CELL_SIZE,
+    EMPTY_DETECTION,
+    CellGrid,
+    cell_grid,
+    detect_level,
+    detect_level_reference,
+    detect_levels,
+    detection_levels,
+    detection_region,
+    fast_points,
+    region_sizes,
+)
+from semslam.features.orb.pyramid import (
+    EDGE_THRESHOLD,
+    HALF_PATCH_SIZE,
+    PATCH_SIZE,
+    StackedPyramid,
+    build_pyramid,
+    features_per_level,
+    inv_level_sigma2,
+    inv_scale_factors,
+    level0_xy,
+    level_mask,
+    level_masks,
+    level_sigma2,
+    level_sizes,
+    scale_factors,
+)
+from semslam.features.orb.quadtree import (
+    SplitRule,
+    distribute_quadtree,
+    distribute_quadtree_leaves,
+    distribute_quadtree_levels,
+)
+
+__all__ = [
+    "BIT_PATTERN_31", "BORDER", "CELL_SIZE", "EDGE_THRESHOLD", "EMPTY_DETECTION", "HALF_PATCH_SIZE",
+    "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
+    "build_pyramid", "cell_grid", "detect_level", "detect_level_reference", "detect_levels",
+    "detection_levels", "detection_region", "distribute_quadtree", "distribute_quadtree_leaves",
+    "distribute_quadtree_levels", "fast_points", "features_per_level", "ic_angles",
+    "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_masks",
+    "level_sigma2", "level_sizes", "orb_descriptors", "region_sizes", "scale_factors", "umax",
+]
