@@ -45,3 +45,43 @@ def write_tum_folder(root: Path, n: int = 5, size: tuple[int, int] = (64, 48), d
 @pytest.fixture()
 def tum_folder(tmp_path: Path) -> Path:
     return write_tum_folder(tmp_path / "rgbd_dataset_freiburg1_test")
+
+
+#: Frames of the short renders shared by the end-to-end tests (rendering costs ~10 s each).
+E2E_FRAMES = 90
+
+
+@pytest.fixture(scope="session")
+def e2e_renders(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Static and walking renders on disk (TUM layout, with ``semantic/`` labels), rendered
+    once per session for every test that runs the CLI on them."""
+    from semslam.synth import SEQUENCES, render_sequence
+
+    root = tmp_path_factory.mktemp("e2e")
+    return {
+        "static": render_sequence(SEQUENCES["static_xyz"].replace(frames=E2E_FRAMES), root / "static_xyz"),
+        "walking": render_sequence(SEQUENCES["walking_xyz"].replace(frames=E2E_FRAMES), root / "walking_xyz"),
+    }
+
+
+def run_cli(seq: Path, out: Path, *extra: str) -> dict:
+    """``semslam run SEQ --out OUT --quiet ...``; must exit 0; returns its stats.json."""
+    import json
+
+    from semslam.cli.main import main
+
+    assert main(["run", str(seq), "--out", str(out), "--quiet", *extra]) == 0
+    return json.loads((out / "stats.json").read_text())
+
+
+def evo_ate(gt: Path, est: Path) -> float:
+    """ATE RMSE (SE(3)-aligned, translation) computed by evo itself, the reference."""
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    ref, e = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
+                                         file_interface.read_tum_trajectory_file(str(est)), max_diff=0.02)
+    e.align(ref, correct_scale=False)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, e))
+    return float(ape.get_statistic(metrics.StatisticsType.rmse))
