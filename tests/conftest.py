@@ -51,17 +51,23 @@ def tum_folder(tmp_path: Path) -> Path:
 E2E_FRAMES = 90
 
 
-@pytest.fixture(scope="session")
-def e2e_renders(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Static and walking renders on disk (TUM layout, with ``semantic/`` labels), rendered
-    once per session for every test that runs the CLI on them."""
+def _render_once(tmp_path_factory: pytest.TempPathFactory, name: str) -> Path:
     from semslam.synth import SEQUENCES, render_sequence
 
-    root = tmp_path_factory.mktemp("e2e")
-    return {
-        "static": render_sequence(SEQUENCES["static_xyz"].replace(frames=E2E_FRAMES), root / "static_xyz"),
-        "walking": render_sequence(SEQUENCES["walking_xyz"].replace(frames=E2E_FRAMES), root / "walking_xyz"),
-    }
+    return render_sequence(SEQUENCES[name].replace(frames=E2E_FRAMES), tmp_path_factory.mktemp("e2e") / name)
+
+
+@pytest.fixture(scope="session")
+def static_render(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``static_xyz`` on disk (TUM layout, with ``semantic/`` labels), rendered once per
+    session for every test that runs the CLI on it."""
+    return _render_once(tmp_path_factory, "static_xyz")
+
+
+@pytest.fixture(scope="session")
+def walking_render(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``walking_xyz`` (two people) on disk, rendered once per session."""
+    return _render_once(tmp_path_factory, "walking_xyz")
 
 
 def run_cli(seq: Path, out: Path, *extra: str) -> dict:

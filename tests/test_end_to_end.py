@@ -24,8 +24,8 @@ from tests.conftest import evo_ate, run_cli
 
 
 @pytest.fixture(scope="module")
-def rendered(e2e_renders: dict[str, Path]) -> dict[str, Path]:
-    return e2e_renders  # 90 frames each, shared with the other end-to-end files
+def rendered(static_render: Path, walking_render: Path) -> dict[str, Path]:
+    return {"static": static_render, "walking": walking_render}  # 90 frames each, shared per session
 
 
 @pytest.mark.slow

@@ -43,10 +43,10 @@ def _label_fraction(seq: Path, label: int) -> float:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("preset", ["stdc", "ddl"])
-def test_semantic_preset_masks_people_and_keeps_accuracy(e2e_renders: dict[str, Path], tmp_path: Path,
+def test_semantic_preset_masks_people_and_keeps_accuracy(walking_render: Path, tmp_path: Path,
                                                          preset: str) -> None:
     pytest.importorskip("mediapipe")
-    seq, out = e2e_renders["walking"], tmp_path / preset
+    seq, out = walking_render, tmp_path / preset
     stats = run_cli(seq, out, "--preset", preset, "--sequential", "--no-report")
     assert stats["preset"] == preset
     assert stats["tracked_frames"] == stats["frames"] == E2E_FRAMES
