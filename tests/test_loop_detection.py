@@ -163,7 +163,6 @@ class _ProbedLoopClosing(LoopClosing):
 
     def _compute_se3(self, kf: KeyFrame, cand: KeyFrame) -> None:
         self.se3_checks += 1
-        return None
 
 
 def test_hundreds_of_alike_keyframes_keep_detection_bounded() -> None:

@@ -42,7 +42,7 @@ class Candidate:
     group: frozenset[int]
 
     @staticmethod
-    def of(kf_id: int, covisible_ids: Iterable[int]) -> "Candidate":
+    def of(kf_id: int, covisible_ids: Iterable[int]) -> Candidate:
         return Candidate(kf_id, frozenset((kf_id, *covisible_ids)))
 
 
