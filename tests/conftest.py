@@ -45,3 +45,49 @@ def write_tum_folder(root: Path, n: int = 5, size: tuple[int, int] = (64, 48), d
 @pytest.fixture()
 def tum_folder(tmp_path: Path) -> Path:
     return write_tum_folder(tmp_path / "rgbd_dataset_freiburg1_test")
+
+
+#: Frames of the short renders shared by the end-to-end tests (rendering costs ~10 s each).
+E2E_FRAMES = 90
+
+
+def _render_once(tmp_path_factory: pytest.TempPathFactory, name: str) -> Path:
+    from semslam.synth import SEQUENCES, render_sequence
+
+    return render_sequence(SEQUENCES[name].replace(frames=E2E_FRAMES), tmp_path_factory.mktemp("e2e") / name)
+
+
+@pytest.fixture(scope="session")
+def static_render(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``static_xyz`` on disk (TUM layout, with ``semantic/`` labels), rendered once per
+    session for every test that runs the CLI on it."""
+    return _render_once(tmp_path_factory, "static_xyz")
+
+
+@pytest.fixture(scope="session")
+def walking_render(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``walking_xyz`` (two people) on disk, rendered once per session."""
+    return _render_once(tmp_path_factory, "walking_xyz")
+
+
+def run_cli(seq: Path, out: Path, *extra: str) -> dict:
+    """``semslam run SEQ --out OUT --quiet ...``; must exit 0; returns its stats.json."""
+    import json
+
+    from semslam.cli.main import main
+
+    assert main(["run", str(seq), "--out", str(out), "--quiet", *extra]) == 0
+    return json.loads((out / "stats.json").read_text())
+
+
+def evo_ate(gt: Path, est: Path) -> float:
+    """ATE RMSE (SE(3)-aligned, translation) computed by evo itself, the reference."""
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    ref, e = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
+                                         file_interface.read_tum_trajectory_file(str(est)), max_diff=0.02)
+    e.align(ref, correct_scale=False)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, e))
+    return float(ape.get_statistic(metrics.StatisticsType.rmse))

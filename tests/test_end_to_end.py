@@ -20,39 +20,18 @@ import pytest
 
 from semslam.cli.main import main
 from semslam.io.trajectory import read_tum
-from semslam.synth import SEQUENCES, render_sequence
+from tests.conftest import evo_ate, run_cli
 
 
 @pytest.fixture(scope="module")
-def rendered(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("e2e")
-    return {
-        "static": render_sequence(SEQUENCES["static_xyz"].replace(frames=90), root / "static_xyz"),
-        "walking": render_sequence(SEQUENCES["walking_xyz"].replace(frames=90), root / "walking_xyz"),
-    }
-
-
-def _run(seq: Path, out: Path, *extra: str) -> dict:
-    assert main(["run", str(seq), "--out", str(out), "--quiet", *extra]) == 0
-    return json.loads((out / "stats.json").read_text())
-
-
-def _evo_ate(gt: Path, est: Path) -> float:
-    from evo.core import metrics, sync
-    from evo.tools import file_interface
-
-    ref, e = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
-                                         file_interface.read_tum_trajectory_file(str(est)), max_diff=0.02)
-    e.align(ref, correct_scale=False)
-    ape = metrics.APE(metrics.PoseRelation.translation_part)
-    ape.process_data((ref, e))
-    return float(ape.get_statistic(metrics.StatisticsType.rmse))
+def rendered(static_render: Path, walking_render: Path) -> dict[str, Path]:
+    return {"static": static_render, "walking": walking_render}  # 90 frames each, shared per session
 
 
 @pytest.mark.slow
 def test_static_scene_end_to_end(rendered: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "run"
-    stats = _run(rendered["static"], out, "--preset", "f2kf")
+    stats = run_cli(rendered["static"], out, "--preset", "f2kf")
     assert stats["frames"] == 90 and stats["tracked_frames"] == 90
     assert stats["preset"] == "f2kf"
     for key in ("median", "mean", "p95"):
@@ -62,12 +41,12 @@ def test_static_scene_end_to_end(rendered: dict[str, Path], tmp_path: Path) -> N
     assert len(traj) == 90  # every frame has a pose
     assert (out / "report.html").stat().st_size > 10_000
     assert stats["ate"]["rmse"] < 0.02
-    assert abs(stats["ate"]["rmse"] - _evo_ate(rendered["static"] / "groundtruth.txt", out / "trajectory.txt")) < 1e-9
+    assert abs(stats["ate"]["rmse"] - evo_ate(rendered["static"] / "groundtruth.txt", out / "trajectory.txt")) < 1e-9
 
 
 @pytest.mark.slow
 def test_walking_scene_end_to_end(rendered: dict[str, Path], tmp_path: Path) -> None:
-    stats = _run(rendered["walking"], tmp_path / "run", "--preset", "f2kf")
+    stats = run_cli(rendered["walking"], tmp_path / "run", "--preset", "f2kf")
     assert stats["tracked_frames"] >= 85
     assert stats["ate"]["rmse"] < 0.25
 
@@ -76,7 +55,7 @@ def test_walking_scene_end_to_end(rendered: dict[str, Path], tmp_path: Path) -> 
 def test_default_preset_on_walking_scene(rendered: dict[str, Path], tmp_path: Path) -> None:
     pytest.importorskip("mediapipe")
     out = tmp_path / "run"
-    stats = _run(rendered["walking"], out, "--sequential")
+    stats = run_cli(rendered["walking"], out, "--sequential")
     assert stats["preset"] == "default" and stats["tracked_frames"] == stats["frames"] == 90
     assert stats["dynamic_ratio_mean"] > 0.01  # people were found and masked
     assert (out / "keyframes.txt").is_file() and (out / "report.html").is_file()
@@ -84,7 +63,7 @@ def test_default_preset_on_walking_scene(rendered: dict[str, Path], tmp_path: Pa
 
 
 def test_max_frames_camera_and_set_options(rendered: dict[str, Path], tmp_path: Path) -> None:
-    stats = _run(rendered["static"], tmp_path / "run", "--preset", "f2kf", "--max-frames", "10", "--camera", "535.4,539.2,320.1,247.6",
+    stats = run_cli(rendered["static"], tmp_path / "run", "--preset", "f2kf", "--max-frames", "10", "--camera", "535.4,539.2,320.1,247.6",
                  "--set", "frame_to_keyframe.min_inliers=25", "--no-report")
     assert stats["frames"] == 10
     assert stats["camera"]["source"] == "--camera"
@@ -103,7 +82,7 @@ def test_run_errors_are_one_line(rendered: dict[str, Path], tmp_path: Path, caps
 
 
 def test_deterministic_runs(rendered: dict[str, Path], tmp_path: Path) -> None:
-    _run(rendered["walking"], tmp_path / "a", "--max-frames", "30", "--no-report", "--sequential")
-    _run(rendered["walking"], tmp_path / "b", "--max-frames", "30", "--no-report", "--sequential")
+    run_cli(rendered["walking"], tmp_path / "a", "--max-frames", "30", "--no-report", "--sequential")
+    run_cli(rendered["walking"], tmp_path / "b", "--max-frames", "30", "--no-report", "--sequential")
     a, b = read_tum(tmp_path / "a" / "trajectory.txt"), read_tum(tmp_path / "b" / "trajectory.txt")
     assert np.array_equal(a.poses, b.poses)

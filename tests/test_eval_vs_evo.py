@@ -24,7 +24,10 @@ sync = pytest.importorskip("evo.core.sync")
 fi = pytest.importorskip("evo.tools.file_interface")
 PoseTrajectory3D = pytest.importorskip("evo.core.trajectory").PoseTrajectory3D
 
-REL = 1e-6
+#: Relative agreement with evo, as the README states it. Measured worst over every check
+#: here: 3.2e-12 on a statistic, 4.8e-12 on one pose's error (EuRoC RPE, a tiny error),
+#: 2.3e-13 m on an aligned position (KITTI, positions of hundreds of metres).
+REL = 1e-10
 MAX_DIFF = 0.02
 
 CASES = {
@@ -214,7 +217,7 @@ def test_ate_equals_evo(loaded, case: str, align: str) -> None:
     assert ours.n_associated == g_s.num_poses
     _close(ours.stats, ape.get_all_statistics())
     _close_arrays(ours.errors, ape.error)
-    np.testing.assert_allclose(ours.aligned.positions, e_s.positions_xyz, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ours.aligned.positions, e_s.positions_xyz, rtol=0, atol=1e-10)
     np.testing.assert_array_equal(ours.timestamps, e_s.timestamps)
 
 

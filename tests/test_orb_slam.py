@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from semslam.backend.bundle_adjustment import BAProblem, BAResult
 from semslam.config import load_config
 from semslam.eval.metrics import ate
 from semslam.geometry.camera import PinholeCamera
@@ -48,15 +49,41 @@ def _times(frames: list[Frame]) -> np.ndarray:
     return np.array([f.timestamp for f in frames])
 
 
+def _record_bundle_adjustments(system: System) -> list[BAResult]:
+    """Every result of the local-mapping BA runner. The stats only count BAs: a BA whose
+    solver failed leaves the estimate unchanged and is counted all the same."""
+    results: list[BAResult] = []
+    runner = system.tracker.mapper.ba
+    inner = runner.run
+
+    def run(problem: BAProblem, **kwargs: object) -> BAResult:
+        result = inner(problem, **kwargs)
+        results.append(result)
+        return result
+
+    runner.run = run  # type: ignore[method-assign]
+    return results
+
+
 @pytest.mark.slow
 def test_static_accuracy_and_map(rendered: tuple[list[Frame], np.ndarray, PinholeCamera]) -> None:
     frames, gt, cam = rendered
     system = _system(cam)
+    bas = _record_bundle_adjustments(system)
     states = [system.track(f).state for f in frames]
     system.shutdown()
     assert all(s is TrackingState.OK for s in states)
     stats = system.stats()
-    assert system.n_keyframes >= 3 and stats["map_points"] > 500 and stats["local_ba"] >= 1
+    assert system.n_keyframes >= 3 and stats["map_points"] > 500
+    # Local BA ran after every new keyframe but the first (measured 8 on 9 keyframes), each
+    # solve lowered the mean chi2 of its inliers (measured to 0.37-0.83 of the start, a
+    # failed solve would leave it equal), ended consistent with the noise (mean chi2
+    # measured 0.34-0.38, far below the 5.99 / 7.81 outlier thresholds) and kept almost
+    # every observation (measured >= 97.7 %).
+    assert stats["local_ba"] >= 3 and len(bas) == stats["local_ba"] and stats["local_ba_failed"] == 0
+    for ba in bas:
+        assert ba.final_error < 0.95 * ba.initial_error, (ba.initial_error, ba.final_error)
+        assert ba.final_error < 1.0 and ba.inlier_obs.mean() > 0.95
     # Static scene, 3 s: the issue's target for static sequences is <= 1.5 cm.
     assert _ate(system.trajectory(), gt, _times(frames)) < 0.015
 

@@ -17,12 +17,13 @@ from numpy.typing import NDArray
 from semslam.backend.pose_graph import PoseGraphFailed, optimize_pose_graph
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
-from semslam.geometry.alignment import umeyama
+from semslam.geometry.alignment import AlignmentError, umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
 from semslam.slam.fusion import PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import build_ba_problem
+from semslam.slam.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
 
@@ -57,7 +58,7 @@ def ransac_se3(x1: NDArray[np.float64], x2: NDArray[np.float64], uv1: NDArray[np
         s = rng.choice(n, 3, replace=False)
         try:
             R, t, _ = umeyama(x2[s], x1[s], with_scale=False)
-        except Exception:
+        except AlignmentError:  # colinear or coincident sample: no hypothesis, draw again
             continue
         T = make_pose(R, t)
         inl = inliers_of(T)
@@ -70,6 +71,24 @@ def ransac_se3(x1: NDArray[np.float64], x2: NDArray[np.float64], uv1: NDArray[np
     R, t, _ = umeyama(x2[best_inl], x1[best_inl], with_scale=False)
     T = make_pose(R, t)
     return T, inliers_of(T)
+
+
+def _point_positions(kf: KeyFrame) -> NDArray[np.float64]:
+    """World positions of kf's map points, one row per keypoint, NaN where it has none."""
+    pos = np.full((len(kf.points), 3), np.nan)
+    for i, p in enumerate(kf.points):
+        if p is not None and not p.bad:
+            pos[i] = p.pos
+    return pos
+
+
+def _neighbourhood_points(kf: KeyFrame) -> list[MapPoint]:
+    """The valid map points of kf and its covisible keyframes, each once, in first-seen order."""
+    points: dict[int, MapPoint] = {}
+    for k in [kf, *kf.covisibles_with_weight(0)]:
+        for p in k.valid_points():
+            points.setdefault(p.id, p)
+    return list(points.values())
 
 
 class LoopClosing(KeyframeWorker):
@@ -91,7 +110,7 @@ class LoopClosing(KeyframeWorker):
         self.pyr = slam_map.spec.pyramid  # the pyramid of the map's features
         self.rng = np.random.default_rng(config.seed)
         self.last_loop_kf_id = 0
-        self.consistent_groups: list[tuple[set[KeyFrame], int]] = []
+        self.consistency = LoopConsistency(config.slam.loop_consistency)
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
                       "global_ba_ms": [], "pose_graph_ms": []}
@@ -108,82 +127,84 @@ class LoopClosing(KeyframeWorker):
         self._correct_loop(kf, cand, T12, matched)
 
     def _detect_loop(self, kf: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        """ORB-SLAM2 DetectLoop + ComputeSim3. The map lock is taken only for reads; the
+        database query and the consistency bookkeeping run without it, so tracking is
+        never held up by detection."""
         from semslam.place.database import detect_loop_candidates
-        from semslam.place.vocabulary import l1_score
 
         if kf.id < self.last_loop_kf_id + self.cfg.loop_min_keyframes or len(self.map.keyframes) < self.cfg.loop_min_keyframes:
             return None
-        with self.map.lock:
-            covis = kf.covisibles_with_weight(0)
-            min_score = min((l1_score(kf.bow, c.bow) for c in covis if c.bow is not None), default=0.0)
-            covis_ids = {c.id for c in covis}
-
-            def covisibles(kf_id: int, n: int) -> list[int]:
-                other = self.map.keyframes.get(kf_id)
-                return [] if other is None else [c.id for c in other.best_covisibles(n)]
-
-            cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, covisibles)
-            log.debug("kf %d: min_score %.3f, loop candidates %s", kf.id, min_score, cand_ids)
-            candidates = [self.map.keyframes[i] for i in cand_ids if i in self.map.keyframes]
-            # Consistency: a candidate's covisibility group must connect with groups that
-            # were candidates for the previous keyframes (ORB-SLAM DetectLoop, 3 in a row).
-            enough: list[KeyFrame] = []
-            new_groups: list[tuple[set[KeyFrame], int]] = []
-            for c in candidates:
-                group = {c, *c.covisibles_with_weight(0)}
-                best = 0
-                for prev_group, prev_count in self.consistent_groups:
-                    if group & prev_group:
-                        count = prev_count + 1
-                        best = max(best, count)
-                        new_groups.append((group, count))
-                if best == 0:
-                    new_groups.append((group, 0))
-                if best >= self.cfg.loop_consistency and c not in enough:
-                    enough.append(c)
-            self.consistent_groups = new_groups
-            log.debug("kf %d: consistent candidates %s", kf.id, [c.id for c in enough])
-            for c in enough:
-                res = self._compute_se3(kf, c)
-                if res is not None:
-                    return res
+        covis_ids, min_score = self._query_bounds(kf)
+        cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, self._best_covisibles)
+        log.debug("kf %d: min_score %.3f, loop candidates %s", kf.id, min_score, cand_ids)
+        candidates = self._candidate_groups(cand_ids)
+        accepted = self.consistency.update([c for c, _ in candidates])
+        log.debug("kf %d: consistent candidates %s", kf.id, accepted)
+        by_id = {c.kf_id: k for c, k in candidates}
+        for cid in accepted:
+            res = self._compute_se3(kf, by_id[cid])
+            if res is not None:
+                return res
         return None
 
+    def _query_bounds(self, kf: KeyFrame) -> tuple[set[int], float]:
+        """The keyframes a loop must not be (kf's covisibles) and the lowest BoW score among
+        them, which a loop candidate must reach (ORB-SLAM2's minScore)."""
+        from semslam.place.vocabulary import l1_score
+
+        with self.map.lock:
+            covis = kf.covisibles_with_weight(0)
+        min_score = min((l1_score(kf.bow, c.bow) for c in covis if c.bow is not None), default=0.0)
+        return {c.id for c in covis}, min_score
+
+    def _best_covisibles(self, kf_id: int, n: int) -> list[int]:
+        """The database query's view of the covisibility graph, read under the lock."""
+        with self.map.lock:
+            other = self.map.keyframes.get(kf_id)
+            return [] if other is None else [c.id for c in other.best_covisibles(n)]
+
+    def _candidate_groups(self, cand_ids: list[int]) -> list[tuple[Candidate, KeyFrame]]:
+        """Each candidate still in the map with its covisibility group (read under the lock)."""
+        with self.map.lock:
+            found = [self.map.keyframes[i] for i in cand_ids if i in self.map.keyframes]
+            return [(Candidate.of(c.id, (k.id for k in c.covisibles_with_weight(0))), c) for c in found]
+
     def _compute_se3(self, kf: KeyFrame, cand: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
-        valid1 = np.array([p is not None and not p.bad for p in kf.points], bool)
-        valid2 = np.array([p is not None and not p.bad for p in cand.points], bool)
+        """SE(3) between kf and a consistent candidate from BoW matches (RANSAC), verified by
+        projecting the candidate's neighbourhood into kf."""
+        with self.map.lock:
+            pos1, T1 = _point_positions(kf), kf.T_cw.copy()
+            pos2, T2 = _point_positions(cand), cand.T_cw.copy()
+        valid1, valid2 = ~np.isnan(pos1[:, 0]), ~np.isnan(pos2[:, 0])
         i1, i2 = search_by_bow(kf.featvec, kf.keypoints.descriptors, cand.featvec, cand.keypoints.descriptors,
                                valid1, valid2, self.map.matcher, self.map.spec.th_low, ratio=0.75)
         if len(i1) < 20:
             log.debug("kf %d vs %d: %d BoW matches", kf.id, cand.id, len(i1))
             return None
-        p1 = np.array([kf.points[i].pos for i in i1])  # type: ignore[union-attr]
-        p2 = np.array([cand.points[i].pos for i in i2])  # type: ignore[union-attr]
-        x1 = p1 @ kf.T_cw[:3, :3].T + kf.T_cw[:3, 3]
-        x2 = p2 @ cand.T_cw[:3, :3].T + cand.T_cw[:3, 3]
+        x1 = pos1[i1] @ T1[:3, :3].T + T1[:3, 3]
+        x2 = pos2[i2] @ T2[:3, :3].T + T2[:3, 3]
         T12, inl = ransac_se3(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
                               self.pyr.inv_sigma2[cand.keypoints.octave[i2]], self.camera, self.rng)
         if T12 is None:
             log.debug("kf %d vs %d: SE3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(i1), int(inl.sum()))
             return None
-        T_cw_corr = T12 @ cand.T_cw
+        T_cw_corr = T12 @ T2
         # Verify: project the loop keyframe's neighbourhood into the current keyframe.
-        loop_points: dict[int, MapPoint] = {}
-        for k in [cand, *cand.covisibles_with_weight(0)]:
-            for p in k.valid_points():
-                loop_points.setdefault(p.id, p)
-        pts = list(loop_points.values())
-        pos = np.array([p.pos for p in pts])
+        with self.map.lock:
+            pts = _neighbourhood_points(cand)
+            pos = np.array([p.pos for p in pts])
+            max_dist = np.array([p.max_dist for p in pts])
+            descriptors = [p.descriptor for p in pts]
         uv, z = project(T_cw_corr, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
         inside = (z > 0) & self.camera.in_image(uv)
         sel = np.nonzero(inside)[0]
         if len(sel) == 0:
             return None
         dist = np.linalg.norm(pos[sel] - invert(T_cw_corr)[:3, 3], axis=1)
-        max_d = np.array([pts[s].max_dist for s in sel])
+        max_d = max_dist[sel]
         level = self.pyr.predict_level(max_d, dist)
         qi, ti = search_by_projection(uv[sel], 10.0 * self.pyr.scales[level], level - 1, level + 1,
-                                      np.stack([pts[s].descriptor for s in sel]), kf.xy, kf.keypoints.octave,
+                                      np.stack([descriptors[s] for s in sel]), kf.xy, kf.keypoints.octave,
                                       kf.keypoints.descriptors, np.ones(len(kf.points), bool),
                                       kf.tree(), self.map.matcher, self.map.spec.th_high, 0.9)
         n_matched = int(inl.sum()) + len(qi)
