@@ -20,7 +20,10 @@ import numpy as np
 import pytest
 
 from semslam.config import load_config
-from semslam.features.base import Keypoints
+from semslam.backend.worker import BundleAdjustmentRunner
+from semslam.core.types import Keypoints, orb_spec
+from semslam.slam.fusion import PointFusion
+from semslam.slam.keyframe_worker import KeyframeInbox
 from semslam.geometry.alignment import AlignmentError
 from semslam.geometry.camera import PinholeCamera
 from semslam.place.database import KeyframeDatabase
@@ -123,7 +126,7 @@ def _alike_keyframe(kf_id: int, bow: BowVector) -> KeyFrame:
 
 def _chain_map(n: int, bow: BowVector, reach: int = 2) -> Map:
     """n keyframes, each covisible with those within ``reach`` ids (weight 20)."""
-    m = Map()
+    m = Map(orb_spec(1.2, 8))
     kfs = [_alike_keyframe(i, bow) for i in range(n)]
     for kf in kfs:
         m.add_keyframe(kf)
@@ -175,7 +178,9 @@ def test_hundreds_of_alike_keyframes_keep_detection_bounded() -> None:
     bow = BowVector(words, np.full(16, 1 / 16))  # powers of two: every score is exactly 1
     slam_map = _chain_map(n, bow)
     cfg = load_config("orb", ["slam.sequential=true"])
-    closer = _ProbedLoopClosing(cfg, PinholeCamera(500.0, 500.0, 320.0, 240.0), slam_map, KeyframeDatabase(), None)
+    cam = PinholeCamera(500.0, 500.0, 320.0, 240.0)
+    closer = _ProbedLoopClosing(cfg, cam, slam_map, KeyframeDatabase(), BundleAdjustmentRunner(),
+                                PointFusion(slam_map, cam, 40.0), KeyframeInbox(), KeyframeInbox())
     max_groups = 0
     tracemalloc.start()
     t0 = time.perf_counter()

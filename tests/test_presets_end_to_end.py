@@ -24,10 +24,10 @@ import pytest
 from semslam.config import load_config
 from semslam.eval.metrics import ate
 from semslam.geometry.camera import PinholeCamera
-from semslam.io.sequence import Frame
+from semslam.core.types import Frame
 from semslam.io.trajectory import Trajectory
 from semslam.slam.system import System
-from semslam.slam.types import TrackingState
+from semslam.core.types import TrackingState
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import E2E_FRAMES, evo_ate, run_cli
 

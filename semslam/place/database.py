@@ -12,6 +12,7 @@ covisible keyframes), so the database never holds references into the map.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 
@@ -66,9 +67,14 @@ class SharedWords:
 
 
 class KeyframeDatabase:
-    """Inverted index word -> keyframes, with DBoW2 L1 scoring."""
+    """Inverted index word -> keyframes, with DBoW2 L1 scoring.
+
+    Thread-safe as ORB-SLAM's KeyFrameDatabase (its mMutex): loop closing adds keyframes
+    while tracking may query it to relocalise.
+    """
 
     def __init__(self) -> None:
+        self._lock = threading.RLock()
         self._index: dict[int, _Postings] = {}
         self._bows: dict[int, BowVector] = {}
         self._slot_of: dict[int, int] = {}
@@ -89,8 +95,12 @@ class KeyframeDatabase:
 
     def add(self, kf_id: int, bow: BowVector) -> None:
         """Index a keyframe's bag of words (re-adding an id replaces it)."""
+        with self._lock:
+            self._add(kf_id, bow)
+
+    def _add(self, kf_id: int, bow: BowVector) -> None:
         if kf_id in self._bows:
-            self.erase(kf_id)
+            self._erase(kf_id)
         if self._free:
             slot = self._free.pop()
             self._kf_of_slot[slot] = kf_id
@@ -108,6 +118,10 @@ class KeyframeDatabase:
 
     def erase(self, kf_id: int) -> None:
         """Remove a keyframe (culled by the map); unknown ids are ignored."""
+        with self._lock:
+            self._erase(kf_id)
+
+    def _erase(self, kf_id: int) -> None:
         bow = self._bows.pop(kf_id, None)
         if bow is None:
             return
@@ -129,6 +143,10 @@ class KeyframeDatabase:
 
         L1 score over shared words: ``0.5 * sum(|a|+|b|-|a-b|)`` (DBoW2's L1Scoring).
         """
+        with self._lock:
+            return self._shared_words(bow, exclude)
+
+    def _shared_words(self, bow: BowVector, exclude: Collection[int]) -> SharedWords:
         parts_s, parts_w, parts_q = [], [], []
         index = self._index
         for w, q in zip(bow.words.tolist(), bow.weights.tolist()):
