@@ -73,10 +73,10 @@ def reference_mask(image_path: Path) -> NDArray[np.bool_] | None:
     if Path(image_path).name != people.PHOTO:
         return None
     try:
-        ub = people._cutout_photo(Path(image_path))  # noqa: SLF001 - same cut-out the renderer uses
+        ub = people.cutout_photo(Path(image_path))  # the same cut-out the renderer uses
     except Exception:  # noqa: BLE001 - any failure means "no reference"
         return None
-    # _cutout_photo crops x 30..290, y 30..480, then to the mask's top row / column span.
+    # cutout_photo crops x 30..290, y 30..480, then to the mask's top row / column span.
     full = np.zeros((480, 640), bool)
     bgr = cv2.imread(str(image_path))
     sub = np.zeros((450, 260), np.uint8)

@@ -89,7 +89,7 @@ def default_people_dir() -> Path:
     return repo.parent / "shared" / "data" / "images_people"
 
 
-def _cutout_photo(path: Path) -> UpperBody:
+def cutout_photo(path: Path) -> UpperBody:
     """GrabCut the walking person out of the fr3 photo (RGB result, cropped)."""
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None or bgr.shape[:2] != (480, 640):
@@ -191,7 +191,7 @@ def load_upper_body(people_dir: str | None) -> UpperBody:
     path = d / PHOTO
     if path.is_file():
         try:
-            return _cutout_photo(path)
+            return cutout_photo(path)
         except OSError as exc:
             warnings.warn(f"synth: {exc}; using procedural people", stacklevel=2)
     else:
