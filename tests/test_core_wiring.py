@@ -17,11 +17,13 @@ import numpy as np
 import pytest
 
 from semslam.cli.main import main
-from semslam.config import SemanticsConfig, load_config
+from semslam.config import FeatureConfig, SemanticsConfig, load_config
 from semslam.core import protocols, registry
 from semslam.core.protocols import FramePacket, KeyframeSnapshot, TrackerInputs
 from semslam.core.types import Frame, TrackingState
 from semslam.errors import ConfigError, DataError
+from semslam.features import create_extractor
+from semslam.features.matching import matcher_for
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.depth import SensorDepth
 from semslam.io.sequence import ImageFolderSequence, open_sequence
@@ -47,6 +49,11 @@ def test_backends_implement_their_contracts(static_seq: Path) -> None:
     assert isinstance(registry.create("map_builder", "keyframe_cloud"), protocols.MapBuilder)
     gt = registry.create("segmenter", "ground_truth", SemanticsConfig(backend="ground_truth"))
     assert isinstance(gt, protocols.Segmenter)
+    for name in registry.names("extractor"):
+        extractor = create_extractor(FeatureConfig(extractor=name, n_levels=6 if name == "qtree_orb" else 8), (640, 480))
+        assert isinstance(extractor, protocols.Extractor) and extractor.spec.n_levels >= 1, name
+        matcher = registry.create("matcher", extractor.spec.kind.value)
+        assert isinstance(matcher, protocols.Matcher) and type(matcher) is type(matcher_for(extractor.spec)), name
     for preset in ("orb", "f2kf", "ddl"):
         overrides = ["slam.sequential=true"] + (["semantics.backend=ground_truth"] if preset == "ddl" else [])
         system = System(load_config(preset, overrides), seq.camera)
