@@ -107,8 +107,6 @@ class OrbSlamSystem:
         self.map_builders = inputs.map_builders
         self._fed_keyframes: list[KeyFrame] = []  # culled ones too: their points stay in the maps
         self.threaded = not config.slam.sequential
-        self.mapper: LocalMapping | None = None
-        self.closer: LoopClosing | None = None
         # One BA runner shared by local mapping and loop closing; owned (and closed) here.
         self.ba_runner = BundleAdjustmentRunner()
         self._stopped = False
@@ -178,7 +176,7 @@ class OrbSlamSystem:
 
     def _raise_worker_error(self) -> None:
         for worker in (self.mapper, self.closer):
-            if worker is not None and worker.error is not None:
+            if worker.error is not None:
                 raise WorkerFailed(f"{worker.thread_name} thread failed: "
                                    f"{type(worker.error).__name__}: {worker.error}") from worker.error
 
@@ -190,8 +188,7 @@ class OrbSlamSystem:
         self._stopped = True
         try:
             for worker in (self.mapper, self.closer):
-                if worker is not None:
-                    worker.stop()
+                worker.stop()
         finally:
             self.ba_runner.close()
         if self.map_builders:
@@ -210,7 +207,6 @@ class OrbSlamSystem:
 
     def stats(self) -> dict[str, Any]:
         mapper, closer = self.mapper, self.closer
-        assert mapper is not None and closer is not None
         lba = mapper.stats["local_ba_ms"]
         return {
             "map_points": len(self.map.points),
