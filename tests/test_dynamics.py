@@ -12,7 +12,8 @@ import pytest
 
 from semslam.config import load_config
 from semslam.dynamics.masks import dilate, extractor_mask, keypoints_in_mask
-from semslam.dynamics.multiview import MultiViewParams, multiview_mask
+from semslam.config import DynamicsConfig
+from semslam.dynamics.multiview import multiview_mask
 from semslam.eval.metrics import ate
 from semslam.features import create_extractor
 from semslam.geometry.camera import PinholeCamera
@@ -60,7 +61,7 @@ def test_multiview_flags_moving_box_that_segmentation_ignores() -> None:
     for i in (120, 180):
         refs = [_keyframe_view(r, j, ext, cam) for j in (i - 40, i - 30, i - 20)]
         f = r.render(i)
-        res = multiview_mask(invert(r.poses[i]), f.depth.astype(np.float32) / 5000.0, cam, refs, MultiViewParams())
+        res = multiview_mask(invert(r.poses[i]), f.depth.astype(np.float32) / 5000.0, cam, refs, DynamicsConfig())
         gt = f.semantic == 21
         ious.append((res.mask & gt).sum() / max((res.mask | gt).sum(), 1))
         # Almost nothing outside the mover is flagged.

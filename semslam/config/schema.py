@@ -107,10 +107,20 @@ class DynamicsConfig:
     # DDL-SLAM's multi-view geometry check against the best-overlapping keyframes.
     multiview: bool = False
     multiview_keyframes: int = 5
+    # Points seen under a larger parallax are skipped (likely self-occlusion, DynaSLAM).
     parallax_deg: float = 30.0
+    # A measured depth this much in front of the projected one marks a seed. Kinect-like
+    # noise is ~2 cm at 3 m; people and pushed objects stand 0.3-2 m in front of the
+    # background they hide, so 0.15 m + 3 % of depth separates the two.
     depth_threshold_m: float = 0.15
     depth_threshold_rel: float = 0.03
+    # Region growing: neighbouring pixels further apart than this in depth split regions;
+    # a region is dynamic with >= min_seeds seeds making >= min_dynamic_ratio of its tested
+    # points; growing runs at 1/downscale resolution.
     edge_m: float = 0.05
+    min_seeds: int = 3
+    min_dynamic_ratio: float = 0.3
+    downscale: int = 2
 
 
 @dataclass

@@ -24,27 +24,6 @@ from semslam.config import DynamicsConfig
 from semslam.geometry.camera import PinholeCamera
 
 
-@dataclass(frozen=True)
-class MultiViewParams:
-    parallax_deg: float = 30.0
-    # A measured depth this much in front of the projected one marks a seed. Kinect-like
-    # noise is ~2 cm at 3 m; people and pushed objects stand 0.3-2 m in front of the
-    # background they hide, so 0.15 m + 3 % of depth separates the two.
-    depth_threshold_m: float = 0.15
-    depth_threshold_rel: float = 0.03
-    # Region growing: neighbouring pixels further apart than this in depth split regions.
-    edge_m: float = 0.05
-    min_seeds: int = 3
-    min_dynamic_ratio: float = 0.3
-    downscale: int = 2
-
-    @classmethod
-    def from_config(cls, cfg: "DynamicsConfig") -> "MultiViewParams":
-        """The thresholds the ``dynamics:`` config section sets; the rest keep their defaults."""
-        return cls(parallax_deg=cfg.parallax_deg, depth_threshold_m=cfg.depth_threshold_m,
-                   depth_threshold_rel=cfg.depth_threshold_rel, edge_m=cfg.edge_m)
-
-
 @dataclass
 class MultiViewResult:
     mask: NDArray[np.bool_]
@@ -57,7 +36,7 @@ def dynamic_seeds(
     depth: NDArray[np.float32],
     camera: PinholeCamera,
     refs: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]],
-    params: MultiViewParams = MultiViewParams(),
+    params: DynamicsConfig = DynamicsConfig(),
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
     """Project reference keypoints (``refs``: per keyframe ``(T_cw, xy_undistorted, depth)``)
     into the current frame. Returns (pixels of all tested points, dynamic flags, their
@@ -99,7 +78,7 @@ def dynamic_seeds(
 
 
 def grow_regions(depth: NDArray[np.float32], uv: NDArray[np.float64], dynamic: NDArray[np.bool_],
-                 params: MultiViewParams = MultiViewParams()) -> NDArray[np.bool_]:
+                 params: DynamicsConfig = DynamicsConfig()) -> NDArray[np.bool_]:
     """Depth-continuous regions where enough tested points are dynamic (full resolution)."""
     h, w = depth.shape
     if not dynamic.any():
@@ -132,6 +111,6 @@ def grow_regions(depth: NDArray[np.float32], uv: NDArray[np.float64], dynamic: N
 
 def multiview_mask(T_cw: NDArray[np.float64], depth: NDArray[np.float32], camera: PinholeCamera,
                    refs: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]],
-                   params: MultiViewParams = MultiViewParams()) -> MultiViewResult:
+                   params: DynamicsConfig = DynamicsConfig()) -> MultiViewResult:
     uv, dyn, _ = dynamic_seeds(T_cw, depth, camera, refs, params)
     return MultiViewResult(grow_regions(depth, uv, dyn, params), uv[dyn], len(uv))

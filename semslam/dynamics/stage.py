@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from semslam.config import DynamicsConfig, SemanticsConfig
 from semslam.core.protocols import FramePacket, MovingRegions
 from semslam.dynamics.masks import dilate, extractor_mask
-from semslam.dynamics.multiview import MultiViewParams, multiview_mask
+from semslam.dynamics.multiview import multiview_mask
 from semslam.geometry.camera import PinholeCamera
 
 Reference = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]
@@ -31,7 +31,7 @@ class SceneDynamics:
         self.border_px = dyn.border_px
         self.camera = camera
         self.semantic = SemanticThread(sem, threaded=threaded) if dyn.semantic else None
-        self.multiview = MultiViewParams.from_config(dyn) if dyn.multiview else None
+        self.multiview = dyn if dyn.multiview else None
 
     def prepare(self, packet: FramePacket) -> None:
         if self.semantic is not None:
