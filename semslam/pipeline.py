@@ -30,7 +30,7 @@ T = TypeVar("T")
 
 def prefetch(items: Iterator[T], depth: int = 2) -> Generator[T, None, None]:
     """Decode the next frames in a background thread (OpenCV releases the GIL)."""
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="reader") as pool:
         sentinel = object()
         it = iter(items)
         queue = [pool.submit(next, it, sentinel) for _ in range(depth)]

@@ -22,6 +22,8 @@ def register(app: typer.Typer) -> None:
         data: Path = typer.Option(Path("out/bench/data"), "--data", help="where rendered sequences are cached"),
         out: Path = typer.Option(Path("out/bench/runs"), "--out", help="where run outputs go"),
         json_path: Optional[Path] = typer.Option(None, "--json", help="also write the JSON here"),
+        profile: bool = typer.Option(False, "--profile", help="run each under py-spy: CPU per thread and stage, top functions"),
+        rate: int = typer.Option(250, "--rate", min=10, max=2000, help="--profile: samples per second"),
     ) -> None:
         """Benchmark presets on the synthetic sequences: JSON + a markdown table of ATE and ms/frame."""
         from semslam.experiments.bench import (
@@ -41,6 +43,10 @@ def register(app: typer.Typer) -> None:
         names = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else (
             ABLATION_SEQUENCES if ablation else DEFAULT_SEQUENCES)
 
+        if profile:
+            _profile(variants, names, data, out, frames, rate, json_path)
+            return
+
         def report(row) -> None:  # type: ignore[no-untyped-def]
             r = row.result
             print(f"{row.variant} on {row.sequence}: ATE {r.ate_rmse}, {r.ms_per_frame['median']:.1f} ms/frame, "
@@ -54,3 +60,25 @@ def register(app: typer.Typer) -> None:
             json_path.write_text(text)
         print()
         print(markdown_table(rows))
+
+
+def _profile(variants: list, names: list[str], data: Path, out: Path, frames: int | None, rate: int,  # type: ignore[type-arg]
+             json_path: Path | None) -> None:
+    """``semslam bench --profile``: each run under py-spy; JSON, then one table per run."""
+    from semslam.experiments.profile import profile_table, profile_variants
+
+    records = profile_variants(variants, names, data, out, frames, rate)
+    doc = [{"variant": r["variant"], "sequence": r["sequence"],
+            "ms_per_frame": r["result"].ms_per_frame, "stages_ms_median": r["result"].stages_ms_median,
+            "ate_rmse_m": r["result"].ate_rmse, **r["profile"].to_dict()} for r in records]
+    text = json.dumps(doc, indent=2)
+    print(text)
+    if json_path:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(text)
+    for r in records:
+        res = r["result"]
+        print(f"\n### {r['variant']} on {r['sequence']}: {res.frames} frames, "
+              f"{res.ms_per_frame['median']:.1f} ms/frame median, {res.ms_per_frame['p95']:.1f} p95, "
+              f"wall {res.wall_s:.1f} s (raw stacks: {res.out_dir / 'profile.raw.txt'})\n")
+        print(profile_table(r["profile"], res.stages_ms_median))

@@ -1,0 +1,59 @@
+"""``semslam bench --profile``: py-spy's raw stacks are turned into CPU seconds per thread,
+per stage and per function, exactly (hand-made stacks), and a real profiled run reports
+the threads a threaded SLAM run has."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from semslam.cli.main import main
+from semslam.experiments.profile import parse_raw
+
+RAW = "\n".join([
+    # tracking: 30 samples in extraction, 10 in the local map, 5 in importing
+    'process 1:"";thread (1): MainThread;run_slam (semslam/pipeline.py:81);track (semslam/slam/tracking.py:90);'
+    'extract (semslam/features/orb_slam2.py:120);fast_points (semslam/features/orb/detection.py:40) 30',
+    'process 1:"";thread (1): MainThread;run_slam (semslam/pipeline.py:81);track (semslam/slam/tracking.py:90);'
+    '_track_local_map (semslam/slam/tracking.py:300);search_by_projection (semslam/slam/search.py:50) 10',
+    'process 1:"";thread (1): MainThread;<module> (semslam:6);_find_and_load (<frozen importlib._bootstrap>:1176);'
+    'exec_module (<frozen importlib._bootstrap_external>:940) 5',
+    # local mapping: 20 samples fusing
+    'process 1:"";thread (7): local-mapping;_run (semslam/slam/keyframe_worker.py:110);'
+    '_search_in_neighbours (semslam/slam/local_mapping.py:230);fuse (semslam/slam/fusion.py:40) 20',
+    # the BA worker process (its command line has a ';' inside the quotes): 25 samples in GTSAM
+    'process 1:"";process 9:"python -c from multiprocessing.spawn import spawn_main; spawn_main(tracker_fd=8)";'
+    'thread (9): MainThread;bundle_adjust (semslam/backend/bundle_adjustment.py:270);'
+    '_optimize (semslam/backend/bundle_adjustment.py:230) 25',
+    "not a stack line",
+])
+
+
+def test_raw_stacks_become_cpu_per_thread_stage_and_function() -> None:
+    p = parse_raw(RAW, rate_hz=100.0)
+    assert p.thread_s == {"tracking (main)": 0.45, "BA worker process": 0.25, "local-mapping": 0.20}
+    assert p.stage_s[("tracking (main)", "extract")] == pytest.approx(0.30)
+    assert p.stage_s[("tracking (main)", "local map")] == pytest.approx(0.10)
+    assert p.stage_s[("tracking (main)", "imports")] == pytest.approx(0.05)
+    assert p.stage_s[("local-mapping", "fusion")] == pytest.approx(0.20)
+    assert p.stage_s[("BA worker process", "bundle adjustment (GTSAM)")] == pytest.approx(0.25)
+    assert p.self_s[0] == ("fast_points (semslam/features/orb/detection.py)", pytest.approx(0.30))
+    total = dict(p.total_s)
+    assert total["extract (semslam/features/orb_slam2.py)"] == pytest.approx(0.30)
+    assert "run_slam (semslam/pipeline.py)" not in total  # the entry chain is left out
+
+
+@pytest.mark.slow
+def test_bench_profile_reports_every_thread_of_a_threaded_run(tmp_path: Path) -> None:
+    js = tmp_path / "profile.json"
+    code = main(["bench", "--profile", "--presets", "orb", "--sequences", "static_xyz", "--frames", "40",
+                 "--data", str(tmp_path / "data"), "--out", str(tmp_path / "runs"), "--json", str(js)])
+    assert code == 0
+    doc = json.loads(js.read_text())
+    threads = doc[0]["cpu_s_per_thread"]
+    assert {"tracking (main)", "local-mapping", "BA worker process"} <= set(threads)
+    stages = {(r["thread"], r["stage"]) for r in doc[0]["cpu_s_per_stage"]}
+    assert ("tracking (main)", "extract") in stages and ("BA worker process", "bundle adjustment (GTSAM)") in stages
+    assert doc[0]["ms_per_frame"]["median"] > 0 and (tmp_path / "runs/orb/static_xyz/profile.raw.txt").is_file()
