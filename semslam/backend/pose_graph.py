@@ -9,7 +9,6 @@ passes the loop-corrected poses as the initial estimate, as ORB-SLAM does.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Sequence
 
 import gtsam
@@ -22,8 +21,6 @@ from semslam.geometry.se3 import invert
 Array = NDArray[np.float64]
 
 _FIXED_SIGMA = 1e-9
-
-log = logging.getLogger(__name__)
 
 
 class PoseGraphFailed(RuntimeError):

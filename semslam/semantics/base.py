@@ -8,7 +8,7 @@ absence is a ConfigError that says what to install instead of an ImportError at 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 
 import cv2
 import numpy as np
@@ -20,9 +20,6 @@ from semslam.core.types import LabelMap
 from semslam.errors import ConfigError
 from semslam.config import SemanticsConfig
 from semslam.core.labels import KNOWN_CLASS_NAMES
-
-
-SegmenterFactory = Callable[[SemanticsConfig], Segmenter]
 
 # Optional package (import name) -> what to install, for the error message.
 _INSTALL_HINTS: dict[str, str] = {
