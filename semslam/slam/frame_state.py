@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.core.types import Keypoints
+from semslam.features.keypoint_grid import KeypointGrid
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.frame_to_keyframe import sample_depth
 from semslam.slam.map import KeyFrame, MapPoint
@@ -28,7 +29,7 @@ class FrameState:
     ref_kf: KeyFrame | None = None
     bow: Any = None
     featvec: dict[int, Any] | None = None
-    _tree: Any = field(default=None, repr=False)
+    _grid: KeypointGrid | None = field(default=None, repr=False)
 
     @classmethod
     def create(cls, index: int, timestamp: float, kps: Keypoints, depth_img: NDArray[np.float32] | None,
@@ -53,14 +54,13 @@ class FrameState:
         self.points = [self.points[i] for i in idx]
         self.outlier = self.outlier[idx]
         self.bow = self.featvec = None
-        self._tree = None
+        self._grid = None
 
-    def tree(self) -> Any:
-        if self._tree is None:
-            from scipy.spatial import cKDTree
-
-            self._tree = cKDTree(self.xy)
-        return self._tree
+    def grid(self, width: float, height: float) -> KeypointGrid:
+        """The keypoints in ORB-SLAM's 64 x 48 grid over the image (built once)."""
+        if self._grid is None:
+            self._grid = KeypointGrid(self.xy, self.keypoints.octave, width, height)
+        return self._grid
 
     def matched_indices(self) -> NDArray[np.intp]:
         return np.array([i for i, p in enumerate(self.points) if p is not None and not p.bad], np.intp)

@@ -302,7 +302,7 @@ class Tracking:
         if len(uv) == 0:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
         return search_by_projection(uv, radius, lo, hi, desc, cur.xy, cur.keypoints.octave, cur.keypoints.descriptors,
-                                    cur.free_mask(), cur.tree(), self.map.matcher,
+                                    cur.free_mask(), cur.grid(*self.camera.image_size), self.map.matcher,
                                     self.spec.th_high)
 
     def _compute_bow(self, cur: FrameState) -> None:
