@@ -95,3 +95,9 @@ class KeypointGrid:
                                 np.broadcast_to(np.asarray(level_hi, np.intp), (n,)).copy(),
                                 self.xy, self.octave, np.ascontiguousarray(free, np.bool_), self.order,
                                 self.start, self.cell_w, self.cell_h, GRID_COLS, GRID_ROWS)
+
+
+def warm_up() -> None:
+    """Compile the kernels (see ``semslam.features.jit``)."""
+    grid = KeypointGrid(np.array([[1.0, 1.0], [5.0, 5.0]]), np.array([0, 1], np.int32), 10, 10)
+    grid.pairs_in_radius(np.array([[1.0, 1.0]]), np.array([3.0]), np.array([0]), np.array([1]), np.ones(2, bool))

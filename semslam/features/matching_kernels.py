@@ -116,3 +116,12 @@ def select_best(cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], dist: NDArra
         return np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0, dist.dtype)
     return _select_best(cand_q, cand_t, dist, int(cand_q.max()) + 1, int(cand_t.max()) + 1,
                         float(max_distance), float(ratio))
+
+
+def warm_up() -> None:
+    """Compile the kernels for the types the matchers use (see ``semslam.features.jit``)."""
+    d = np.zeros((2, 32), np.uint8)
+    idx = np.array([0, 1], np.intp)
+    hamming_rows(d, d, idx, idx)
+    select_best(idx, idx, np.array([1, 2], np.int32), 50, 0.8)
+    select_best(idx, idx, np.array([1.0, 2.0]), 0.5, 0.8)
