@@ -22,7 +22,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.frame_state import FrameState
 from semslam.slam.keyframe_worker import KeyframeSink
-from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
 from semslam.slam.search import project, rotation_consistent, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
@@ -93,8 +93,10 @@ class Tracking:
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
         is_kf = False
+        t_wait = time.perf_counter()
         with self.map.lock:
             t0 = time.perf_counter()
+            timings["lock_wait"] = (t0 - t_wait) * 1e3
             if self.state is TrackingState.NOT_INITIALIZED:
                 ok = self._initialize(cur)
                 is_kf = ok
@@ -185,9 +187,7 @@ class Tracking:
         cur.T_cw = np.eye(4)
         kf = self._make_keyframe(cur)
         idx = np.nonzero(cur.depth > 0)[0]
-        pts = cur.world_points(idx, self.camera)
-        for i, pw in zip(idx, pts):
-            self._new_point_from_keyframe(kf, cur, int(i), pw)
+        self._new_points_from_keyframe(kf, cur, idx, cur.world_points(idx, self.camera))
         self.map.add_keyframe(kf)
         self.keyframes.insert(kf)
         self.ref_kf = kf
@@ -198,13 +198,17 @@ class Tracking:
         self.state = TrackingState.OK
         return True
 
-    def _new_point_from_keyframe(self, kf: KeyFrame, cur: FrameState, i: int, pos: NDArray[np.float64]) -> MapPoint:
-        p = self.map.new_point(pos, kf.keypoints.descriptors[i].copy(), kf)
-        p.add_observation(kf, i)
-        kf.points[i] = p
-        cur.points[i] = p
-        p.update_normal_and_depth(self.pyr.scales)
-        return p
+    def _new_points_from_keyframe(self, kf: KeyFrame, cur: FrameState, idx: NDArray[np.intp],
+                                  pos: NDArray[np.float64]) -> None:
+        """Map points for keypoints ``idx`` of a new keyframe at world positions ``pos``."""
+        made = []
+        for i, pw in zip(idx.tolist(), pos):
+            p = self.map.new_point(pw, kf.keypoints.descriptors[i], kf)
+            p.add_observation(kf, i)
+            kf.points[i] = p
+            cur.points[i] = p
+            made.append(p)
+        update_normals_and_depths(made, self.pyr.scales)
 
     def _make_keyframe(self, cur: FrameState) -> KeyFrame:
         assert cur.T_cw is not None
@@ -433,21 +437,16 @@ class Tracking:
         kf = self._make_keyframe(cur)
         idx = np.nonzero(cur.depth > 0)[0]
         idx = idx[np.argsort(cur.depth[idx], kind="stable")]
-        n_points = 0
-        new_idx = []
-        for i in idx:
-            p = cur.points[i]
-            if p is None or p.bad or len(p.observations) == 0:
-                new_idx.append(i)
-            n_points += 1
-            if cur.depth[i] > self.th_depth_m and n_points > 100:
-                break
-        if new_idx:
+        # Closest first; stop after the first far keypoint once 100 were considered (ORB-SLAM2).
+        far = np.flatnonzero((cur.depth[idx] > self.th_depth_m) & (np.arange(len(idx)) >= 100))
+        if len(far):
+            idx = idx[:far[0] + 1]
+        new_idx = idx[cur.free_mask(self.map.store)[idx]]
+        if len(new_idx):
             arr = np.asarray(new_idx, np.intp)
-            pos = cur.world_points(arr, self.camera)
-            for i, pw in zip(arr, pos):
+            for i in arr.tolist():
                 kf.points[i] = None
-                self._new_point_from_keyframe(kf, cur, int(i), pw)
+            self._new_points_from_keyframe(kf, cur, arr, cur.world_points(arr, self.camera))
         self.map.add_keyframe(kf)
         self.ref_kf = kf
         cur.ref_kf = kf
