@@ -30,6 +30,7 @@ from semslam.features.orb.pyramid import (
     EDGE_THRESHOLD,
     HALF_PATCH_SIZE,
     PATCH_SIZE,
+    MaskSampler,
     StackedPyramid,
     build_pyramid,
     features_per_level,
@@ -37,6 +38,8 @@ from semslam.features.orb.pyramid import (
     inv_scale_factors,
     level0_xy,
     level_mask,
+    level_mask_indices,
+    level_mask_samplers,
     level_masks,
     level_sigma2,
     level_sizes,
@@ -51,10 +54,11 @@ from semslam.features.orb.quadtree import (
 
 __all__ = [
     "BIT_PATTERN_31", "BORDER", "CELL_SIZE", "EDGE_THRESHOLD", "EMPTY_DETECTION", "HALF_PATCH_SIZE",
-    "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
+    "MaskSampler", "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
     "build_pyramid", "cell_grid", "detect_level", "detect_level_reference", "detect_levels",
     "detection_levels", "detection_region", "distribute_quadtree", "distribute_quadtree_leaves",
     "distribute_quadtree_levels", "fast_points", "features_per_level", "ic_angles",
-    "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_masks",
+    "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_mask_indices",
+    "level_mask_samplers", "level_masks",
     "level_sigma2", "level_sizes", "orb_descriptors", "region_sizes", "scale_factors", "umax",
 ]

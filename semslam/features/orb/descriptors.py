@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.features.orb.pyramid import HALF_PATCH_SIZE, StackedPyramid
+from semslam.features.orb.scratch import Scratch
 
 __all__ = ["BIT_PATTERN_31", "PATCH", "Scratch", "SteeredBrief", "ic_angles", "orb_descriptors",
            "umax"]
@@ -137,22 +138,6 @@ def _rint_i32(v: NDArray[np.float32]) -> NDArray[np.int32]:
     out = v.view(np.int32)
     out -= _ROUND_BITS
     return out
-
-
-class Scratch:
-    """Work buffers reused from call to call (grown as needed). Why: on this machine a
-    fresh multi-MB numpy array costs more in page faults than the arithmetic on it."""
-
-    def __init__(self) -> None:
-        self._bufs: dict[str, NDArray] = {}
-
-    def get(self, name: str, shape: tuple[int, ...], dtype: type) -> NDArray:
-        size = int(np.prod(shape))
-        buf = self._bufs.get(name)
-        if buf is None or buf.size < size or buf.dtype != dtype:
-            buf = np.empty(max(size, 2 * buf.size if buf is not None else size), dtype)
-            self._bufs[name] = buf
-        return buf[:size].reshape(shape)
 
 
 _IC_CHUNK = 128  # keypoints per window copy (keeps the temporaries small and in cache)
