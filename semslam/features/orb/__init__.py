@@ -24,6 +24,7 @@ from semslam.features.orb.detection import (
     detection_levels,
     detection_region,
     fast_points,
+    fast_points_cv2,
     region_sizes,
 )
 from semslam.features.orb.pyramid import (
@@ -57,7 +58,7 @@ __all__ = [
     "MaskSampler", "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
     "build_pyramid", "cell_grid", "detect_level", "detect_level_reference", "detect_levels",
     "detection_levels", "detection_region", "distribute_quadtree", "distribute_quadtree_leaves",
-    "distribute_quadtree_levels", "fast_points", "features_per_level", "ic_angles",
+    "distribute_quadtree_levels", "fast_points", "fast_points_cv2", "features_per_level", "ic_angles",
     "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_mask_indices",
     "level_mask_samplers", "level_masks",
     "level_sigma2", "level_sizes", "orb_descriptors", "region_sizes", "scale_factors", "umax",
