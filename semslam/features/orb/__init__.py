@@ -9,7 +9,9 @@ from semslam.features.orb.descriptors import (
     Scratch,
     SteeredBrief,
     ic_angles,
+    ic_angles_numpy,
     orb_descriptors,
+    orb_descriptors_numpy,
     umax,
 )
 from semslam.features.orb.detection import (
@@ -58,8 +60,8 @@ __all__ = [
     "MaskSampler", "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
     "build_pyramid", "cell_grid", "detect_level", "detect_level_reference", "detect_levels",
     "detection_levels", "detection_region", "distribute_quadtree", "distribute_quadtree_leaves",
-    "distribute_quadtree_levels", "fast_points", "fast_points_cv2", "features_per_level", "ic_angles",
+    "distribute_quadtree_levels", "fast_points", "fast_points_cv2", "features_per_level", "ic_angles", "ic_angles_numpy",
     "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_mask_indices",
     "level_mask_samplers", "level_masks",
-    "level_sigma2", "level_sizes", "orb_descriptors", "region_sizes", "scale_factors", "umax",
+    "level_sigma2", "level_sizes", "orb_descriptors", "orb_descriptors_numpy", "region_sizes", "scale_factors", "umax",
 ]
