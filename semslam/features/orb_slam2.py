@@ -64,6 +64,7 @@ from semslam.features.orb import (
     level_sigma2,
     region_sizes,
     scale_factors,
+    warm_up,
 )
 
 __all__ = ["OrbSlamExtractor", "create_extractor"]
@@ -98,6 +99,7 @@ class OrbSlamExtractor:
         self.level_sigma2 = level_sigma2(self.n_levels, self.scale_factor)
         self.inv_level_sigma2 = inv_level_sigma2(self.n_levels, self.scale_factor)
         self.features_per_level = features_per_level(self.n_features, self.n_levels, self.scale_factor)
+        warm_up()  # compile the kernels now, not in the first frame
         # Reused from frame to frame (an extractor is not meant to be shared by threads).
         self._scratch = Scratch()
         self._brief = SteeredBrief()

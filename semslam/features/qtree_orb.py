@@ -87,6 +87,7 @@ from semslam.features.orb import (
     level_mask_samplers,
     region_sizes,
     scale_factors,
+    warm_up,
 )
 
 __all__ = [
@@ -371,6 +372,7 @@ class QtreeOrbExtractor:
         self.levels_from_image_size = bool(levels_from_image_size)
         self.budget = budget
         self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
+        warm_up()  # compile the kernels now, not in the first frame
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
         self.last_quality: NDArray[np.bool_] = np.zeros(0, bool)

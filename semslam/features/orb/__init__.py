@@ -29,6 +29,7 @@ from semslam.features.orb.detection import (
     fast_points_cv2,
     region_sizes,
 )
+from semslam.features.orb.jit import warm_up
 from semslam.features.orb.pyramid import (
     EDGE_THRESHOLD,
     HALF_PATCH_SIZE,
@@ -64,4 +65,5 @@ __all__ = [
     "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_mask_indices",
     "level_mask_samplers", "level_masks",
     "level_sigma2", "level_sizes", "orb_descriptors", "orb_descriptors_numpy", "region_sizes", "scale_factors", "umax",
+    "warm_up",
 ]
