@@ -23,9 +23,10 @@ The paper's equations and how ``s`` relates to ORB-SLAM's ``scale_factor``:
   levels), i.e. budgets per unit *length*; ``budget="orb_slam"`` selects that.
 
 Choices where the paper is vague (all commented where they are made):
-- Algorithm 2 regions are ORB-SLAM's ~30 px FAST cells; as in our ORB-SLAM port FAST
-  runs once per level on the whole detection region and points are assigned to the
-  cells (non-max suppression can see across cell boundaries). The low-threshold pass is
+- Algorithm 2 regions are ORB-SLAM's ~30 px FAST cells; FAST (the compiled OpenCV FAST
+  of ``orb.fast_points``) runs once per level on the whole detection region and points
+  are assigned to the cells (so, unlike ORB-SLAM's per-cell FAST, non-max suppression
+  can see across cell boundaries; the paper does not say). The low-threshold pass is
   one FAST call at ``T_L`` on the region; its points with score >= ``T_H`` are exactly
   the high pass's points (OpenCV's FAST score does not depend on the threshold and a
   pixel is a corner at ``t`` iff its score >= ``t``; checked in the tests), the others
@@ -63,7 +64,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -72,6 +72,7 @@ from semslam.core.types import FeatureSpec, Keypoints, orb_spec
 from semslam.features.inputs import check_extractor_inputs
 from semslam.features.orb import (
     BORDER,
+    MaskSampler,
     Scratch,
     SplitRule,
     SteeredBrief,
@@ -83,9 +84,10 @@ from semslam.features.orb import (
     fast_points,
     features_per_level,
     level0_xy,
-    level_masks,
+    level_mask_samplers,
     region_sizes,
     scale_factors,
+    warm_up,
 )
 
 __all__ = [
@@ -192,13 +194,15 @@ class Detection:
 
 
 def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.integer],
-                          fast_hi: cv2.FastFeatureDetector, fast_lo: cv2.FastFeatureDetector,
-                          masks: list[NDArray[np.uint8] | None] | None = None) -> Detection:
-    """Algorithm 2 on every level: ``P^H`` = FAST at ``T_H`` (``fast_hi``) on all cells;
-    if ``|P^H| < N_i``, insert the cells' low points (FAST at ``T_L``, score < ``T_H``)
-    cell by cell in raster order until ``|P^H| + |P^L| >= N_i``. Levels must all have a
-    detection region. See the module doc for the choices."""
-    t_high = np.float32(fast_hi.getThreshold())
+                          fast_threshold: int, fast_min_threshold: int,
+                          masks: list[MaskSampler] | None = None, scratch: Scratch | None = None) -> Detection:
+    """Algorithm 2 on every level: ``P^H`` = FAST at ``T_H`` (``fast_threshold``) on all
+    cells; if ``|P^H| < N_i``, insert the cells' low points (FAST at ``T_L``, score <
+    ``T_H``) cell by cell in raster order until ``|P^H| + |P^L| >= N_i``. Levels must all
+    have a detection region; ``masks``: one per level (``level_mask_samplers``). See the
+    module doc for the choices."""
+    scratch = scratch or Scratch()
+    t_high = np.float32(fast_threshold)
     xs, ys, ss, hs, cells = [], [], [], [], []
     n_high = np.zeros(len(images), np.int64)
     n_low = np.zeros(len(images), np.int64)
@@ -209,10 +213,9 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
         assert region is not None, "levels without a detection region must be left out"
         width, height = region
         crop = image[BORDER:BORDER + height, BORDER:BORDER + width]
-        mask = None if masks is None else masks[level]
-        cmask = None if mask is None else mask[BORDER:BORDER + height, BORDER:BORDER + width]
+        cmask = None if masks is None else masks[level].crop(BORDER, BORDER, width, height)
         grid = cell_grid(width, height)
-        x, y, s = fast_points(fast_hi, crop, cmask)
+        x, y, s = fast_points(crop, fast_threshold, cmask, scratch)
         n_high[level] = len(x)
         xs.append(x)
         ys.append(y)
@@ -221,7 +224,7 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
         cells.append(grid.cell_of(x, y) + cell_base)
         deficit = int(n_wanted[level]) - len(x)
         if deficit > 0:
-            lx, ly, ls = fast_points(fast_lo, crop, cmask)
+            lx, ly, ls = fast_points(crop, fast_min_threshold, cmask, scratch)
             low = ls < t_high  # the others are exactly P^H again
             lx, ly, ls = lx[low], ly[low], ls[low]
             lcell = grid.cell_of(lx, ly)
@@ -369,9 +372,7 @@ class QtreeOrbExtractor:
         self.levels_from_image_size = bool(levels_from_image_size)
         self.budget = budget
         self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
-        self._fast_hi = cv2.FastFeatureDetector_create(self.fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
-        self._fast_lo = cv2.FastFeatureDetector_create(self.fast_min_threshold, True,
-                                                       cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        warm_up()  # compile the kernels now, not in the first frame
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
         self.last_quality: NDArray[np.bool_] = np.zeros(0, bool)
@@ -428,8 +429,9 @@ class QtreeOrbExtractor:
             return self._reset()
         n_used = len(images)
         wanted = wanted_all[:n_used]
-        masks = level_masks(mask, images, scales)
-        det = detect_two_thresholds(images, wanted, self._fast_hi, self._fast_lo, masks)
+        masks = level_mask_samplers(mask, images, scales)
+        det = detect_two_thresholds(images, wanted, self.fast_threshold, self.fast_min_threshold, masks,
+                                    self._brief.scratch)
         clock.append(time.perf_counter())
         # Harris on the level images in the stacked buffer (the points are >= 19 px inside
         # their level, so the 9x9 windows never reach the padding or another level).
