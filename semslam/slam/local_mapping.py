@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -80,26 +82,42 @@ class LocalMapping(KeyframeWorker):
         self.fusion = fusion
         self.next_stage = next_stage
         self.recent_points: list[MapPoint] = []
-        self.stats = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0}
+        self.stats: dict[str, Any] = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0,
+                      "local_ba_split": [], "steps": {}}
 
     # ---------------------------------------------------------------- one keyframe
     def process(self, kf: KeyFrame) -> None:
         with self.map.lock:
             if kf.bad:
                 return
-            self._process_new_keyframe(kf)
-            self._cull_points(kf)
+            with self._step("new_keyframe"):
+                self._process_new_keyframe(kf)
+            with self._step("cull_points"):
+                self._cull_points(kf)
             if self.cfg.triangulation:
-                self._create_new_points(kf)
+                with self._step("triangulate"):
+                    self._create_new_points(kf)
         if not self.inbox.has_pending():
-            with self.map.lock:
+            with self.map.lock, self._step("fuse"):
                 self._search_in_neighbours(kf)
             if self.cfg.local_ba and len(self.map.keyframes) > 2:
-                self._local_bundle_adjustment(kf)
+                with self._step("local_ba"):
+                    self._local_bundle_adjustment(kf)
             if self.cfg.keyframe_culling:
-                with self.map.lock:
+                with self.map.lock, self._step("cull_keyframes"):
                     self._cull_keyframes(kf)
         self.next_stage.insert(kf)
+
+    @contextmanager
+    def _step(self, name: str) -> Iterator[None]:
+        """Wall and CPU (this thread) milliseconds of one step, in ``stats["steps"]``."""
+        w0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            yield
+        finally:
+            rec = self.stats["steps"].setdefault(name, {"wall_ms": [], "cpu_ms": []})
+            rec["wall_ms"].append((time.perf_counter() - w0) * 1e3)
+            rec["cpu_ms"].append((time.thread_time() - c0) * 1e3)
 
     def _process_new_keyframe(self, kf: KeyFrame) -> None:
         if kf.bow is None:
@@ -276,7 +294,9 @@ class LocalMapping(KeyframeWorker):
                 return
             problem, obs_ref = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)
             gen = self.map.generation
+        t1 = time.perf_counter()
         result: BAResult = self.ba.run(problem)
+        t2 = time.perf_counter()
         if not result.converged:
             self.stats["local_ba_failed"] += 1
         with self.map.lock:
@@ -295,8 +315,24 @@ class LocalMapping(KeyframeWorker):
                 if not p.bad:
                     p.pos = pos
             update_normals_and_depths([p for p in points if not p.bad], self.pyr.scales)
+        t3 = time.perf_counter()
         self.stats["local_ba"] += int(result.converged)
-        self.stats["local_ba_ms"].append((time.perf_counter() - t0) * 1e3)
+        self.stats["local_ba_ms"].append((t3 - t0) * 1e3)
+        self._record_ba_split(problem, result, t0, t1, t2, t3)
+
+    def _record_ba_split(self, problem: BAProblem, result: BAResult, t0: float, t1: float,
+                         t2: float, t3: float) -> None:
+        """Where one local BA's time went (ms), for ``benchmarks/backend_timing.py``: gathering
+        the problem from the map, the solver's own phases, the hand-over to and from the
+        runner (IPC to the worker process: the runner's wall time minus the solver's) and
+        applying the result to the map."""
+        solve = (t2 - t1) * 1e3
+        self.stats["local_ba_split"].append({
+            "gather": (t1 - t0) * 1e3, "ipc": max(solve - result.time_ms, 0.0), "solve": solve,
+            **{k: v for k, v in result.timings.items()}, "apply": (t3 - t2) * 1e3,
+            "total": (t3 - t0) * 1e3, "keyframes": int(problem.poses_cw.shape[0]),
+            "free": int((~np.asarray(problem.pose_fixed)).sum()),
+            "points": int(problem.points_w.shape[0]), "observations": int(problem.obs_pose.size)})
 
     # ---------------------------------------------------------------- keyframe culling
     def _cull_keyframes(self, kf: KeyFrame) -> None:
