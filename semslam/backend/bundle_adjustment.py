@@ -45,7 +45,7 @@ from semslam.backend.gtsam_utils import (
     poses_from_rows,
     stereo_calibration,
 )
-from semslam.backend.schur_ba import levenberg_marquardt
+from semslam.backend.schur_ba import levenberg_marquardt, reprojection_chi2
 from semslam.geometry.se3 import invert
 
 Array = NDArray[np.float64]
@@ -110,22 +110,14 @@ def reprojection_errors(problem: BAProblem, poses_cw: Array, points_w: Array) ->
     virtual right coordinate ``ur = u - bf / z``.
     """
     problem = _normalized(problem)
-    poses_cw = np.asarray(poses_cw, dtype=np.float64)
-    points_w = np.asarray(points_w, dtype=np.float64)
-    R = poses_cw[problem.obs_pose, :3, :3]
-    t = poses_cw[problem.obs_pose, :3, 3]
-    pc = np.einsum("mij,mj->mi", R, points_w[problem.obs_point]) + t
-    z = pc[:, 2]
-    front = z > 1e-6
-    iz = 1.0 / np.where(front, z, 1.0)
-    u = problem.fx * pc[:, 0] * iz + problem.cx
-    v = problem.fy * pc[:, 1] * iz + problem.cy
-    du = problem.uv[:, 0] - u
-    dv = problem.uv[:, 1] - v
-    dr = np.where(problem.ur >= 0, problem.ur - (u - problem.bf * iz), 0.0)
-    chi2 = (du * du + dv * dv + dr * dr) * problem.inv_sigma2
-    chi2[~front] = np.inf
-    return chi2
+    poses_cw = np.asarray(poses_cw, dtype=np.float64).reshape(-1, 4, 4)
+    return reprojection_chi2(np.ascontiguousarray(poses_cw[:, :3, :3]),
+                             np.ascontiguousarray(poses_cw[:, :3, 3]),
+                             np.ascontiguousarray(points_w, dtype=np.float64).reshape(-1, 3),
+                             problem.obs_pose, problem.obs_point,
+                             np.ascontiguousarray(problem.uv), np.ascontiguousarray(problem.ur),
+                             np.ascontiguousarray(problem.inv_sigma2), problem.fx, problem.fy,
+                             problem.cx, problem.cy, problem.bf)
 
 
 def _normalized(p: BAProblem) -> BAProblem:
@@ -335,7 +327,7 @@ SOLVERS = ("schur", "gtsam")
 
 
 def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), robust: bool = True,
-                  remove_outliers: bool = True, solver: str = "gtsam") -> BAResult:
+                  remove_outliers: bool = True, solver: str = "schur") -> BAResult:
     """ORB-SLAM2 (local) bundle adjustment: robust LM, outlier removal, plain LM.
 
     Stage 1 runs ``iterations[0]`` LM iterations (Huber if ``robust``).  With
@@ -382,3 +374,20 @@ def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), rob
     clock.lap("check")
     return BAResult(poses, points, inlier, initial, final, (time.perf_counter() - t0) * 1e3,
                     timings=dict(clock.ms), converged=ok)
+
+
+def warm_up() -> None:
+    """Load the compiled Schur solver (numba's on-disk cache; compiled on the very first use
+    on a machine) and GTSAM with a two-keyframe problem, so a SLAM run's first bundle
+    adjustment does not pay for it."""
+    poses = np.stack([np.eye(4), np.eye(4)])
+    poses[1, 0, 3] = -0.1
+    pts = np.array([[0.0, 0.0, 2.0], [0.3, -0.2, 2.5], [-0.4, 0.1, 3.0]])
+    pc = pts[None] + poses[:, None, :3, 3]
+    pc = pc.reshape(-1, 3)
+    uv = np.c_[500.0 * pc[:, 0] / pc[:, 2] + 320.0, 500.0 * pc[:, 1] / pc[:, 2] + 240.0]
+    ur = uv[:, 0] - 40.0 / pc[:, 2]
+    problem = BAProblem(poses, np.array([True, False]), pts, np.repeat([0, 1], 3),
+                        np.tile([0, 1, 2], 2), uv, ur, np.ones(6),
+                        500.0, 500.0, 320.0, 240.0, 40.0)
+    bundle_adjust(problem)

@@ -46,7 +46,7 @@ REL_TOL = 1e-5
 ABS_TOL = 1e-5
 
 
-@numba.njit(cache=True, nogil=True, fastmath=False)
+@numba.njit(cache=True, nogil=True)
 def _residual(R: Array, t: Array, X: Array, u: float, v: float, r: float, fx: float, fy: float,
               cx: float, cy: float, bf: float, out: Array, pc: Array) -> bool:
     """Residual ``z - h`` of one observation into ``out`` (3 entries, the third 0 for mono),
@@ -285,12 +285,27 @@ def _solve_damped(lam: float, Hpp: Array, bp: Array, Hll: Array, bl: Array, Hpl:
                 if fb < 0:
                     continue
                 Pb = Hpl[mb]
-                for a in range(6):
+                if fa <= fb:  # accumulate the upper block triangle only
+                    for a in range(6):
+                        ra = 6 * fa + a
+                        for b in range(6):
+                            S[ra, 6 * fb + b] -= W[a, 0] * Pb[b, 0] + W[a, 1] * Pb[b, 1] + W[a, 2] * Pb[b, 2]
+                else:
                     for b in range(6):
-                        s = W[a, 0] * Pb[b, 0] + W[a, 1] * Pb[b, 1] + W[a, 2] * Pb[b, 2]
-                        S[6 * fa + a, 6 * fb + b] -= s
-                        if fb != fa:
-                            S[6 * fb + b, 6 * fa + a] -= s
+                        rb = 6 * fb + b
+                        for a in range(6):
+                            S[rb, 6 * fa + a] -= W[a, 0] * Pb[b, 0] + W[a, 1] * Pb[b, 1] + W[a, 2] * Pb[b, 2]
+    for f in range(n_f):  # the diagonal blocks were filled in full from Hpp: mirror the rest
+        for g2 in range(f + 1, n_f):
+            for a in range(6):
+                for b in range(6):
+                    S[6 * g2 + b, 6 * f + a] = S[6 * f + a, 6 * g2 + b]
+    for f in range(n_f):  # diagonal blocks: both triangles were updated, symmetrise
+        for a in range(6):
+            for b in range(a):
+                v = 0.5 * (S[6 * f + a, 6 * f + b] + S[6 * f + b, 6 * f + a])
+                S[6 * f + a, 6 * f + b] = v
+                S[6 * f + b, 6 * f + a] = v
     x = np.zeros(6 * n_f)
     if n_f > 0 and not _cholesky_solve(S, g, x):
         return False
@@ -437,3 +452,29 @@ def levenberg_marquardt(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp],
         if stop:
             break
     return Rs, ts, X, it, solved or n_f + n_p == 0, cost0, cost
+
+
+@numba.njit(cache=True, nogil=True)
+def reprojection_chi2(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp],
+                      opoint: NDArray[np.intp], uv: Array, ur: Array, is2: Array, fx: float,
+                      fy: float, cx: float, cy: float, bf: float) -> Array:
+    """(M,) ``inv_sigma2 * |z - h|^2`` of every observation, inf where the depth is <= 1e-6."""
+    m = opose.shape[0]
+    out = np.empty(m)
+    for k in range(m):
+        R = Rs[opose[k]]
+        t = ts[opose[k]]
+        P = X[opoint[k]]
+        x = R[0, 0] * P[0] + R[0, 1] * P[1] + R[0, 2] * P[2] + t[0]
+        y = R[1, 0] * P[0] + R[1, 1] * P[1] + R[1, 2] * P[2] + t[1]
+        z = R[2, 0] * P[0] + R[2, 1] * P[1] + R[2, 2] * P[2] + t[2]
+        if not z > 1e-6:
+            out[k] = np.inf
+            continue
+        iz = 1.0 / z
+        u = fx * x * iz + cx
+        du = uv[k, 0] - u
+        dv = uv[k, 1] - (fy * y * iz + cy)
+        dr = ur[k] - (u - bf * iz) if ur[k] >= 0.0 else 0.0
+        out[k] = (du * du + dv * dv + dr * dr) * is2[k]
+    return out

@@ -12,12 +12,11 @@ import multiprocessing as mp
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust
+from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
 
 
 def _warm() -> bool:
-    import gtsam  # noqa: F401  (import once so the first BA does not pay for it)
-
+    warm_up()  # load the compiled solver (and GTSAM) once, so the first BA does not pay for it
     return True
 
 
