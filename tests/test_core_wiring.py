@@ -177,9 +177,17 @@ def test_failed_ba_is_counted_not_reported_as_run(monkeypatch: pytest.MonkeyPatc
             raise RuntimeError("Indeterminant linear system")
 
     monkeypatch.setattr(gtsam, "LevenbergMarquardtOptimizer", Failing)
-    result = ba.bundle_adjust(problem)
+    result = ba.bundle_adjust(problem, solver="gtsam")
     assert not result.converged
     np.testing.assert_array_equal(result.poses_cw, poses)  # estimate left unchanged
+
+    def no_step(R, t, X, *args):  # the Schur solver found no positive definite damped system
+        return R, t, X, 1, False, 0.0, 0.0
+
+    monkeypatch.setattr(ba, "levenberg_marquardt", no_step)
+    result = ba.bundle_adjust(problem, solver="schur")
+    assert not result.converged
+    np.testing.assert_array_equal(result.poses_cw, poses)
 
 
 # ---------------------------------------------------------------- trajectories and maps
