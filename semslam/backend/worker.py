@@ -1,9 +1,11 @@
-"""Run bundle adjustments in a separate process.
+"""Run bundle adjustments and pose graphs in a separate process.
 
-GTSAM's Python bindings hold the GIL while they optimise, so a BA in a thread stalls
-tracking for its whole duration (measured: other Python work ran 5x slower). A BA problem
-is a handful of numpy arrays, cheap to send to a worker process, which lets tracking and
-optimisation use both cores as ORB-SLAM's threads do.
+GTSAM's Python bindings hold the GIL while they optimise, so a GTSAM solve in a thread stalls
+tracking for its whole duration (measured: other Python work ran 5x slower); the essential
+graph (GTSAM) and the BAs run here for that reason.  A problem is a handful of numpy arrays,
+cheap to send to a worker process, which lets tracking and optimisation use both cores as
+ORB-SLAM's threads do.  (The default BA solver, numba's, releases the GIL; it runs here too,
+so that both solvers behave alike; ``benchmarks/backend_timing.py slam`` reports the IPC.)
 """
 
 from __future__ import annotations
@@ -12,12 +14,15 @@ import multiprocessing as mp
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
+from semslam.backend.pose_graph import optimize_pose_graph
 
 
 def _warm() -> bool:
-    import gtsam  # noqa: F401  (import once so the first BA does not pay for it)
-
+    warm_up()  # load the compiled solver (and GTSAM) once, so the first BA does not pay for it
     return True
 
 
@@ -41,6 +46,12 @@ class BundleAdjustmentRunner:
         if self._pool is None:
             return bundle_adjust(problem, **kwargs)
         return self._pool.submit(bundle_adjust, problem, **kwargs).result()
+
+    def run_pose_graph(self, *args: Any, **kwargs: Any) -> NDArray[np.float64]:
+        """``pose_graph.optimize_pose_graph`` in the worker (raises its ``PoseGraphFailed``)."""
+        if self._pool is None:
+            return optimize_pose_graph(*args, **kwargs)
+        return self._pool.submit(optimize_pose_graph, *args, **kwargs).result()
 
     def close(self) -> None:
         if self._pool is not None:

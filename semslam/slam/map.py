@@ -169,59 +169,51 @@ class MapPoint:
 
     def compute_distinctive_descriptor(self, matcher: Matcher) -> None:
         """The observation descriptor with the least median distance to the others
-        (distances by the matcher of the map's descriptor kind)."""
-        descs = [kf.keypoints.descriptors[i] for kf, i in self.observations.items() if not kf.bad]
-        if len(descs) < 2:
-            if descs:
-                self.descriptor = descs[0]
-            return
-        d = np.stack(descs)
-        n = len(d)
-        ii, jj = np.triu_indices(n, 1)
-        pair = matcher.distances(d[ii], d[jj])
-        dist = np.zeros((n, n), pair.dtype)
-        dist[ii, jj] = dist[jj, ii] = pair
-        self.descriptor = d[int(np.argmin(np.median(dist, axis=1)))].copy()
+        (distances by the matcher of the map's descriptor kind); many points at once:
+        ``slam.map_batch.compute_distinctive_descriptors``, which this calls."""
+        from semslam.slam.map_batch import compute_distinctive_descriptors
+
+        compute_distinctive_descriptors([self], matcher)
 
 
 def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> None:
     """Mean viewing direction of each point and the distance range it can be matched at
-    (ORB-SLAM UpdateNormalAndDepth), for many points at once."""
-    rows: list[int] = []
-    centers: list[Array] = []
+    (ORB-SLAM UpdateNormalAndDepth), for many points at once: one pass over the observations
+    in Python, the rest in numpy.  Bad points and points without observations are skipped;
+    the depth range needs the reference keyframe among the observations."""
+    live = [p for p in points if not p.bad and p.observations]
+    if not live:
+        return
+    kf_row: dict[KeyFrame, int] = {}
+    rows = [kf_row.setdefault(kf, len(kf_row)) for p in live for kf in p.observations]
+    counts = np.fromiter((len(p.observations) for p in live), np.intp, len(live))
+    centers = np.array([kf.center for kf in kf_row])
+    pos = np.array([p.pos for p in live])
+    d = np.repeat(pos, counts, axis=0) - centers[rows]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    starts = np.zeros(len(live), np.intp)
+    np.cumsum(counts[:-1], out=starts[1:])
+    normals = np.add.reduceat(d, starts, axis=0)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
     ref_rows: list[int] = []
-    ref_centers: list[Array] = []
+    ref_kfs: list[int] = []
     ref_levels: list[int] = []
-    for j, p in enumerate(points):
-        if p.bad or not p.observations:
-            continue
-        for kf in p.observations:
-            rows.append(j)
-            centers.append(kf.center)
+    for j, p in enumerate(live):
+        p.normal = normals[j]
         idx = p.observations.get(p.ref_kf)
         if idx is not None:
             ref_rows.append(j)
-            ref_centers.append(p.ref_kf.center)
+            ref_kfs.append(kf_row[p.ref_kf])
             ref_levels.append(int(p.ref_kf.keypoints.octave[idx]))
-    if not rows:
-        return
-    pos = np.array([p.pos for p in points])
-    r = np.asarray(rows)
-    d = pos[r] - np.asarray(centers)
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
-    normals = np.zeros_like(pos)
-    np.add.at(normals, r, d)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
-    for j in set(rows):
-        points[j].normal = normals[j]
     if ref_rows:
-        rr = np.asarray(ref_rows)
-        dist = np.linalg.norm(pos[rr] - np.asarray(ref_centers), axis=1)
-        max_d = dist * scale_factors[np.asarray(ref_levels)]
+        rr = np.asarray(ref_rows, np.intp)
+        dist = np.linalg.norm(pos[rr] - centers[ref_kfs], axis=1)
+        max_d = dist * scale_factors[np.asarray(ref_levels, np.intp)]
         min_d = max_d / scale_factors[-1]
-        for j, mx, mn in zip(rr, max_d, min_d):
-            points[j].max_dist = float(mx)
-            points[j].min_dist = float(mn)
+        for j, mx, mn in zip(ref_rows, max_d.tolist(), min_d.tolist()):
+            p = live[j]
+            p.max_dist = mx
+            p.min_dist = mn
 
 
 class PointSlots(list):  # type: ignore[type-arg]
