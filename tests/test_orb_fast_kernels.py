@@ -134,7 +134,7 @@ def test_vectorised_score_equals_literal_port(test_frames: dict[str, np.ndarray]
         pix = fk._circle_offsets(w)
         for t in (0, 7, 20):
             fk._flag_rows(work, w, 3, h - 3, t, flags)
-            n = fk._scan_flags(flags, w, h, positions)
+            n = fk._scan(flags, w, 3, h - 3, positions)
             got = np.empty(n, np.int16)
             fk.score_corners(work, w, positions, n, t, got)
             ref = np.array([fk._corner_score(work, p, pix, t, d) for p in positions[:n]], np.int16)

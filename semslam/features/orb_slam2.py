@@ -39,8 +39,6 @@ the extractor that puts them together and its registry factory.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -66,6 +64,7 @@ from semslam.features.orb import (
     scale_factors,
     warm_up,
 )
+from semslam.features.orb.timing import StageClock
 
 __all__ = ["OrbSlamExtractor", "create_extractor"]
 
@@ -104,18 +103,19 @@ class OrbSlamExtractor:
         self._scratch = Scratch()
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
-        # Wall time of each stage of the last extract() (ms), for profiling.
+        # Wall and thread-CPU time of each stage of the last extract() (ms), for profiling.
         self.last_stage_ms: dict[str, float] = {}
+        self.last_stage_cpu_ms: dict[str, float] = {}
 
     def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
         gray, mask = check_extractor_inputs(gray, mask)
         if gray.size == 0 or self.n_features == 0:
             return Keypoints.empty()
 
-        clock = [time.perf_counter()]
+        clock = StageClock()
         pyr = build_pyramid(gray, self.n_levels, self.scale_factor, pad=3, buffer=self._pyramid_buffer)
         self._pyramid_buffer = pyr.buffer
-        clock.append(time.perf_counter())
+        clock.lap()
         images = detection_levels(pyr.levels)
         n_used = len(images)
         if n_used == 0:
@@ -131,17 +131,17 @@ class OrbSlamExtractor:
             x, y, resp, level = detect_levels(images, self.fast_threshold, self.fast_min_threshold,
                                               level_mask_samplers(mask, images, self.scale_factors), self._scratch)
         widths, heights = region_sizes(images)
-        clock.append(time.perf_counter())
+        clock.lap()
         keep = distribute_quadtree_levels(x, y, resp, level, widths, heights, self.features_per_level[:n_used])
-        clock.append(time.perf_counter())
+        clock.lap()
         if len(keep) == 0:
             return Keypoints.empty()
         kx, ky, klv = x[keep] + BORDER, y[keep] + BORDER, level[keep]
         sx, sy = kx + pyr.pad, ky + pyr.rows[klv]
         angle, desc = self._brief.compute(pyr, sx, sy, clock)
         xy = level0_xy(kx, ky, klv, self.scale_factors)
-        clock.append(time.perf_counter())
-        self.last_stage_ms = dict(zip(_STAGES, (1e3 * np.diff(clock)).tolist()))
+        clock.lap()
+        self.last_stage_ms, self.last_stage_cpu_ms = clock.stage_ms(_STAGES)
         return Keypoints(xy=xy, octave=klv.astype(np.int32), response=resp[keep].astype(np.float32),
                          angle=angle.astype(np.float32), descriptors=desc)
 

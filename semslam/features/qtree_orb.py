@@ -60,7 +60,6 @@ pyramid it really extracts with, and the SLAM core sizes its per-level tables fr
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -89,6 +88,7 @@ from semslam.features.orb import (
     scale_factors,
     warm_up,
 )
+from semslam.features.orb.timing import StageClock
 
 __all__ = [
     "Detection", "QtreeOrbCounts", "QtreeOrbExtractor", "detect_two_thresholds", "distribute_improved_quadtree",
@@ -347,7 +347,7 @@ class QtreeOrbExtractor:
 
     After each call: ``last_quality`` (bool per returned keypoint, True = high quality,
     i.e. FAST score >= ``T_H``), ``last_fast_score`` (float32 per keypoint),
-    ``last_counts`` (``QtreeOrbCounts``), ``last_stage_ms``.
+    ``last_counts`` (``QtreeOrbCounts``), ``last_stage_ms`` and ``last_stage_cpu_ms``.
 
     ``levels_from_image_size=False`` uses ``n_levels`` instead of eq. 2;
     ``budget="orb_slam"`` uses ORB-SLAM's per-level budgets instead of eq. 5.
@@ -379,6 +379,7 @@ class QtreeOrbExtractor:
         self.last_fast_score: NDArray[np.float32] = np.zeros(0, np.float32)
         self.last_counts = QtreeOrbCounts()
         self.last_stage_ms: dict[str, float] = {}
+        self.last_stage_cpu_ms: dict[str, float] = {}
 
     @property
     def spec(self) -> FeatureSpec:
@@ -417,13 +418,13 @@ class QtreeOrbExtractor:
         if gray.size == 0 or self.n_features == 0:
             return self._reset()
 
-        clock = [time.perf_counter()]
+        clock = StageClock()
         n_levels = self.levels_for(gray.shape[1], gray.shape[0])
         wanted_all = self.features_per_level(gray.shape[1], gray.shape[0])
         pyr = build_pyramid(gray, n_levels, self.scale_factor, pad=3, buffer=self._pyramid_buffer)
         self._pyramid_buffer = pyr.buffer
         scales = scale_factors(n_levels, self.scale_factor)
-        clock.append(time.perf_counter())
+        clock.lap()
         images = detection_levels(pyr.levels)
         if not images:
             return self._reset()
@@ -432,15 +433,15 @@ class QtreeOrbExtractor:
         masks = level_mask_samplers(mask, images, scales)
         det = detect_two_thresholds(images, wanted, self.fast_threshold, self.fast_min_threshold, masks,
                                     self._brief.scratch)
-        clock.append(time.perf_counter())
+        clock.lap()
         # Harris on the level images in the stacked buffer (the points are >= 19 px inside
         # their level, so the 9x9 windows never reach the padding or another level).
         sx_all, sy_all = det.x + BORDER + pyr.pad, det.y + BORDER + pyr.rows[det.level]
         harris = harris_responses(pyr.buffer, sx_all, sy_all, scratch=self._brief.scratch)
-        clock.append(time.perf_counter())
+        clock.lap()
         widths, heights = region_sizes(images)
         keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted)
-        clock.append(time.perf_counter())
+        clock.lap()
         klv = det.level[keep]
         quality = det.high[keep]
         kept_high = np.bincount(klv[quality], minlength=n_used)
@@ -454,8 +455,8 @@ class QtreeOrbExtractor:
         kx, ky = det.x[keep] + BORDER, det.y[keep] + BORDER
         angle, desc = self._brief.compute(pyr, sx_all[keep], sy_all[keep], clock)
         xy = level0_xy(kx, ky, klv, scales)
-        clock.append(time.perf_counter())
-        self.last_stage_ms = dict(zip(_STAGES, (1e3 * np.diff(clock)).tolist()))
+        clock.lap()
+        self.last_stage_ms, self.last_stage_cpu_ms = clock.stage_ms(_STAGES)
         self.last_quality = quality
         self.last_fast_score = det.score[keep].astype(np.float32)
         return Keypoints(xy=xy, octave=klv.astype(np.int32), response=harris[keep].astype(np.float32),

@@ -13,7 +13,6 @@ detection and distribution.
 from __future__ import annotations
 
 import math
-import time
 
 import cv2
 import numpy as np
@@ -22,6 +21,7 @@ from numpy.typing import NDArray
 from semslam.features.orb.brief_kernels import ic_moments, steered_brief
 from semslam.features.orb.pyramid import HALF_PATCH_SIZE, StackedPyramid
 from semslam.features.orb.scratch import Scratch
+from semslam.features.orb.timing import StageClock
 
 __all__ = ["BIT_PATTERN_31", "PATCH", "Scratch", "SteeredBrief", "ic_angles", "ic_angles_numpy",
            "orb_descriptors", "orb_descriptors_numpy",
@@ -283,19 +283,19 @@ class SteeredBrief:
         self._blur_buffer: NDArray[np.uint8] | None = None
 
     def compute(self, pyr: StackedPyramid, sx: NDArray[np.integer], sy: NDArray[np.integer],
-                clock: list[float] | None = None) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+                clock: StageClock | None = None) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
         """(angles in degrees, 32-byte descriptors) of keypoints at buffer pixels (sx, sy);
-        appends the time after the orientation and after the blur to ``clock``."""
+        laps ``clock`` after the orientation and after the blur."""
         # All levels live in one buffer: one gather for the orientations, one blur (pad 3
         # = the 7x7 kernel's radius, BORDER_REFLECT_101 like ORB-SLAM's per-level blur)
         # and one gather for the descriptors.
         angle = ic_angles(pyr.buffer, sx, sy, self.scratch)
         if clock is not None:
-            clock.append(time.perf_counter())
+            clock.lap()
         if self._blur_buffer is None or self._blur_buffer.shape != pyr.buffer.shape:
             self._blur_buffer = np.empty_like(pyr.buffer)
         blurred = cv2.GaussianBlur(pyr.buffer, (7, 7), 2, dst=self._blur_buffer, sigmaY=2,
                                    borderType=cv2.BORDER_REFLECT_101)
         if clock is not None:
-            clock.append(time.perf_counter())
+            clock.lap()
         return angle, orb_descriptors(blurred, sx, sy, angle, self.scratch)

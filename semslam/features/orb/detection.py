@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.features.orb.fast_kernels import detect_cells
+from semslam.features.orb.fast_kernels import detect_cells, detect_pyramid
 from semslam.features.orb.pyramid import EDGE_THRESHOLD, MaskSampler
 from semslam.features.orb.scratch import Scratch
 
@@ -80,7 +80,7 @@ def _fast_region(image: NDArray[np.uint8], x0: int, y0: int, width: int, height:
     return detect_cells(flat, y0 * stride + x0, stride, width, height, int(t_hi), int(t_lo), n_cols, n_rows,
                         w_cell, h_cell, m.mask, m.rows, m.cols, mask is not None,
                         scratch.get("fast_work", (size,), np.uint8), scratch.get("fast_flags", (size,), np.uint8),
-                        scratch.get("fast_positions", (size,), np.int64))
+                        scratch.get("fast_keep", (size,), np.uint8), scratch.get("fast_positions", (size,), np.int64))
 
 
 def fast_points(image: NDArray[np.uint8], threshold: int, mask: NDArray | MaskSampler | None = None,
@@ -155,22 +155,73 @@ def detect_levels(images: list[NDArray[np.uint8]], fast_threshold: int, fast_min
     ``fast_min_threshold`` if that found nothing; a corner's non-max suppression thus
     only sees neighbours inside its cell, and ``masks`` (FAST's mask, applied after the
     suppression) decide whether a cell counts as empty. Same keypoints, scores and order
-    as ``detect_level_reference`` (tests), in one compiled pass per level."""
-    scratch = scratch or Scratch()
-    xs, ys, rs, ls = [], [], [], []
-    for level, image in enumerate(images):
-        width, height = detection_region(image) or (0, 0)
-        grid = cell_grid(width, height)
-        mask = None if masks is None else masks[level].crop(BORDER, BORDER, width, height)
-        x, y, r, _ = _fast_region(image, BORDER, BORDER, width, height, fast_threshold, fast_min_threshold,
-                                  grid, mask, scratch)
-        xs.append(x)
-        ys.append(y)
-        rs.append(r)
-        ls.append(np.full(len(x), level, np.int64))
-    if not xs:
+    as ``detect_level_reference`` (tests), in one compiled call for all levels (levels
+    of one stacked pyramid are read in place)."""
+    for t in (fast_threshold, fast_min_threshold):
+        if not 0 <= t <= 255:
+            raise ValueError(f"FAST thresholds must be in [0, 255], got {t}")
+    if not images:
         return EMPTY_DETECTION + (np.zeros(0, np.int64),)
-    return np.concatenate(xs), np.concatenate(ys), np.concatenate(rs).astype(np.float32), np.concatenate(ls)
+    scratch = scratch or Scratch()
+    sizes = [detection_region(image) or (0, 0) for image in images]
+    grids = np.array([_grid_numbers(cell_grid(w, h)) for w, h in sizes], np.int64).reshape(-1, 4)
+    widths = np.array([w for w, _ in sizes], np.int64)
+    heights = np.array([h for _, h in sizes], np.int64)
+    src, stride, origins = _shared_buffer(images)
+    bases = origins + BORDER * stride + BORDER
+    mask, rows, cols, first = _stacked_maps(masks, sizes)
+    size = max(int(widths.max() * heights.max()), 1)
+    x, y, score, _, level = detect_pyramid(
+        src, bases, stride, widths, heights, grids, int(fast_threshold), int(fast_min_threshold), mask, rows, cols,
+        first, masks is not None, scratch.get("fast_work", (size,), np.uint8),
+        scratch.get("fast_flags", (size,), np.uint8), scratch.get("fast_keep", (size,), np.uint8),
+        scratch.get("fast_positions", (size,), np.int64))
+    return x, y, score.astype(np.float32), level
+
+
+def _grid_numbers(grid: CellGrid) -> tuple[int, int, int, int]:
+    return grid.n_cols, grid.n_rows, grid.w_cell, grid.h_cell
+
+
+def _shared_buffer(images: list[NDArray[np.uint8]]) -> tuple[NDArray[np.uint8], int, NDArray[np.int64]]:
+    """One flat uint8 array holding every image with one row stride, and the flat index
+    of each image's first pixel: the levels' common buffer if they are views of one
+    C-contiguous array with the same stride (the stacked pyramid), else a stacked copy."""
+    base = images[0].base
+    if (isinstance(base, np.ndarray) and base.ndim == 2 and base.dtype == np.uint8 and base.flags.c_contiguous
+            and base.flags.writeable and all(im.base is base and im.strides == (base.shape[1], 1) for im in images)):
+        start = base.__array_interface__["data"][0]
+        origins = [im.__array_interface__["data"][0] - start for im in images]
+        return base.reshape(-1), base.shape[1], np.array(origins, np.int64)
+    width = max(im.shape[1] for im in images)
+    rows = np.cumsum([0] + [im.shape[0] for im in images])
+    stacked = np.zeros((max(int(rows[-1]), 1), max(width, 1)), np.uint8)
+    for im, r in zip(images, rows):
+        stacked[r:r + im.shape[0], :im.shape[1]] = im
+    return stacked.reshape(-1), stacked.shape[1], rows[:-1].astype(np.int64) * stacked.shape[1]
+
+
+def _stacked_maps(masks: list[MaskSampler] | None, sizes: list[tuple[int, int]]
+                  ) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """The mask and the levels' regions' row / column maps, concatenated, with where each
+    level's maps start (one array each for the single compiled call). Samplers of
+    different masks are materialised into one stacked mask."""
+    first = np.zeros((len(sizes), 2), np.int64)
+    if masks is None:
+        return _NO_MASK.mask, _NO_MASK.rows, _NO_MASK.cols, first
+    crops = [m.crop(BORDER, BORDER, w, h) for m, (w, h) in zip(masks, sizes)]
+    mask = crops[0].mask
+    if any(c.mask is not mask for c in crops):
+        dense = [c.image() for c in crops]
+        offsets = np.cumsum([0] + [d.shape[0] for d in dense])
+        mask = np.zeros((max(int(offsets[-1]), 1), max(max(d.shape[1] for d in dense), 1)), np.uint8)
+        for d, o in zip(dense, offsets):
+            mask[o:o + d.shape[0], :d.shape[1]] = d
+        crops = [MaskSampler(mask, o + np.arange(d.shape[0], dtype=np.int64), np.arange(d.shape[1], dtype=np.int64))
+                 for d, o in zip(dense, offsets)]
+    first[1:, 0] = np.cumsum([len(c.rows) for c in crops])[:-1]
+    first[1:, 1] = np.cumsum([len(c.cols) for c in crops])[:-1]
+    return mask, np.concatenate([c.rows for c in crops]), np.concatenate([c.cols for c in crops]), first
 
 
 def detect_level(image: NDArray[np.uint8], fast_threshold: int, fast_min_threshold: int,

@@ -34,7 +34,6 @@ __all__ = ["CIRCLE", "detect_cells"]
 CIRCLE = np.array([[0, 3], [1, 3], [2, 2], [3, 1], [3, 0], [3, -1], [2, -2], [1, -3],
                    [0, -3], [-1, -3], [-2, -2], [-3, -1], [-3, 0], [-3, 1], [-2, 2], [-1, 3]],
                   np.int64)
-_WORD = 8  # bytes per word when scanning the corner flags
 
 
 # --------------------------------------------------------------------------- corner test
@@ -259,29 +258,48 @@ def _flag_rows(work, width, y0, y1, t, flags):
             flags[r + width - 1 - x] = 0
 
 
+_LANES = 64  # pixels per vector iteration of the corner test
+
+
 @njit(cache=True, nogil=True)
-def _scan_flags(flags, width, height, positions):
-    """Flat indices of the non-zero flags of rows ``[3, height - 3)``, in order, into
-    ``positions``; returns their count. Reads 8 bytes at a time (corners are sparse);
-    the flags of the border columns must be 0."""
-    first, last = 3 * width, (height - 3) * width
-    n = 0
-    p = first
-    while p < last and p % _WORD:
-        if flags[p]:
-            positions[n] = p
-            n += 1
-        p += 1
-    words = flags[p:p + (last - p) // _WORD * _WORD].view(np.uint64)
-    for w in range(words.size):
-        if words[w]:
-            q = p + w * _WORD
-            for b in range(_WORD):
-                if flags[q + b]:
-                    positions[n] = q + b
+def _flag_span(work, width, y0, y1, x0, x1, t, flags):
+    """Corner flags at ``t`` of columns ``[x0, x1)`` of rows ``[y0, y1)`` (inside the
+    tested range), row by row. Each row's run is widened to a multiple of the vector
+    width where the row allows it: a 30 px run costs ~9x more per pixel than 64."""
+    n = x1 - x0
+    wide = -(-n // _LANES) * _LANES
+    if wide > width - 6:
+        x0, n = 3, width - 6
+    else:
+        x0 = max(3, x1 - wide)
+        n = min(wide, width - 3 - x0)
+    tt = np.uint8(min(max(t, 0), 255))
+    for y in range(y0, y1):
+        _corner_flags(work, y * width + x0, n, width, tt, flags)
+    return x0, x0 + n
+
+
+_BLOCK = 32  # bytes tested at once when scanning sparse flags
+
+
+@njit(cache=True, nogil=True)
+def _scan_range(flags, start, end, positions, n):
+    """Append the flat indices in ``[start, end)`` with a non-zero flag to ``positions``
+    from ``n`` on, in order; returns the new count. Flags are sparse: blocks of 32 are
+    tested with one vectorised OR first."""
+    u = np.uint64
+    p = start
+    while p + _BLOCK <= end:
+        acc = np.uint8(0)
+        for i in range(_BLOCK):
+            acc |= flags[u(p + i)]
+        if acc:
+            for i in range(_BLOCK):
+                if flags[p + i]:
+                    positions[n] = p + i
                     n += 1
-    p += words.size * _WORD
-    while p < last:
+        p += _BLOCK
+    while p < end:
         if flags[p]:
             positions[n] = p
             n += 1
@@ -290,27 +308,235 @@ def _scan_flags(flags, width, height, positions):
 
 
 @njit(cache=True, nogil=True)
-def _is_local_max(scores, p, width, x, y, x0, x1, y0, y1):
-    """OpenCV's non-max test for the corner at flat ``p`` = (x, y): its score strictly
-    above its 8 neighbours' in the score image, those outside ``[x0, x1) x [y0, y1)``
-    counting as 0."""
+def _scan(flags, width, y0, y1, positions):
+    """Flat indices of the non-zero ``flags`` of rows ``[y0, y1)``, in order, into
+    ``positions``; returns their count. The flags of the 3 + 3 border columns must be 0."""
+    return _scan_range(flags, y0 * width, y1 * width, positions, 0)
+
+
+@njit(cache=True, nogil=True)
+def _suppress(scores, width, y0, y1, x0, x1, left, right, first_row, last_row, keep):
+    """OpenCV's non-max suppression for every pixel of rows ``[y0, y1)``, columns
+    ``[x0, x1)`` (inside ``[3, width - 3)``) at once: ``keep[p] = 1`` iff ``scores[p]`` is strictly above its 8
+    neighbours', a neighbour in another cell counting as 0. ``left[x]`` / ``right[x]``
+    are 0 where the left / right neighbour of column x is in another cell (else 255),
+    ``first_row[y]`` / ``last_row[y]`` say the same of the rows above / below.
+    Branch-free over whole rows so it vectorises: cheaper than testing corners one by
+    one when there are thousands."""
+    lm = left[x0:x1]
+    rm = right[x0:x1]
+    for y in range(y0, y1):
+        up = np.uint8(0 if first_row[y] else 255)
+        down = np.uint8(0 if last_row[y] else 255)
+        r = y * width + x0
+        e = r + x1 - x0
+        c = scores[r:e]
+        wl, wr = scores[r - 1:e - 1], scores[r + 1:e + 1]
+        a, al, ar = scores[r - width:e - width], scores[r - width - 1:e - width - 1], scores[r - width + 1:e - width + 1]
+        b, bl, br = scores[r + width:e + width], scores[r + width - 1:e + width - 1], scores[r + width + 1:e + width + 1]
+        out = keep[r:e]
+        for i in range(x1 - x0):
+            lmi, rmi = lm[i], rm[i]
+            m = max(np.uint8(wl[i] & lmi), np.uint8(wr[i] & rmi))
+            m_up = np.uint8(max(a[i], max(np.uint8(al[i] & lmi), np.uint8(ar[i] & rmi))) & up)
+            m_down = np.uint8(max(b[i], max(np.uint8(bl[i] & lmi), np.uint8(br[i] & rmi))) & down)
+            out[i] = np.uint8(c[i] > max(m, max(m_up, m_down)))
+
+
+@njit(cache=True, nogil=True)
+def _scan_cells(flags, width, y0, y1, i, n_cols, w_cell, wanted, positions, cells):
+    """Flat indices of the non-zero flags inside the wanted cells of cell row ``i`` (rows
+    ``[y0, y1)``), row-major, into ``positions``, their cells into ``cells``; returns how
+    many."""
+    n = 0
+    for y in range(y0, y1):
+        r = y * width
+        for j in range(n_cols):
+            c = i * n_cols + j
+            if wanted[c]:
+                m = _scan_range(flags, r + 3 + j * w_cell, r + min(3 + (j + 1) * w_cell, width - 3), positions, n)
+                for k in range(n, m):
+                    cells[k] = c
+                n = m
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _local_max(scores, p, width, x, y, left, right, first_row, last_row):
+    """OpenCV's non-max test for one corner: its score strictly above its 8 neighbours',
+    a neighbour in another cell counting as 0 (same rule as ``_suppress``)."""
     s = scores[p]
-    if s == 0:
-        return False  # a zero score is never greater than a neighbour's (>= 0)
-    for dy in range(-1, 2):
-        yy = y + dy
-        for dx in range(-1, 2):
-            xx = x + dx
-            if (dx or dy) and y0 <= yy < y1 and x0 <= xx < x1 and s <= scores[p + dy * width + dx]:
-                return False
-    return True
+    lm, rm = left[x] != 0, right[x] != 0
+    if (lm and scores[p - 1] >= s) or (rm and scores[p + 1] >= s):
+        return False
+    if not first_row[y]:
+        q = p - width
+        if scores[q] >= s or (lm and scores[q - 1] >= s) or (rm and scores[q + 1] >= s):
+            return False
+    if not last_row[y]:
+        q = p + width
+        if scores[q] >= s or (lm and scores[q - 1] >= s) or (rm and scores[q + 1] >= s):
+            return False
+    return s > 0
+
+
+@njit(cache=True, nogil=True)
+def _fast_pass(work, flags, keep, positions, cells, width, y0, y1, x0, x1, t, wanted, i, n_cols, w_cell,
+               col_cell, row_cell, left, right, first_row, last_row):
+    """FAST at ``t`` in the cells ``wanted`` of rows ``[y0, y1)``, each cell on its own:
+    either the whole region (``i < 0``: every cell, ``[x0, x1) = [3, width - 3)``, one
+    flat pass) or the wanted cells of cell row ``i``, which lie in columns ``[x0, x1)``.
+    Corner flags, the scores of the wanted cells' corners (written over their flags:
+    the score image), per-cell suppression (over the whole span when corners are
+    dense, else corner by corner). Survivors (row-major) go to ``positions`` and their
+    cells to ``cells``; returns how many."""
+    if i < 0:
+        _flag_rows(work, width, y0, y1, t, flags)
+        n = _scan(flags, width, y0, y1, positions)
+        y, row_end = y0, (y0 + 1) * width
+        for k in range(n):
+            p = positions[k]
+            while p >= row_end:
+                y += 1
+                row_end += width
+            cells[k] = row_cell[y] * n_cols + col_cell[p - (row_end - width)]
+    else:
+        x0, x1 = _flag_span(work, width, y0, y1, x0, x1, t, flags)
+        n = _scan_cells(flags, width, y0, y1, i, n_cols, w_cell, wanted, positions, cells)
+    score = np.empty(n, np.int16)
+    score_corners(work, width, positions, n, t, score)
+    for k in range(n):
+        flags[positions[k]] = np.uint8(score[k])
+    dense = n * 64 > (y1 - y0) * (x1 - x0)
+    if dense:
+        _suppress(flags, width, y0, y1, x0, x1, left, right, first_row, last_row, keep)
+    m = 0
+    y, row_end = y0, (y0 + 1) * width
+    for k in range(n):
+        p = positions[k]
+        while p >= row_end:
+            y += 1
+            row_end += width
+        x = p - (row_end - width)
+        if keep[p] if dense else _local_max(flags, p, width, x, y, left, right, first_row, last_row):
+            positions[m] = p
+            cells[m] = cells[k]
+            m += 1
+    return m
 
 
 # --------------------------------------------------------------------------- detection
 
 @njit(cache=True, nogil=True)
+def _detect_region(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows, w_cell, h_cell,
+                   mask, mrows, mcols, use_mask, work, flags, keep, positions, cells, out, n_out, level):
+    """``detect_cells`` for one region, appending (x, y, score, cell, level) rows to
+    ``out`` from row ``n_out`` on (grown as needed); returns (out, new row count)."""
+    if width < 7 or height < 7:
+        return out, n_out
+    n_cells = n_cols * n_rows
+    # Cell of every column / row, and where the cells' ranges begin and end.
+    col_cell = np.empty(width, np.int64)
+    row_cell = np.empty(height, np.int64)
+    left = np.full(width, 255, np.uint8)
+    right = np.full(width, 255, np.uint8)
+    first_row = np.zeros(height, np.bool_)
+    last_row = np.zeros(height, np.bool_)
+    for x in range(width):
+        col_cell[x] = min(max(x - 3, 0) // w_cell, n_cols - 1)
+        if x >= 3 and (x - 3) % w_cell == 0:
+            left[x] = 0
+        if x + 1 == width - 3 or (x >= 3 and (x - 2) % w_cell == 0):
+            right[x] = 0
+    for y in range(height):
+        row_cell[y] = min(max(y - 3, 0) // h_cell, n_rows - 1)
+        first_row[y] = y >= 3 and (y - 3) % h_cell == 0
+        last_row[y] = y + 1 == height - 3 or (y >= 3 and (y - 2) % h_cell == 0)
+    _copy_region(src, base, stride, width, height, work)
+
+    # Every cell at the high threshold; the mask drops keypoints after suppression.
+    wanted = np.ones(n_cells, np.bool_)
+    m = _fast_pass(work, flags, keep, positions, cells, width, 3, height - 3, 3, width - 3, t_hi, wanted, -1, n_cols,
+                   w_cell, col_cell, row_cell, left, right, first_row, last_row)
+    if out.shape[0] < n_out + m:
+        out = _grown_rows(out, n_out + m)
+    n = n_out
+    count = np.zeros(n_cells, np.int64)
+    for k in range(m):
+        p = positions[k]
+        y = p // width
+        x = p - y * width
+        if use_mask and mask[mrows[y], mcols[x]] == 0:
+            continue
+        out[n, 0], out[n, 1], out[n, 2], out[n, 3], out[n, 4] = x, y, flags[p], cells[k], level
+        count[cells[k]] += 1
+        n += 1
+
+    # The low threshold in the cells left empty, band by band.
+    if t_lo >= 0:
+        for i in range(n_rows):
+            y0 = 3 + i * h_cell
+            y1 = min(y0 + h_cell, height - 3)
+            x0, x1 = width, 0  # columns of the band's empty cells
+            for j in range(n_cols):
+                c = i * n_cols + j
+                c0, c1 = 3 + j * w_cell, min(3 + (j + 1) * w_cell, width - 3)
+                wanted[c] = count[c] == 0 and y1 > y0 and c1 > c0
+                if wanted[c]:
+                    x0, x1 = min(x0, c0), max(x1, c1)
+            if x1 <= x0:
+                continue
+            m = _fast_pass(work, flags, keep, positions, cells, width, y0, y1, x0, x1, t_lo, wanted, i, n_cols,
+                           w_cell, col_cell, row_cell, left, right, first_row, last_row)
+            if out.shape[0] < n + m:
+                out = _grown_rows(out, n + m)
+            for k in range(m):
+                p = positions[k]
+                y = p // width
+                x = p - y * width
+                if use_mask and mask[mrows[y], mcols[x]] == 0:
+                    continue
+                out[n, 0], out[n, 1], out[n, 2], out[n, 3], out[n, 4] = x, y, flags[p], cells[k], level
+                n += 1
+
+    # ORB-SLAM's order: stable counting sort by cell (row-major inside each cell).
+    first = np.zeros(n_cells + 1, np.int64)
+    for k in range(n_out, n):
+        first[out[k, 3] + 1] += 1
+    for c in range(n_cells):
+        first[c + 1] += first[c]
+    block = out[n_out:n].copy()
+    for k in range(n - n_out):
+        c = block[k, 3]
+        out[n_out + first[c]] = block[k]
+        first[c] += 1
+    return out, n
+
+
+@njit(cache=True, nogil=True)
+def _grown_rows(a, rows):
+    """A copy of the 2-D ``a`` with room for at least ``rows`` rows."""
+    b = np.empty((max(rows, 2 * a.shape[0], 64), a.shape[1]), a.dtype)
+    b[:a.shape[0]] = a
+    return b
+
+
+@njit(cache=True, nogil=True)
+def _split_columns(out, n):
+    """x, y (int64), score (uint8), cell and level (int64) arrays of ``out[:n]``."""
+    xs = np.empty(n, np.int64)
+    ys = np.empty(n, np.int64)
+    ss = np.empty(n, np.uint8)
+    cs = np.empty(n, np.int64)
+    ls = np.empty(n, np.int64)
+    for k in range(n):
+        xs[k], ys[k], ss[k], cs[k], ls[k] = out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4]
+    return xs, ys, ss, cs, ls
+
+
+@njit(cache=True, nogil=True)
 def detect_cells(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows, w_cell, h_cell,
-                 mask, mrows, mcols, use_mask, work, flags, positions):
+                 mask, mrows, mcols, use_mask, work, flags, keep, positions):
     """FAST keypoints of the ``width`` x ``height`` region at ``src[base + y * stride + x]``,
     ORB-SLAM's way: the region is cut into ``n_rows`` x ``n_cols`` cells whose tested
     ranges ``[3 + j w_cell, min(3 + (j + 1) w_cell, width - 3))`` (likewise rows) tile
@@ -320,82 +546,38 @@ def detect_cells(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows, w
     the region (``n_cols = n_rows = 1``, ``w_cell >= width - 6``) is plain OpenCV FAST.
 
     ``mask[mrows[y], mcols[x]] == 0`` forbids region pixel (x, y) (after suppression,
-    like FAST's mask), if ``use_mask``. ``work``, ``flags``: uint8 buffers of at least
-    ``width * height``; ``positions``: int64 buffer of as many.
+    like FAST's mask), if ``use_mask``. ``work``, ``flags``, ``keep``: uint8 buffers of at
+    least ``width * height``; ``positions``: int64 buffer of as many.
 
-    How: one corner test at ``t = min(t_hi, t_lo)`` over the region and the scores of
-    those corners (with ``t``); then, per cell, FAST at ``t'`` (``t_hi``, or ``t_lo``
-    for an empty cell) is the corners with score >= ``t'`` that beat their in-cell
-    neighbours' scores. Exact because OpenCV's score is ``max(t, A, -M) - 1`` (see
-    ``score_corners``): a corner at ``t'`` has the same score for every threshold <= ``t'``,
-    is a corner at ``t'`` iff its score >= ``t'``, and a neighbour with a score below
-    ``t'`` (not a corner at ``t'``, hence 0 for OpenCV) never beats it.
+    How: ``_fast_pass`` at ``t_hi`` over the whole region, then at ``t_lo`` over each band
+    of cell rows that holds a cell left empty, for its empty cells only.
 
     Returns x, y (region pixels, int64), score (uint8) and cell index of the keypoints,
     cell by cell in raster order and row-major inside a cell (ORB-SLAM's order)."""
-    if width < 7 or height < 7:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8), np.zeros(0, np.int64)
-    t_hi = min(max(t_hi, 0), 255)
-    retry = t_lo >= 0
-    t_lo = min(max(t_lo, 0), 255)
-    t = min(t_hi, t_lo) if retry else t_hi
-    _copy_region(src, base, stride, width, height, work)
-    _flag_rows(work, width, 3, height - 3, t, flags)
-    n = _scan_flags(flags, width, height, positions)
-    score = np.empty(n, np.int16)
-    score_corners(work, width, positions, n, t, score)
+    cells = np.empty(positions.size, np.int64)
+    out, n = _detect_region(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows, w_cell, h_cell,
+                            mask, mrows, mcols, use_mask, work, flags, keep, positions, cells,
+                            np.empty((64, 5), np.int64), 0, 0)
+    xs, ys, ss, cs, _ = _split_columns(out, n)
+    return xs, ys, ss, cs
 
-    # Score image (0 = no corner) for the suppression, and the corners' cells.
-    n_cells = n_cols * n_rows
-    col_cell = np.empty(width, np.int64)
-    row_cell = np.empty(height, np.int64)
-    for x in range(width):
-        col_cell[x] = min(max(x - 3, 0) // w_cell, n_cols - 1)
-    for y in range(height):
-        row_cell[y] = min(max(y - 3, 0) // h_cell, n_rows - 1)
-    xs = np.empty(n, np.int64)
-    ys = np.empty(n, np.int64)
-    count = np.zeros(n_cells + 1, np.int64)
-    y, row_end = 3, 4 * width
-    for k in range(n):
-        p = positions[k]
-        while p >= row_end:
-            y += 1
-            row_end += width
-        xs[k], ys[k] = p - (row_end - width), y
-        flags[p] = np.uint8(score[k])
-        count[row_cell[y] * n_cols + col_cell[xs[k]] + 1] += 1
-    # Stable counting sort by cell (row-major inside each cell).
-    first = np.cumsum(count)
-    fill = first[:n_cells].copy()
-    order = np.empty(n, np.int64)
-    for k in range(n):
-        c = row_cell[ys[k]] * n_cols + col_cell[xs[k]]
-        order[fill[c]] = k
-        fill[c] += 1
 
-    out = np.empty(n, np.int64)
-    out_cell = np.empty(n, np.int64)
-    m = 0
-    for c in range(n_cells):
-        i, j = c // n_cols, c % n_cols
-        x0, y0 = 3 + j * w_cell, 3 + i * h_cell
-        x1, y1 = min(x0 + w_cell, width - 3), min(y0 + h_cell, height - 3)
-        for attempt in range(2):
-            if attempt == 1 and (not retry or m > 0 and out_cell[m - 1] == c):
-                break
-            tc = t_hi if attempt == 0 else t_lo
-            for k in range(first[c], first[c + 1]):
-                q = order[k]
-                if score[q] >= tc and _is_local_max(flags, positions[q], width, xs[q], ys[q], x0, x1, y0, y1) \
-                        and (not use_mask or mask[mrows[ys[q]], mcols[xs[q]]] != 0):
-                    out[m] = q
-                    out_cell[m] = c
-                    m += 1
-    kx = np.empty(m, np.int64)
-    ky = np.empty(m, np.int64)
-    ks = np.empty(m, np.uint8)
-    for k in range(m):
-        q = out[k]
-        kx[k], ky[k], ks[k] = xs[q], ys[q], score[q]
-    return kx, ky, ks, out_cell[:m].copy()
+@njit(cache=True, nogil=True)
+def detect_pyramid(src, bases, stride, widths, heights, grids, t_hi, t_lo, mask, mrows, mcols, map_first,
+                   use_mask, work, flags, keep, positions):
+    """``detect_cells`` on every level of a pyramid whose levels' regions all live in
+    ``src`` with row stride ``stride``: level ``l``'s region starts at ``bases[l]`` and is
+    ``widths[l]`` x ``heights[l]`` with cells ``grids[l]`` = (n_cols, n_rows, w_cell,
+    h_cell); its mask maps are ``mrows[map_first[l, 0]:]`` and ``mcols[map_first[l, 1]:]``.
+    One call per frame (instead of one per level). Returns x, y, score, cell and level
+    of the keypoints, level by level, each in ORB-SLAM's order."""
+    cells = np.empty(positions.size, np.int64)
+    out = np.empty((4096, 5), np.int64)
+    n = 0
+    for lv in range(bases.size):
+        h, w = heights[lv], widths[lv]
+        out, n = _detect_region(src, bases[lv], stride, w, h, t_hi, t_lo, grids[lv, 0], grids[lv, 1],
+                                grids[lv, 2], grids[lv, 3], mask, mrows[map_first[lv, 0]:map_first[lv, 0] + h],
+                                mcols[map_first[lv, 1]:map_first[lv, 1] + w], use_mask, work, flags, keep,
+                                positions, cells, out, n, lv)
+    return _split_columns(out, n)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -16,7 +18,7 @@ class Scratch:
         self._bufs: dict[str, NDArray] = {}
 
     def get(self, name: str, shape: tuple[int, ...], dtype: type) -> NDArray:
-        size = int(np.prod(shape))
+        size = math.prod(shape)
         buf = self._bufs.get(name)
         if buf is None or buf.size < size or buf.dtype != dtype:
             buf = np.empty(max(size, 2 * buf.size if buf is not None else size), dtype)
