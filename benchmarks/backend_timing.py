@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import pickle
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -325,15 +326,17 @@ def windows(args: argparse.Namespace) -> dict[str, Any]:
 
 class TimedLock:
     """A stand-in for ``Map.lock`` (an RLock) that records, per thread name, how long each
-    outermost acquisition waited and how long the lock was then held (seconds)."""
+    outermost acquisition waited and how long the lock was then held (seconds), and the
+    holds per critical section (thread and the function that entered it)."""
 
     def __init__(self, inner: Any) -> None:
         self._inner = inner
         self._local = threading.local()
         self.waits: dict[str, list[float]] = defaultdict(list)
         self.holds: dict[str, list[float]] = defaultdict(list)
+        self.sections: dict[str, list[float]] = defaultdict(list)
 
-    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+    def acquire(self, blocking: bool = True, timeout: float = -1, site: str = "?") -> bool:
         depth = getattr(self._local, "depth", 0)
         t0 = time.perf_counter()
         ok = self._inner.acquire(blocking, timeout)
@@ -342,6 +345,7 @@ class TimedLock:
                 t1 = time.perf_counter()
                 self.waits[threading.current_thread().name].append(t1 - t0)
                 self._local.t_acquired = t1
+                self._local.site = site
             self._local.depth = depth + 1
         return ok
 
@@ -349,12 +353,14 @@ class TimedLock:
         depth = self._local.depth - 1
         self._local.depth = depth
         if depth == 0:
-            self.holds[threading.current_thread().name].append(
-                time.perf_counter() - self._local.t_acquired)
+            held = time.perf_counter() - self._local.t_acquired
+            name = threading.current_thread().name
+            self.holds[name].append(held)
+            self.sections[f"{name}:{self._local.site}"].append(held)
         self._inner.release()
 
     def __enter__(self) -> bool:
-        return self.acquire()
+        return self.acquire(site=sys._getframe(1).f_code.co_name)
 
     def __exit__(self, *exc: object) -> None:
         self.release()
@@ -399,6 +405,7 @@ def slam_run(seq: Path, preset: str, frames: int | None, out_dir: Path) -> dict[
         "tracking_lock_wait_ms": _stats([w * ms for w in lock.waits.get("MainThread", [])]),
         "lock_hold_ms": {name: _stats([h * ms for h in v]) for name, v in lock.holds.items()},
         "lock_wait_ms": {name: _stats([w * ms for w in v]) for name, v in lock.waits.items()},
+        "lock_sections_ms": {site: _stats([h * ms for h in v]) for site, v in lock.sections.items()},
     }
     split: dict[str, list[float]] = defaultdict(list)
     for rec in mapper.stats.get("local_ba_split", []):
@@ -435,6 +442,10 @@ def _slam_table(out: dict[str, Any]) -> list[tuple[str, Any]]:
         for name, h in r["lock_hold_ms"].items():
             rows.append((f"run {i}: lock held by {name[:18]} med/p95/max",
                          f"{h['median']:.1f}/{h['p95']:.1f}/{h['max']:.0f}"))
+        for site, h in r["lock_sections_ms"].items():
+            if not site.startswith("MainThread"):
+                rows.append((f"run {i}: {site[:28]} n/med/p95/max",
+                             f"{h['n']}/{h['median']:.1f}/{h['p95']:.1f}/{h['max']:.0f}"))
         for k, v in r["local_ba"].items():
             rows.append((f"run {i}: local BA {k} (median)", v["median"]))
         for name, rec in r["mapping_steps"].items():

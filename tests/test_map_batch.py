@@ -136,3 +136,19 @@ def test_update_normals_and_depths_equals_per_point() -> None:
         else:
             assert p.max_dist == pytest.approx(mx, rel=1e-12)
             assert p.min_dist == pytest.approx(mn, rel=1e-12)
+
+
+def test_hamming_kernel_equals_generic_path() -> None:
+    """The compiled Hamming choice and the matcher-based one agree (odd and even counts,
+    ties included: descriptors drawn from few distinct values)."""
+    from semslam.slam.map_batch import _POPCOUNT, _generic_choice, _hamming_choice
+
+    rng = np.random.default_rng(4)
+    cnt = rng.integers(1, 12, 400).astype(np.intp)
+    start = np.zeros(cnt.size, np.intp)
+    np.cumsum(cnt[:-1], out=start[1:])
+    for values in (256, 3):
+        desc = rng.integers(0, values, (int(cnt.sum()), 32), dtype=np.uint8)
+        fast = _hamming_choice(desc, start, cnt, _POPCOUNT)
+        slow = _generic_choice(desc, start, cnt, matcher_for(orb_spec(1.2, 8)))
+        np.testing.assert_array_equal(fast, slow)

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -101,6 +102,24 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
         inv_sigma2=pyr.inv_sigma2[octave],
         fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, bf=bf,
     )
+
+
+def apply_in_slices(lock: Any, jobs: list[Callable[[], object]], budget_s: float = 1e-3) -> None:
+    """Run ``jobs`` in order under ``lock``, letting go of it between jobs once a slice has
+    held it for ``budget_s`` (and sleeping a moment, so a thread waiting for it gets it
+    before this one takes it again): many small changes that are each consistent on their
+    own, without holding tracking up for all of them at once."""
+    i = 0
+    while i < len(jobs):
+        with lock:
+            t_end = time.perf_counter() + budget_s
+            while i < len(jobs):
+                jobs[i]()
+                i += 1
+                if time.perf_counter() > t_end:
+                    break
+        if i < len(jobs):
+            time.sleep(1e-4)
 
 
 class LocalMapping(KeyframeWorker):
@@ -338,10 +357,8 @@ class LocalMapping(KeyframeWorker):
         touched: dict[int, MapPoint] = {}
         src = PointArrays.of(kf.valid_points())
         plans = [(t, self.fusion.plan(t, src)) for t in targets]
-        if any(m for _, m in plans):
-            with self.map.lock:
-                for t, matches in plans:
-                    self.fusion.apply(t, matches, touched=touched)
+        apply_in_slices(self.map.lock, [partial(self.fusion.apply, t, matches, touched)
+                                        for t, matches in plans if matches])
         cand: dict[int, MapPoint] = {}
         for t in targets:
             for p in t.valid_points():

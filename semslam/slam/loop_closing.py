@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,7 +23,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
 from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
-from semslam.slam.local_mapping import build_ba_problem
+from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
@@ -282,9 +283,8 @@ class LoopClosing(KeyframeWorker):
         loop_pts = list({p.id: p for k in [cand, *cand.covisibles_with_weight(0)] for p in k.valid_points()}.values())
         src = PointArrays.of(loop_pts)
         plans = [(k, self.fusion.plan(k, src, th=4.0)) for k in connected]
+        apply_in_slices(self.map.lock, [partial(self.fusion.apply, k, m) for k, m in plans if m])
         with self.map.lock:
-            for k, fuse_matches in plans:
-                self.fusion.apply(k, fuse_matches)
             before = {k: set(k.covis) for k in connected}
             for k in connected:
                 k.update_connections()
