@@ -132,7 +132,8 @@ class OrbSlamExtractor:
                                               level_mask_samplers(mask, images, self.scale_factors), self._scratch)
         widths, heights = region_sizes(images)
         clock.lap()
-        keep = distribute_quadtree_levels(x, y, resp, level, widths, heights, self.features_per_level[:n_used])
+        keep = distribute_quadtree_levels(x, y, resp, level, widths, heights, self.features_per_level[:n_used],
+                                          scratch=self._scratch)
         clock.lap()
         if len(keep) == 0:
             return Keypoints.empty()

@@ -254,8 +254,8 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
 
 def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                  high: NDArray[np.bool_], level: NDArray[np.integer], widths: NDArray[np.integer],
-                                 heights: NDArray[np.integer], n_wanted: NDArray[np.integer]
-                                 ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
+                                 heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
+                                 scratch: Scratch | None = None) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
     """Algorithm 3 for all levels at once: the indices (sorted) of the kept points and
     every point's final leaf (-1 for levels with ``n_wanted <= 0``, which keep nothing).
 
@@ -266,7 +266,7 @@ def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer],
     larger than 1x1 px; the level stops at ``n_wanted`` nodes or when no node can split
     (instead of ORB-SLAM's "a pass changed nothing"); ``response`` is Harris."""
     return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high,
-                                      SplitRule.HIGH_QUALITY)
+                                      SplitRule.HIGH_QUALITY, scratch)
 
 
 # --------------------------------------------------------------------------- metrics
@@ -440,7 +440,8 @@ class QtreeOrbExtractor:
         harris = harris_responses(pyr.buffer, sx_all, sy_all, scratch=self._brief.scratch)
         clock.lap()
         widths, heights = region_sizes(images)
-        keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted)
+        keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted,
+                                               self._brief.scratch)
         clock.lap()
         klv = det.level[keep]
         quality = det.high[keep]

@@ -9,8 +9,9 @@ extractors call it from their constructor. Call it yourself to do it earlier, e.
 starting the tracking thread.
 
 numba keys a cached kernel by the file it is defined in, so each kernel module
-(``fast_kernels``, ``brief_kernels``, ``quadtree_kernels``) only calls kernels of its own
-module: editing one can never leave a stale copy inlined in another.
+(``fast_kernels``, ``brief_kernels``, ``quadtree_kernels``, ``pyramid_kernels``) only
+calls kernels of its own module: editing one can never leave a stale copy inlined in
+another.
 """
 
 from __future__ import annotations
@@ -43,12 +44,13 @@ def _run_kernels() -> None:
     """Every kernel once, on inputs of the types the extractors pass."""
     from semslam.features.orb.descriptors import ic_angles, orb_descriptors
     from semslam.features.orb.detection import detect_levels, fast_points
-    from semslam.features.orb.pyramid import MaskSampler
+    from semslam.features.orb.pyramid import MaskSampler, build_pyramid
     from semslam.features.orb.quadtree import SplitRule, distribute_quadtree_leaves
 
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (48, 48), dtype=np.uint8)
     mask = np.ones((48, 48), np.uint8)
+    build_pyramid(image, 2, 1.2, pad=3)
     fast_points(image, 20)
     x, y, score, level = detect_levels([image], 20, 7, [MaskSampler.same_size(mask)])
     for rule in (SplitRule.ORB_SLAM, SplitRule.HIGH_QUALITY):

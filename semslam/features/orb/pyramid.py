@@ -5,12 +5,15 @@ Follows ORB-SLAM2 ``ORBextractor`` (constructor and ``ComputePyramid``)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from semslam.features.orb.pyramid_kernels import reflect_pad_levels
 
 # ORB-SLAM's constants: FAST keypoints are kept EDGE_THRESHOLD px away from the level
 # border so that the 31x31 orientation patch and the rotated BRIEF pattern (reach
@@ -63,10 +66,16 @@ def features_per_level(n_features: int, n_levels: int, scale_factor: float) -> N
     return counts
 
 
-def level_sizes(width: int, height: int, n_levels: int, scale_factor: float) -> list[tuple[int, int]]:
-    """(width, height) of every level: cvRound(size / s^level) as in ORB-SLAM."""
+@functools.lru_cache(maxsize=64)
+def _level_sizes(width: int, height: int, n_levels: int, scale_factor: float) -> tuple[tuple[int, int], ...]:
     inv = np.float32(1.0) / np.float32(scale_factors(n_levels, scale_factor)).astype(np.float32)
-    return [(int(np.rint(np.float32(width) * s)), int(np.rint(np.float32(height) * s))) for s in inv]
+    return tuple((int(np.rint(np.float32(width) * s)), int(np.rint(np.float32(height) * s))) for s in inv)
+
+
+def level_sizes(width: int, height: int, n_levels: int, scale_factor: float) -> list[tuple[int, int]]:
+    """(width, height) of every level: cvRound(size / s^level) as in ORB-SLAM (cached:
+    the same few image sizes come back every frame)."""
+    return list(_level_sizes(int(width), int(height), int(n_levels), float(scale_factor)))
 
 
 class StackedPyramid:
@@ -110,14 +119,11 @@ def build_pyramid(gray: NDArray[np.uint8], n_levels: int, scale_factor: float, p
             view[...] = gray
         else:
             cv2.resize(levels[-1], (w, h), dst=view, interpolation=cv2.INTER_LINEAR)
-        if pad:
-            # BORDER_REFLECT_101 around the level, rows first then columns (corners too).
-            buffer[r - pad:r, pad:pad + w] = buffer[r + 1:r + pad + 1, pad:pad + w][::-1]
-            buffer[r + h:r + h + pad, pad:pad + w] = buffer[r + h - pad - 1:r + h - 1, pad:pad + w][::-1]
-            block = buffer[r - pad:r + h + pad]
-            block[:, :pad] = block[:, pad + 1:2 * pad + 1][:, ::-1]
-            block[:, pad + w:2 * pad + w] = block[:, w - 1:pad + w - 1][:, ::-1]
         levels.append(view)
+    if pad and sizes:
+        # BORDER_REFLECT_101 around every level, rows first then columns (corners too).
+        reflect_pad_levels(buffer, rows, np.array([w for w, _ in sizes], np.int64),
+                           np.array([h for _, h in sizes], np.int64), pad)
     return StackedPyramid(buffer, rows, pad, levels)
 
 

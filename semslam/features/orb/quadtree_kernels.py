@@ -35,23 +35,25 @@ def _splittable(nodes, i, rule):
 
 
 @njit(cache=True, nogil=True)
-def _divide(nodes, parent, slots, perm, tmp, px, py, high):
+def _divide(nodes, parent, slots, perm, tmp, quarter):
     """Split node ``parent`` into its non-empty quarters (ORB-SLAM's ``DivideNode``: split
     lines at ``ceil(size / 2)``, quarters top-left, top-right, bottom-left,
-    bottom-right), partitioning its points stably; child ``k`` goes to row
-    ``slots[k]``. Returns the number of children."""
+    bottom-right), partitioning its points (``_pack``ed in ``perm``) stably; child ``k``
+    goes to row ``slots[k]``. ``quarter``: int64 (3, 4) work array (no allocation per
+    split). Returns the number of children."""
     mx = (nodes[parent, _X0] + nodes[parent, _X1] + 1) >> 1
     my = (nodes[parent, _Y0] + nodes[parent, _Y1] + 1) >> 1
     s, c = nodes[parent, _START], nodes[parent, _COUNT]
-    cnt = np.zeros(4, np.int64)
-    hi = np.zeros(4, np.int64)
+    cnt, hi, pos = quarter[0], quarter[1], quarter[2]
+    for q in range(4):
+        cnt[q] = 0
+        hi[q] = 0
     for k in range(s, s + c):
-        p = perm[k]
-        q = (px[p] >= mx) + 2 * (py[p] >= my)
+        v = perm[k]
+        q = ((v & 0xFFFF) >= mx) + 2 * (((v >> 16) & 0xFFFF) >= my)
         tmp[k] = q
         cnt[q] += 1
-        hi[q] += high[p]
-    pos = np.empty(4, np.int64)
+        hi[q] += (v >> 32) & 1
     acc = s
     for q in range(4):
         pos[q] = acc
@@ -81,6 +83,13 @@ def _divide(nodes, parent, slots, perm, tmp, px, py, high):
             m += 1
         acc += cnt[q]
     return m
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pack(index, x, y, high):
+    """A point as one int64, ``index << 33 | high << 32 | y << 16 | x``: partitions move
+    one word and read nothing else (x, y < 2^16)."""
+    return (index << 33) | (np.int64(high) << 32) | (y << 16) | x
 
 
 @njit(cache=True, nogil=True)
@@ -120,19 +129,28 @@ def _advance(state, nodes, alive, n_alive, prev, n_wanted, rule):
 
 
 @njit(cache=True, nogil=True)
-def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp, leaf_of, leaf_base, kept):
+def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp, leaf_of, leaf_base, kept, work):
     """The quadtree of one level (points ``points[lo:hi]``, in input order): sets ``kept[p] = 1``
     for the kept points and writes every point's leaf (numbered from ``leaf_base``).
-    Returns the number of leaves.
+    Returns the number of leaves. ``work``: int64 buffer of ``_level_work(hi - lo)``
+    entries for all the arrays (no allocation, so no page faults, per level).
 
     Nodes live in the rows of a table (columns ``_X0`` ... ``_SPLIT``); rows of split
-    nodes are reused after each round, so 2 n + 8 rows suffice (the children of a round
-    are non-empty and disjoint: at most n of them, next to at most n live nodes)."""
+    nodes are reused after each round (see ``cap``)."""
     n = hi - lo
     # Initial nodes: round(W / H) vertical strips (float32 bounds like ORB-SLAM).
     n_ini = max(1, int(np.floor(width / max(height, 1) + 0.5)))
     hx = np.float32(width) / np.float32(n_ini)
-    strip = np.empty(n, np.int64)
+    cap = 2 * n + 8  # node rows, see below
+    strip = work[:n]
+    perm = work[n:2 * n]
+    tmp = work[2 * n:4 * n]
+    o = 4 * n
+    nodes = work[o:o + 9 * cap].reshape(cap, 9)
+    o += 9 * cap
+    alive, free, next_alive = work[o:o + cap], work[o + cap:o + 2 * cap], work[o + 2 * cap:o + 3 * cap]
+    o += 3 * cap
+    cand, key, born = work[o:o + cap], work[o + cap:o + 2 * cap], work[o + 2 * cap:o + 3 * cap]
     first = np.zeros(n_ini + 1, np.int64)
     for k in range(n):
         st = min(int(np.float32(xf[points[lo + k]]) / hx), n_ini - 1)
@@ -140,16 +158,15 @@ def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp
         first[st + 1] += 1
     for st in range(n_ini):
         first[st + 1] += first[st]
-    perm = np.empty(n, np.int64)
     fill = np.empty(n_ini, np.int64)
     for st in range(n_ini):
         fill[st] = first[st]
     for k in range(n):
-        perm[fill[strip[k]]] = points[lo + k]
+        p = points[lo + k]
+        perm[fill[strip[k]]] = _pack(p, px[p], py[p], high[p])
         fill[strip[k]] += 1
-    cap = 2 * n + 8
-    nodes = np.empty((cap, 9), np.int64)
-    alive = np.empty(cap, np.int64)
+    # Node rows in use during a round: the leaves before it (at most n) plus its
+    # children (at most n: they are non-empty and disjoint); free rows are reused first.
     n_alive = 0
     for st in range(n_ini):
         c = first[st + 1] - first[st]
@@ -163,7 +180,7 @@ def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp
             nodes[i, _COUNT] = c
             h = 0
             for k in range(first[st], first[st + 1]):
-                h += high[perm[k]]
+                h += (perm[k] >> 32) & 1
             nodes[i, _HIGH] = h
             # ORB-SLAM always runs a full pass first; Algorithm 3 counts the initial
             # nodes as just made (see the numpy version).
@@ -172,14 +189,9 @@ def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp
             alive[n_alive] = i
             n_alive += 1
     n_fresh = n_alive  # rows never used yet start here
-    free = np.empty(cap, np.int64)
     n_free = 0
-    tmp = np.empty(2 * n, np.int64)
-    next_alive = np.empty(cap, np.int64)
-    cand = np.empty(cap, np.int64)
-    key = np.empty(cap, np.int64)
-    born = np.empty(cap, np.int64)
     slots = np.empty(4, np.int64)
+    quarter = np.empty((3, 4), np.int64)
 
     state = _MAIN if n > 0 else _DONE
     prev = n_alive
@@ -209,13 +221,15 @@ def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp
         for k in range(n_cand):
             if state == _FINE and now >= n_wanted:
                 break
+            fresh = n_fresh
             for j in range(4):
                 if n_free > 0:
                     n_free -= 1
                     slots[j] = free[n_free]
                 else:
-                    slots[j] = n_fresh + j
-            m = _divide(nodes, cand[k], slots, perm, tmp, px, py, high)
+                    slots[j] = fresh
+                    fresh += 1
+            m = _divide(nodes, cand[k], slots, perm, tmp, quarter)
             for j in range(m):
                 if slots[j] >= n_fresh:
                     n_fresh = slots[j] + 1
@@ -247,9 +261,9 @@ def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp
     # Keep each leaf's highest-response point, the first in input order among ties.
     for a in range(n_alive):
         s, c = nodes[alive[a], _START], nodes[alive[a], _COUNT]
-        best = perm[s]
+        best = perm[s] >> 33
         for k in range(s, s + c):
-            p = perm[k]
+            p = perm[k] >> 33
             leaf_of[p] = leaf_base + a
             if resp[p] > resp[best]:
                 best = p
@@ -258,15 +272,26 @@ def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp
 
 
 @njit(cache=True, nogil=True)
-def quadtree_levels(x, y, response, level, widths, heights, n_wanted, high, rule):
+def work_size(n):
+    """int64 entries of work buffer ``quadtree_levels`` needs for ``n`` points."""
+    return 3 * n + 34 * n + 128
+
+
+@njit(cache=True, nogil=True)
+def quadtree_levels(x, y, response, level, widths, heights, n_wanted, high, rule, work):
     """Indices (sorted) of the points the quadtree keeps, for all levels, and every
     point's final leaf (-1 for points of levels with ``n_wanted <= 0``); see
     ``semslam.features.orb.quadtree.distribute_quadtree_leaves`` for the arguments.
-    ``x``, ``y``: float64; ``high``: uint8 (read by ``rule == HIGH_QUALITY`` only)."""
+    ``x``, ``y``: float64 in [0, 2^16); ``high``: uint8 (read by ``rule == HIGH_QUALITY``
+    only);
+    ``work``: int64 buffer of at least ``work_size(n)`` entries (reused by the caller
+    from frame to frame; a smaller one is replaced)."""
     n = x.size
     n_levels = n_wanted.size
-    px = np.empty(n, np.int64)
-    py = np.empty(n, np.int64)
+    if work.size < work_size(n):
+        work = np.empty(work_size(n), np.int64)
+    px, py, by_level = work[:n], work[n:2 * n], work[2 * n:3 * n]
+    level_work = work[3 * n:]
     for i in range(n):
         px[i] = int(np.floor(x[i]))
         py[i] = int(np.floor(y[i]))
@@ -279,7 +304,6 @@ def quadtree_levels(x, y, response, level, widths, heights, n_wanted, high, rule
     fill = np.empty(n_levels, np.int64)
     for lv in range(n_levels):
         fill[lv] = first[lv]
-    by_level = np.empty(n, np.int64)
     for i in range(n):
         by_level[fill[level[i]]] = i
         fill[level[i]] += 1
@@ -291,7 +315,7 @@ def quadtree_levels(x, y, response, level, widths, heights, n_wanted, high, rule
     for lv in range(n_levels):
         if n_wanted[lv] > 0 and first[lv + 1] > first[lv]:
             leaf_base += _level(by_level, first[lv], first[lv + 1], x, px, py, high, widths[lv], heights[lv],
-                                n_wanted[lv], rule, response, leaf_of, leaf_base, kept)
+                                n_wanted[lv], rule, response, leaf_of, leaf_base, kept, level_work)
     n_kept = 0
     for i in range(n):
         n_kept += kept[i]
