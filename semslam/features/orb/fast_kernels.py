@@ -9,17 +9,23 @@ more than the detection itself. Here nothing leaves the kernel but arrays.
 OpenCV's semantics (``fast.cpp`` ``FAST_t<16>``, ``fast_score.cpp`` ``cornerScore<16>``):
 - the circle: 16 offsets (x, y) ``CIRCLE``; a pixel with value ``v`` is a corner at
   threshold ``t`` iff >= 9 contiguous circle pixels ``p`` (circularly) all have
-  ``p - v > t`` or all have ``p - v < -t``; ``t`` is clamped to [0, 255];
+  ``p - v > t`` or all have ``p - v < -t``; ``t`` in [0, 255] (the Python wrappers
+  refuse others: OpenCV clamps them in its scalar code and wraps them in its SIMD code);
 - only pixels of rows / columns ``[3, size - 3)`` are tested;
-- score: ``cornerScore<16>`` (ported literally, non-SIMD version, ``_corner_score``);
+- score: ``cornerScore<16>``, ported literally (non-SIMD version) as ``_corner_score``,
+  the reference of the branch-free ``score_corners`` the detection uses (equal on every
+  corner of the test frames);
 - non-max suppression: a corner is kept iff its score is strictly greater than the
   scores of its 8 neighbours, non-corners and pixels outside the tested range counting
   as 0;
 - the detect mask is applied after non-max suppression; keypoints come row by row.
 
 ORB-SLAM runs that FAST on every cell ROI, so a corner's neighbours outside its cell's
-tested range count as 0 (see ``detect_cells``). All kernels are ``nogil`` (they run in
-the tracking thread next to other Python threads) and cached on disk (``cache=True``);
+tested range count as 0 (see ``detect_cells``). How a pass runs: the corner test for a
+flat run of pixels at once (one byte per vector lane), a scan of the flags, the scores
+of the corners found, then the suppression (for whole rows at once when corners are
+dense, else corner by corner). All kernels are ``nogil`` (they run in the tracking
+thread next to other Python threads) and cached on disk (``cache=True``);
 ``semslam.features.orb.jit.warm_up`` compiles them once.
 """
 
@@ -28,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["CIRCLE", "detect_cells"]
+__all__ = ["CIRCLE", "detect_cells", "detect_pyramid", "score_corners"]
 
 # OpenCV's offsets16 (x, y), in circle order.
 CIRCLE = np.array([[0, 3], [1, 3], [2, 2], [3, 1], [3, 0], [3, -1], [2, -2], [1, -3],
