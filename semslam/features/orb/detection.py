@@ -176,7 +176,7 @@ def detect_levels(images: list[NDArray[np.uint8]], fast_threshold: int, fast_min
         src, bases, stride, widths, heights, grids, int(fast_threshold), int(fast_min_threshold), mask, rows, cols,
         first, masks is not None, scratch.get("fast_work", (size,), np.uint8),
         scratch.get("fast_flags", (size,), np.uint8), scratch.get("fast_keep", (size,), np.uint8),
-        scratch.get("fast_positions", (size,), np.int64))
+        scratch.get("fast_positions", (size,), np.int64), scratch.get("fast_cells", (size,), np.int64))
     return x, y, score.astype(np.float32), level
 
 

@@ -583,14 +583,14 @@ def detect_cells(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows, w
 
 @njit(cache=True, nogil=True)
 def detect_pyramid(src, bases, stride, widths, heights, grids, t_hi, t_lo, mask, mrows, mcols, map_first,
-                   use_mask, work, flags, keep, positions):
+                   use_mask, work, flags, keep, positions, cells):
     """``detect_cells`` on every level of a pyramid whose levels' regions all live in
     ``src`` with row stride ``stride``: level ``l``'s region starts at ``bases[l]`` and is
     ``widths[l]`` x ``heights[l]`` with cells ``grids[l]`` = (n_cols, n_rows, w_cell,
-    h_cell); its mask maps are ``mrows[map_first[l, 0]:]`` and ``mcols[map_first[l, 1]:]``.
-    One call per frame (instead of one per level). Returns x, y, score, cell and level
-    of the keypoints, level by level, each in ORB-SLAM's order."""
-    cells = np.empty(positions.size, np.int64)
+    h_cell); its mask maps are ``mrows[map_first[l, 0]:]`` and ``mcols[map_first[l, 1]:]``;
+    ``cells``: int64 buffer like ``positions``. One call per frame (instead of one per
+    level). Returns x, y, score, cell and level of the keypoints, level by level, each in
+    ORB-SLAM's order."""
     out = np.empty((4096, 5), np.int64)
     n = 0
     for lv in range(bases.size):
