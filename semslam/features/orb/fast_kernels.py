@@ -218,7 +218,8 @@ def _max9(d0, d1, d2, d3, d4, d5, d6, d7, d8, d9, d10, d11, d12, d13, d14, d15):
                min(_smin(_smax(o12, d4), _smax(o13, d5)), _smin(_smax(o14, d6), _smax(o15, d7))))
 
 
-_SCORE_CHUNK = 512  # corners per gather (the differences stay in L1)
+_SCORE_CHUNK = 256  # corners per gather (the differences stay in L1)
+_SCORE_ROW = _SCORE_CHUNK + 8  # padded: 16 rows 512 B apart would share 2 L1 sets (~8 % slower)
 
 
 @njit(cache=True, nogil=True)
@@ -229,7 +230,7 @@ def score_corners(img, width, positions, n, threshold, scores):
     ``A`` = the largest arc-of-9 minimum and ``M`` = the smallest arc-of-9 maximum of
     ``d = v - p``; its ``continue`` only skips arcs that cannot change the result."""
     pix = _circle_offsets(width)
-    d = np.empty((16, _SCORE_CHUNK), np.int16)
+    d = np.empty((16, _SCORE_ROW), np.int16)
     t = np.int16(threshold)
     for c0 in range(0, n, _SCORE_CHUNK):
         m = min(_SCORE_CHUNK, n - c0)
