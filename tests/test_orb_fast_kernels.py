@@ -183,6 +183,9 @@ def test_detect_levels_with_mask_samplers_equals_materialised_masks(test_frames:
             ref = detect_level_reference(image, 20, 7, dense[level])
             sel = lv == level
             assert _same((x[sel], y[sel], r[sel]), ref), level
+        # Samplers of different masks (stacked into one for the compiled call).
+        separate = [MaskSampler.same_size(m) for m in dense]
+        assert all(_same(a, b) for a, b in zip(detect_levels(images, 20, 7, separate), (x, y, r, lv)))
     assert np.all(np.diff(lv) >= 0)
 
 

@@ -26,7 +26,11 @@ def test_warm_up_once_then_nothing_compiles_per_frame() -> None:
     gray = (rng.random((120, 160)) * 255).astype(np.uint8)
     colour = np.dstack([gray] * 3)
     mask = rng.random(gray.shape) > 0.3
+    frozen_gray, frozen_mask = gray.copy(), mask.astype(np.uint8)
+    frozen_gray.flags.writeable = frozen_mask.flags.writeable = False  # another numba type if passed on
+    cases = ((gray, None), (colour, mask), (gray[:100, :130], None), (gray, mask.astype(np.uint8)),
+             (frozen_gray, frozen_mask), (np.asfortranarray(gray), None))
     for extractor in (OrbSlamExtractor(n_features=300), QtreeOrbExtractor(n_features=300)):
-        for image, m in ((gray, None), (colour, mask), (gray[:100, :130], None), (gray, mask.astype(np.uint8))):
+        for image, m in cases:
             assert len(extractor.extract(image, m)) > 0
     assert _signatures() == before

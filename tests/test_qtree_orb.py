@@ -145,6 +145,32 @@ def test_low_pass_only_when_needed_and_stops_at_budget(real_gray: np.ndarray) ->
     assert det.n_low[0] > 0
 
 
+def test_two_thresholds_same_with_opencv_fast(real_gray: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Algorithm 2 on the compiled FAST gives exactly what it gave on OpenCV's FAST (the
+    detector it used before), with and without a mask, low pass included."""
+    from semslam.features import qtree_orb
+    from semslam.features.orb import level_mask_samplers, scale_factors
+
+    def opencv_fast(image, threshold, mask=None, scratch=None):
+        detector = cv2.FastFeatureDetector_create(threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        return _fast(detector, np.ascontiguousarray(image), None if mask is None else mask.image())
+
+    mask = np.full(real_gray.shape, 255, np.uint8)
+    mask[100:300, 250:450] = 0
+    for gray in (real_gray, cv2.GaussianBlur(real_gray, (0, 0), 1.5)):
+        levels = build_pyramid(gray, 6, 1.2, pad=3).levels
+        wanted = paper_features_per_level(N, 6, 1.2)
+        for m in (None, mask):
+            samplers = level_mask_samplers(m, levels, scale_factors(6, 1.2))
+            ours = detect_two_thresholds(levels, wanted, 20, 7, samplers)
+            with monkeypatch.context() as patch:
+                patch.setattr(qtree_orb, "fast_points", opencv_fast)
+                theirs = detect_two_thresholds(levels, wanted, 20, 7, samplers)
+            for name in ("x", "y", "score", "high", "level", "n_high", "n_low"):
+                assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
+            assert ours.n_low.sum() > 0 or gray is real_gray
+
+
 def test_low_points_come_from_a_prefix_of_cells(real_gray: np.ndarray) -> None:
     from semslam.features.orb import cell_grid as _cell_grid
 

@@ -1,7 +1,7 @@
-"""ORB extraction as ORB-SLAM2/3 does it (``ORBextractor.cc``), vectorised with numpy and
-OpenCV: scale pyramid, FAST per ~30 px cell with a lower threshold for empty cells,
-quadtree distribution, intensity-centroid orientation, steered rBRIEF on the blurred
-level image.
+"""ORB extraction as ORB-SLAM2/3 does it (``ORBextractor.cc``), with OpenCV (resize, blur)
+and compiled numba kernels for the rest: scale pyramid, FAST per ~30 px cell with a
+lower threshold for empty cells, quadtree distribution, intensity-centroid orientation,
+steered rBRIEF on the blurred level image.
 
 Why not ``cv2.ORB``: OpenCV keeps the strongest Harris responses over the whole image,
 which clusters keypoints on texture; ORB-SLAM's cells + quadtree spread them over the
@@ -14,27 +14,34 @@ Stages and where they differ from ORB-SLAM (all else is meant to be identical):
 - detection: exactly ORB-SLAM's. ORB-SLAM runs OpenCV's FAST (9-16, non-max
   suppression) on every ~30 px cell ROI, again with ``fast_min_threshold`` where
   nothing was found; so a corner's non-max suppression only sees neighbours inside its
-  cell. ``semslam.features.orb.detect_levels`` does the same in one compiled pass per
-  level (``orb.fast_kernels``, a numba port of OpenCV's FAST): same keypoints, scores
-  and order as the literal per-cell OpenCV calls of ``detect_level_reference``
+  cell. ``semslam.features.orb.detect_levels`` does the same in one compiled call for
+  all levels (``orb.fast_kernels``, a numba port of OpenCV's FAST): same keypoints,
+  scores and order as the literal per-cell OpenCV calls of ``detect_level_reference``
   (``reference_detection=True``), checked on the real and synthetic test frames with
   and without mask. Why compiled: the per-cell calls (~70 per frame) and the
-  ``cv2.KeyPoint`` objects they return cost more than the detection itself;
+  ``cv2.KeyPoint`` objects they return cost more than the detection itself. (Earlier
+  versions ran FAST once per level and so differed from ORB-SLAM at cell borders; that
+  difference is gone.);
 - mask: FAST's own mask (applied after its non-max suppression) so masked corners
   neither count for a cell nor reach the quadtree and the budget goes to allowed pixels;
-- quadtree: ``semslam.features.orb.quadtree`` (``SplitRule.ORB_SLAM``; ties between
-  equal-sized nodes broken by position instead of heap address);
-- orientation: ``IC_Angle`` with ORB-SLAM's ``umax`` circle, as one gather + matmul
-  for all levels (levels stacked in one buffer, ``orb.pyramid.StackedPyramid``);
-  ``cv2.phase`` gives OpenCV's ``fastAtan2`` (what ORB-SLAM calls);
+- quadtree: ``semslam.features.orb.quadtree`` (``SplitRule.ORB_SLAM``, compiled; ties
+  between equal-sized nodes broken by position instead of heap address);
+- orientation: ``IC_Angle`` with ORB-SLAM's ``umax`` circle (compiled moments, exact
+  integers) for all levels at once (levels stacked in one buffer,
+  ``orb.pyramid.StackedPyramid``); ``cv2.phase`` gives OpenCV's ``fastAtan2`` (what
+  ORB-SLAM calls);
 - descriptors: ORB-SLAM's ``computeOrbDescriptor`` (pattern ``bit_pattern_31_`` from
-  OpenCV's orb.cpp, the learned rBRIEF test pairs, round-half-even like ``cvRound``)
-  as one gather for all levels; the 7x7 sigma-2 blur is one call on the stacked
-  levels, each padded with BORDER_REFLECT_101 (identical to blurring each level on its
-  own as ORB-SLAM does); bit ``k`` of byte ``i`` is test ``8 i + k``.
+  OpenCV's orb.cpp, the learned rBRIEF test pairs, round-half-even like ``cvRound``;
+  each rotated offset is ``rint(fma(b, -y, a x))``, i.e. one product rounded and one
+  fused, as the float32 BLAS product of the earlier numpy version did), compiled, for
+  all levels at once; the 7x7 sigma-2 blur is one call on the stacked levels, each
+  padded with BORDER_REFLECT_101 (identical to blurring each level on its own as
+  ORB-SLAM does); bit ``k`` of byte ``i`` is test ``8 i + k``.
 
 The kernels live in ``semslam.features.orb`` (shared with ``qtree_orb``); this module is
-the extractor that puts them together and its registry factory.
+the extractor that puts them together and its registry factory. Its constructor calls
+``orb.warm_up()``, so the numba kernels are compiled (or loaded from numba's disk
+cache) before the first frame.
 """
 
 from __future__ import annotations

@@ -1,6 +1,12 @@
 """The ORB kernels both ORB extractors share (ORB-SLAM2's and STDC-SLAM's Qtree-ORB): the
 scale pyramid, FAST detection per cell, the quadtree with its split rule, IC angle and
 steered rBRIEF. Each extractor module is then only its own choices on top of these.
+
+The per-pixel and per-keypoint work runs in numba kernels (``fast_kernels``,
+``quadtree_kernels``, ``brief_kernels``, ``pyramid_kernels``: ``nogil``, cached on disk;
+``warm_up`` compiles them once per process); the numpy / OpenCV versions they replaced
+are kept next to them as references (``fast_points_cv2``, ``detect_level_reference``,
+``*_numpy``) and the tests check they agree exactly.
 """
 
 from semslam.features.orb.descriptors import (

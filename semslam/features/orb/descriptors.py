@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from semslam.features.orb.brief_kernels import ic_moments, steered_brief
 from semslam.features.orb.pyramid import HALF_PATCH_SIZE, StackedPyramid
-from semslam.features.orb.scratch import Scratch
+from semslam.features.orb.scratch import Scratch, kernel_array
 from semslam.features.orb.timing import StageClock
 
 __all__ = ["BIT_PATTERN_31", "PATCH", "Scratch", "SteeredBrief", "ic_angles", "ic_angles_numpy",
@@ -170,7 +170,7 @@ def _coords(image: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.inte
             ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """x, y as int64, checked to be ``left`` px from the left / top border and ``right``
     px from the right / bottom one (the compiled kernels do not check their reads)."""
-    x, y = np.ascontiguousarray(x, np.int64), np.ascontiguousarray(y, np.int64)
+    x, y = kernel_array(x, np.int64), kernel_array(y, np.int64)
     h, w = image.shape
     if x.min() < left or y.min() < left or x.max() >= w - right or y.max() >= h - right:
         raise ValueError(f"keypoints must be >= {left} px from the image's left / top and > {right} px "

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from semslam.features.orb.fast_kernels import detect_cells, detect_pyramid
 from semslam.features.orb.pyramid import EDGE_THRESHOLD, MaskSampler
-from semslam.features.orb.scratch import Scratch
+from semslam.features.orb.scratch import Scratch, kernel_array
 
 __all__ = ["BORDER", "CELL_SIZE", "CellGrid", "EMPTY_DETECTION", "cell_grid", "detect_level",
            "detect_level_reference", "detect_levels", "detection_levels", "detection_region",
@@ -78,7 +78,8 @@ def _fast_region(image: NDArray[np.uint8], x0: int, y0: int, width: int, height:
     size = max(width * height, 1)
     m = mask if mask is not None else _NO_MASK
     return detect_cells(flat, y0 * stride + x0, stride, width, height, int(t_hi), int(t_lo), n_cols, n_rows,
-                        w_cell, h_cell, m.mask, m.rows, m.cols, mask is not None,
+                        w_cell, h_cell, kernel_array(m.mask, np.uint8), kernel_array(m.rows, np.int64),
+                        kernel_array(m.cols, np.int64), mask is not None,
                         scratch.get("fast_work", (size,), np.uint8), scratch.get("fast_flags", (size,), np.uint8),
                         scratch.get("fast_keep", (size,), np.uint8), scratch.get("fast_positions", (size,), np.int64))
 
@@ -175,7 +176,7 @@ def detect_levels(images: list[NDArray[np.uint8]], fast_threshold: int, fast_min
         src, bases, stride, widths, heights, grids, int(fast_threshold), int(fast_min_threshold), mask, rows, cols,
         first, masks is not None, scratch.get("fast_work", (size,), np.uint8),
         scratch.get("fast_flags", (size,), np.uint8), scratch.get("fast_keep", (size,), np.uint8),
-        scratch.get("fast_positions", (size,), np.int64))
+        scratch.get("fast_positions", (size,), np.int64), scratch.get("fast_cells", (size,), np.int64))
     return x, y, score.astype(np.float32), level
 
 
@@ -221,7 +222,9 @@ def _stacked_maps(masks: list[MaskSampler] | None, sizes: list[tuple[int, int]]
                  for d, o in zip(dense, offsets)]
     first[1:, 0] = np.cumsum([len(c.rows) for c in crops])[:-1]
     first[1:, 1] = np.cumsum([len(c.cols) for c in crops])[:-1]
-    return mask, np.concatenate([c.rows for c in crops]), np.concatenate([c.cols for c in crops]), first
+    rows = np.concatenate([c.rows for c in crops]).astype(np.int64)
+    cols = np.concatenate([c.cols for c in crops]).astype(np.int64)
+    return kernel_array(mask, np.uint8), rows, cols, first
 
 
 def detect_level(image: NDArray[np.uint8], fast_threshold: int, fast_min_threshold: int,

@@ -9,17 +9,23 @@ more than the detection itself. Here nothing leaves the kernel but arrays.
 OpenCV's semantics (``fast.cpp`` ``FAST_t<16>``, ``fast_score.cpp`` ``cornerScore<16>``):
 - the circle: 16 offsets (x, y) ``CIRCLE``; a pixel with value ``v`` is a corner at
   threshold ``t`` iff >= 9 contiguous circle pixels ``p`` (circularly) all have
-  ``p - v > t`` or all have ``p - v < -t``; ``t`` is clamped to [0, 255];
+  ``p - v > t`` or all have ``p - v < -t``; ``t`` in [0, 255] (the Python wrappers
+  refuse others: OpenCV clamps them in its scalar code and wraps them in its SIMD code);
 - only pixels of rows / columns ``[3, size - 3)`` are tested;
-- score: ``cornerScore<16>`` (ported literally, non-SIMD version, ``_corner_score``);
+- score: ``cornerScore<16>``, ported literally (non-SIMD version) as ``_corner_score``,
+  the reference of the branch-free ``score_corners`` the detection uses (equal on every
+  corner of the test frames);
 - non-max suppression: a corner is kept iff its score is strictly greater than the
   scores of its 8 neighbours, non-corners and pixels outside the tested range counting
   as 0;
 - the detect mask is applied after non-max suppression; keypoints come row by row.
 
 ORB-SLAM runs that FAST on every cell ROI, so a corner's neighbours outside its cell's
-tested range count as 0 (see ``detect_cells``). All kernels are ``nogil`` (they run in
-the tracking thread next to other Python threads) and cached on disk (``cache=True``);
+tested range count as 0 (see ``detect_cells``). How a pass runs: the corner test for a
+flat run of pixels at once (one byte per vector lane), a scan of the flags, the scores
+of the corners found, then the suppression (for whole rows at once when corners are
+dense, else corner by corner). All kernels are ``nogil`` (they run in the tracking
+thread next to other Python threads) and cached on disk (``cache=True``);
 ``semslam.features.orb.jit.warm_up`` compiles them once.
 """
 
@@ -28,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["CIRCLE", "detect_cells"]
+__all__ = ["CIRCLE", "detect_cells", "detect_pyramid", "score_corners"]
 
 # OpenCV's offsets16 (x, y), in circle order.
 CIRCLE = np.array([[0, 3], [1, 3], [2, 2], [3, 1], [3, 0], [3, -1], [2, -2], [1, -3],
@@ -212,7 +218,8 @@ def _max9(d0, d1, d2, d3, d4, d5, d6, d7, d8, d9, d10, d11, d12, d13, d14, d15):
                min(_smin(_smax(o12, d4), _smax(o13, d5)), _smin(_smax(o14, d6), _smax(o15, d7))))
 
 
-_SCORE_CHUNK = 512  # corners per gather (the differences stay in L1)
+_SCORE_CHUNK = 256  # corners per gather (the differences stay in L1)
+_SCORE_ROW = _SCORE_CHUNK + 8  # padded: 16 rows 512 B apart would share 2 L1 sets (~8 % slower)
 
 
 @njit(cache=True, nogil=True)
@@ -223,7 +230,7 @@ def score_corners(img, width, positions, n, threshold, scores):
     ``A`` = the largest arc-of-9 minimum and ``M`` = the smallest arc-of-9 maximum of
     ``d = v - p``; its ``continue`` only skips arcs that cannot change the result."""
     pix = _circle_offsets(width)
-    d = np.empty((16, _SCORE_CHUNK), np.int16)
+    d = np.empty((16, _SCORE_ROW), np.int16)
     t = np.int16(threshold)
     for c0 in range(0, n, _SCORE_CHUNK):
         m = min(_SCORE_CHUNK, n - c0)
@@ -577,14 +584,14 @@ def detect_cells(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows, w
 
 @njit(cache=True, nogil=True)
 def detect_pyramid(src, bases, stride, widths, heights, grids, t_hi, t_lo, mask, mrows, mcols, map_first,
-                   use_mask, work, flags, keep, positions):
+                   use_mask, work, flags, keep, positions, cells):
     """``detect_cells`` on every level of a pyramid whose levels' regions all live in
     ``src`` with row stride ``stride``: level ``l``'s region starts at ``bases[l]`` and is
     ``widths[l]`` x ``heights[l]`` with cells ``grids[l]`` = (n_cols, n_rows, w_cell,
-    h_cell); its mask maps are ``mrows[map_first[l, 0]:]`` and ``mcols[map_first[l, 1]:]``.
-    One call per frame (instead of one per level). Returns x, y, score, cell and level
-    of the keypoints, level by level, each in ORB-SLAM's order."""
-    cells = np.empty(positions.size, np.int64)
+    h_cell); its mask maps are ``mrows[map_first[l, 0]:]`` and ``mcols[map_first[l, 1]:]``;
+    ``cells``: int64 buffer like ``positions``. One call per frame (instead of one per
+    level). Returns x, y, score, cell and level of the keypoints, level by level, each in
+    ORB-SLAM's order."""
     out = np.empty((4096, 5), np.int64)
     n = 0
     for lv in range(bases.size):

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.features.orb.pyramid_kernels import reflect_pad_levels
+from semslam.features.orb.scratch import kernel_array
 
 # ORB-SLAM's constants: FAST keypoints are kept EDGE_THRESHOLD px away from the level
 # border so that the 31x31 orientation patch and the rotated BRIEF pattern (reach
@@ -145,7 +146,7 @@ class MaskSampler(NamedTuple):
     @classmethod
     def same_size(cls, mask: NDArray) -> MaskSampler:
         """A mask of the image's own size (FAST's ``mask`` argument)."""
-        m = np.ascontiguousarray(mask, np.uint8)
+        m = kernel_array(mask, np.uint8)
         return cls(m, np.arange(m.shape[0], dtype=np.int64), np.arange(m.shape[1], dtype=np.int64))
 
     def crop(self, x0: int, y0: int, width: int, height: int) -> MaskSampler:
@@ -194,7 +195,7 @@ def level_mask_samplers(mask: NDArray[np.uint8] | None, images: list[NDArray[np.
     (same pixels allowed as ``level_masks``); None without a mask."""
     if mask is None:
         return None
-    m = np.ascontiguousarray(mask, np.uint8)
+    m = kernel_array(mask, np.uint8)
     return [MaskSampler(m, *level_mask_indices(m.shape, image.shape, 1.0 if level == 0 else scales[level]))
             for level, image in enumerate(images)]
 

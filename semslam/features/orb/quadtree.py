@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.features.orb.quadtree_kernels import HIGH_QUALITY, ORB_SLAM, quadtree_levels, work_size
-from semslam.features.orb.scratch import Scratch
+from semslam.features.orb.scratch import Scratch, kernel_array
 
 _MAIN, _FINE, _DONE = 0, 1, 2  # per-level phase
 
@@ -95,19 +95,17 @@ def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], r
     n = len(x)
     if rule is SplitRule.HIGH_QUALITY and high is None:
         raise ValueError("SplitRule.HIGH_QUALITY needs every point's quality (high)")
-    quality = (np.zeros(n, np.uint8) if high is None
-               else np.ascontiguousarray(np.asarray(high, bool).view(np.uint8)))
-    level = np.ascontiguousarray(level, np.int64)
-    xf, yf = np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64)
+    quality = np.zeros(n, np.uint8) if high is None else kernel_array(np.asarray(high, bool).view(np.uint8), np.uint8)
+    level = kernel_array(level, np.int64)
+    xf, yf = kernel_array(x, np.float64), kernel_array(y, np.float64)
     if n and (level.min() < 0 or level.max() >= len(n_wanted)):
         raise ValueError("every point's level must index n_wanted")
     if n and (min(xf.min(), yf.min()) < 0 or max(xf.max(), yf.max()) >= 2**16):
         raise ValueError("positions must be in [0, 65536) (the compiled quadtree packs them in 16 bits)")
     keep, leaf = quadtree_levels(
         xf, yf,
-        np.ascontiguousarray(response, np.float64), level,
-        np.ascontiguousarray(widths, np.int64), np.ascontiguousarray(heights, np.int64),
-        np.ascontiguousarray(n_wanted, np.int64), quality,
+        kernel_array(response, np.float64), level, kernel_array(widths, np.int64), kernel_array(heights, np.int64),
+        kernel_array(n_wanted, np.int64), quality,
         HIGH_QUALITY if rule is SplitRule.HIGH_QUALITY else ORB_SLAM,
         (scratch or Scratch()).get("quadtree", (work_size(n),), np.int64))
     return keep.astype(np.intp), leaf

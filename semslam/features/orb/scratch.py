@@ -7,7 +7,16 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Scratch"]
+__all__ = ["Scratch", "kernel_array"]
+
+
+def kernel_array(a: NDArray | list, dtype: type) -> NDArray:
+    """``a`` as a C-contiguous, writeable array of ``dtype`` (a copy only if needed). Why:
+    numba compiles a kernel once per argument type, and a read-only or strided array is
+    another type, so such an input would otherwise trigger a compile in the middle of a
+    frame."""
+    out = np.ascontiguousarray(a, dtype)
+    return out if out.flags.writeable else out.copy()
 
 
 class Scratch:
