@@ -152,3 +152,30 @@ def test_hamming_kernel_equals_generic_path() -> None:
         fast = _hamming_choice(desc, start, cnt, _POPCOUNT)
         slow = _generic_choice(desc, start, cnt, matcher_for(orb_spec(1.2, 8)))
         np.testing.assert_array_equal(fast, slow)
+
+
+def test_ba_problem_from_an_observation_table_equals_the_direct_one() -> None:
+    """build_ba_problem gives the same arrays whether it walks the observations itself or
+    gets local mapping's one-pass table of every observer."""
+    from semslam.geometry.camera import PinholeCamera
+    from semslam.slam.local_mapping import build_ba_problem, observation_table
+
+    rng = np.random.default_rng(5)
+    m, points = _world(rng, orb_spec(1.2, 8))
+    for kf in m.all_keyframes():
+        kf.ur[::3] = 100.0  # some observations with depth
+    points = [p for p in points if p.observations]
+    kfs = m.all_keyframes()
+    free, fixed = kfs[2:7], kfs[8:10]  # the others observe too and are left out
+    cam = PinholeCamera(525.0, 525.0, 319.5, 239.5)
+    a = build_ba_problem(free, fixed, points, cam, m.spec.pyramid, 40.0)
+    b = build_ba_problem(free, fixed, points, cam, m.spec.pyramid, 40.0, observation_table(points))
+    assert a.obs_pose.size > 100
+    for field in ("poses_cw", "pose_fixed", "points_w", "obs_pose", "obs_point", "uv", "ur", "inv_sigma2"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+    # and they are the observations themselves
+    for m_ in range(0, a.obs_pose.size, 7):
+        kf, p = (free + fixed)[a.obs_pose[m_]], points[a.obs_point[m_]]
+        i = p.observations[kf]
+        np.testing.assert_array_equal(a.uv[m_], kf.xy[i])
+        assert a.inv_sigma2[m_] == m.spec.pyramid.inv_sigma2[kf.keypoints.octave[i]]

@@ -84,12 +84,22 @@ def gather_keypoints(kfs: list[KeyFrame], kf_row: NDArray[np.intp], kp: NDArray[
 
 
 def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points: list[MapPoint],
-                     camera: PinholeCamera, pyr: ScalePyramid, bf: float) -> BAProblem:
+                     camera: PinholeCamera, pyr: ScalePyramid, bf: float,
+                     table: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[KeyFrame]] | None = None
+                     ) -> BAProblem:
     """Arrays of a bundle adjustment over the given keyframes and points (observations of
     the points by keyframes outside both lists are left out); observation ``m`` is point
-    ``points[obs_point[m]]`` in keyframe ``(kfs_free + kfs_fixed)[obs_pose[m]]``."""
+    ``points[obs_point[m]]`` in keyframe ``(kfs_free + kfs_fixed)[obs_pose[m]]``.
+    ``table`` is ``observation_table(points)`` when the caller has it already."""
     kfs = kfs_free + kfs_fixed
-    obs_point, obs_pose, kp, _ = observation_table(points, {kf: i for i, kf in enumerate(kfs)})
+    if table is None:
+        obs_point, obs_pose, kp, _ = observation_table(points, {kf: i for i, kf in enumerate(kfs)})
+    else:
+        pt_row, kf_row, kp_all, observers = table
+        where = {kf: i for i, kf in enumerate(kfs)}
+        pose_of = np.array([where.get(kf, -1) for kf in observers], np.intp)
+        sel = pose_of[kf_row] >= 0
+        obs_point, obs_pose, kp = pt_row[sel], pose_of[kf_row[sel]], kp_all[sel]
     uv, ur, octave = gather_keypoints(kfs, obs_pose, kp)
     return BAProblem(
         poses_cw=np.stack([kf.T_cw for kf in kfs]),
@@ -387,16 +397,18 @@ class LocalMapping(KeyframeWorker):
             for p in k.valid_points():
                 pts.setdefault(p.id, p)
         points = list(pts.values())
-        fixed: dict[KeyFrame, int] = {}
-        for p in points:
-            for k in p.observations:
-                if k not in local_set and not k.bad:
-                    fixed[k] = fixed.get(k, 0) + 1
         free = [k for k in local if k.id != 0]
-        fixed_list = sorted(fixed, key=lambda k: -fixed[k])[: self.cfg.local_ba_max_fixed] + [k for k in local if k.id == 0]
         if not points or not free:
             return
-        problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)
+        # Fixed: the other keyframes that see the local points, the most observations first
+        # (ties in first-seen order), from one pass over the observations.
+        table = observation_table(points)
+        observers = table[3]
+        n_seen = np.bincount(table[1], minlength=len(observers))
+        outside = [i for i, k in enumerate(observers) if k not in local_set and not k.bad]
+        order = sorted(outside, key=lambda i: -n_seen[i])[: self.cfg.local_ba_max_fixed]
+        fixed_list = [observers[i] for i in order] + [k for k in local if k.id == 0]
+        problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf, table)
         t1 = time.perf_counter()
         result: BAResult = self.ba.run(problem)
         t2 = time.perf_counter()
