@@ -19,9 +19,11 @@ from numpy.typing import NDArray
 
 from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
 from semslam.backend.pose_graph import optimize_pose_graph
+from semslam.runtime import lower_thread_priority
 
 
 def _warm() -> bool:
+    lower_thread_priority()  # the worker's one thread runs every BA: below tracking
     warm_up()  # load the compiled solver (and GTSAM) once, so the first BA does not pay for it
     return True
 

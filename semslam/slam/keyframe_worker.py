@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Protocol
 
+from semslam.runtime import lower_thread_priority
 from semslam.slam.map import KeyFrame
 
 log = logging.getLogger(__name__)
@@ -133,6 +134,7 @@ class KeyframeWorker:
         self._thread.start()
 
     def _run(self) -> None:
+        lower_thread_priority()  # tracking's frame comes first on a busy machine
         while (kf := self.inbox.take()) is not None:
             try:
                 self.process(kf)

@@ -87,15 +87,17 @@ def _shading(
     return cv2.resize(light.astype(np.float32), (wpx, hpx), interpolation=cv2.INTER_LINEAR)
 
 
-def build_atlas(boxes: list[Box], seed: int) -> Atlas:
-    """Generate, light and pack the textures of all faces of ``boxes``."""
+def build_atlas(boxes: list[Box], seed: int, casters: list[Box] | None = None) -> Atlas:
+    """Generate, light and pack the textures of all faces of ``boxes``; contact shadows
+    are baked in from ``casters`` (default: all of ``boxes``)."""
+    others = boxes if casters is None else casters
     items = []  # (box index, face, texture)
     for i, box in enumerate(boxes):
         for f in range(6):
             _, _, _, w, h = box.face_frame(f)
             wpx, hpx = max(2, round(w * box.ppm)), max(2, round(h * box.ppm))
             tex = textures.generate(box.faces[f], _face_rng(seed, box, f), wpx, hpx, box.ppm)
-            lit = tex.astype(np.float32) * _shading(box, f, wpx, hpx, w, h, boxes)[..., None]
+            lit = tex.astype(np.float32) * _shading(box, f, wpx, hpx, w, h, others)[..., None]
             items.append((i, f, np.clip(lit + 0.5, 0, 255).astype(np.uint8), w, h))
     # shelf packing, tallest first
     order = sorted(range(len(items)), key=lambda k: -items[k][2].shape[0])

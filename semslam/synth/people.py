@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.synth.box_carry import CarrierTrack
 from semslam.synth.raycast import Billboard
 from semslam.synth.scene import LABEL_PERSON
 
@@ -473,6 +474,10 @@ class PersonTrack:
         self.cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
         self.length = float(self.cum[-1])
 
+    def is_idle(self, t: float) -> bool:
+        """Standing (no gait, bob or sway) at time ``t``."""
+        return self.idle
+
     def state(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """(position xy, unit heading xy, distance walked) at time ``t``."""
         if self.idle:
@@ -550,16 +555,24 @@ def make_tracks(n: int, mode: str, seed: int) -> list[PersonTrack]:
 class People:
     """All people of a sequence: appearance and track per person, billboards per frame."""
 
-    def __init__(self, n: int, mode: str, seed: int, people_dir: str | None) -> None:
+    def __init__(
+        self, n: int, mode: str, seed: int, people_dir: str | None, carrier: bool = False
+    ) -> None:
+        """``n`` people walking (or idle), plus, with ``carrier``, the person who pushes and
+        carries the box of :mod:`semslam.synth.box_carry` (the others are unchanged by it)."""
         self.source = "none"
         self.looks: list[PersonLook] = []
-        self.tracks = make_tracks(n, mode, seed) if n else []
-        if n:
+        self.tracks: list[PersonTrack | CarrierTrack] = []
+        self.tracks += make_tracks(n, mode, seed) if n else []
+        if n or carrier:
             ub = load_upper_body(people_dir)
             self.source = ub.source
             rng = np.random.default_rng([seed, 313])
             for i in range(n):
                 self.looks.append(PersonLook(ub, i, float(rng.uniform(1.68, 1.86)), seed))
+            if carrier:
+                self.looks.append(PersonLook(ub, n, float(rng.uniform(1.68, 1.86)), seed))
+                self.tracks.append(CarrierTrack())
 
     def billboards(self, t: float, cam_pos: NDArray[np.float64]) -> list[Billboard]:
         """Billboards at time ``t``, sorted far to near for correct alpha blending."""
@@ -571,12 +584,13 @@ class People:
             view /= max(np.linalg.norm(view), 1e-9)
             right = np.array([view[1], -view[0]])  # viewer's right on the floor
             lateral = float(heading @ right)
-            flip = lateral < 0 if not track.idle else False
-            sp = look.sprite(phase, 0.0 if track.idle else abs(lateral), flip)
+            idle = track.is_idle(t)
+            flip = lateral < 0 if not idle else False
+            sp = look.sprite(phase, 0.0 if idle else abs(lateral), flip)
             # walking: bob twice per cycle, sway sideways once per cycle
-            bob = 0.0 if track.idle else 0.012 * (np.cos(2 * phase) - 1.0)
+            bob = 0.0 if idle else 0.012 * (np.cos(2 * phase) - 1.0)
             side = np.array([-heading[1], heading[0]])
-            sway = (0.0 if track.idle else 0.025 * np.sin(phase)) * side
+            sway = (0.0 if idle else 0.025 * np.sin(phase)) * side
             foot = np.array([pos[0] + sway[0], pos[1] + sway[1], bob])
             out.append(Billboard(foot, sp.width_m, sp.height_m, sp.rgba, sp.bulge, LABEL_PERSON))
         out.sort(key=lambda b: -np.linalg.norm(b.foot[:2] - cam_pos[:2]))

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 import semslam
 from semslam.synth import writer
 from semslam.synth.atlas import Atlas, build_atlas
+from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
 from semslam.synth.depth_noise import DEPTH_SCALE, Z_MAX, Z_MIN, kinect_depth
 from semslam.synth.people import People
@@ -28,6 +29,8 @@ from semslam.synth.raycast import Buffers, Camera, cast_billboard, cast_box, sam
 from semslam.synth.scene import Box, mover_box, static_boxes
 from semslam.synth.sequences import SynthConfig
 
+#: SynthConfig fields added after renders were first cached (absent there = default).
+_ADDED_FIELDS = ("box_carrier",)
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -42,11 +45,16 @@ class Frame:
 
 
 @functools.lru_cache(maxsize=2)
-def scene_for_seed(seed: int) -> tuple[list[Box], Atlas]:
-    """Static boxes and the atlas (which also holds the mover's faces, last), cached."""
+def scene_for_seed(seed: int, carried: bool = False) -> tuple[list[Box], Atlas]:
+    """Static boxes and the atlas, cached. The atlas also holds the mover's faces (after
+    the static boxes) and, with ``carried``, the carried box's (last). The carried box
+    casts no baked contact shadow (it does not stay where it stands at t = 0); the atlas
+    of sequences without it is unchanged by its existence."""
     boxes = static_boxes()
-    atlas = build_atlas(boxes + [mover_box(0.0)], seed)
-    return boxes, atlas
+    if not carried:
+        return boxes, build_atlas(boxes + [mover_box(0.0)], seed)
+    casters = boxes + [mover_box(0.0)]
+    return boxes, build_atlas(casters + [carried_box(0.0)], seed, casters=casters)
 
 
 class Renderer:
@@ -56,10 +64,12 @@ class Renderer:
         self.cfg = cfg.validate()
         fx, fy, cx, cy = cfg.intrinsics()
         self.cam = Camera(fx, fy, cx, cy, cfg.width, cfg.height)
-        self.boxes, self.atlas = scene_for_seed(cfg.seed)
+        self.boxes, self.atlas = scene_for_seed(cfg.seed, cfg.box_carrier)
         self.times = np.arange(cfg.frames) / cfg.fps
         self.poses = camera_trajectory(cfg.motion, self.times, cfg.duration)
-        self.people = People(cfg.people, cfg.people_mode, cfg.seed, cfg.people_dir)
+        self.people = People(
+            cfg.people, cfg.people_mode, cfg.seed, cfg.people_dir, carrier=cfg.box_carrier
+        )
         yy, xx = np.mgrid[0 : cfg.height, 0 : cfg.width].astype(np.float32)
         r2 = ((xx - cx) / (cfg.width / 2)) ** 2 + ((yy - cy) / (cfg.height / 2)) ** 2
         vig = (1.0 - VIGNETTE * r2 / 2.0).astype(np.float32)
@@ -80,7 +90,10 @@ class Renderer:
         for box, table, ppm in zip(self.boxes, self.atlas.tables, self.atlas.ppm):
             cast_box(buf, self.cam, pose, box, table, ppm)
         if cfg.mover:
-            cast_box(buf, self.cam, pose, mover_box(t), self.atlas.tables[-1], self.atlas.ppm[-1])
+            k = len(self.boxes)  # the mover's atlas entry follows the static boxes
+            cast_box(buf, self.cam, pose, mover_box(t), self.atlas.tables[k], self.atlas.ppm[k])
+        if cfg.box_carrier:
+            cast_box(buf, self.cam, pose, carried_box(t), self.atlas.tables[-1], self.atlas.ppm[-1])
         rgb8 = sample_atlas(self.atlas.levels, buf)
         for bb in self.people.billboards(t, pose[:3, 3]):
             cast_billboard(buf, rgb8, self.cam, pose, bb)
@@ -188,7 +201,14 @@ def needs_render(seq_dir: Path, cfg: SynthConfig) -> bool:
     except (OSError, json.JSONDecodeError):
         return True
     wanted = json.loads(json.dumps(asdict(cfg)))
-    return saved.get("config", saved) != wanted
+    have = saved.get("config", saved)
+    if not isinstance(have, dict):
+        return True
+    # Fields added to SynthConfig later are absent from older renders: at their default
+    # they do not change the images, so such a render is still this configuration.
+    defaults = json.loads(json.dumps(asdict(SynthConfig())))
+    have = {**{k: v for k, v in defaults.items() if k not in have and k in _ADDED_FIELDS}, **have}
+    return have != wanted
 
 
 def ensure_rendered(cfg: SynthConfig, seq_dir: str | Path, progress: bool = False) -> bool:

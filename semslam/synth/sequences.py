@@ -27,13 +27,16 @@ class SynthConfig:
     """Everything that defines one synthetic TUM-style sequence.
 
     ``noise=False`` gives exact images and depth (no sensor noise, no depth holes) for
-    tests that check that poses, depth and intrinsics agree exactly.
+    tests that check that poses, depth and intrinsics agree exactly. ``box_carrier`` adds
+    a person (beyond ``people``) who pushes a large unlabelled box along the floor, then
+    carries it up to the camera (``synth/box_carry.py``).
     """
 
     motion: str = "xyz"
     frames: int = 300
     people: int = 2
     mover: bool = False
+    box_carrier: bool = False
     seed: int = 0
     noise: bool = True
     fps: float = 30.0
@@ -102,6 +105,9 @@ SEQUENCES: dict[str, SynthConfig] = {
     # 1.25 turns looking at every wall (~15 deg/s): the start is out of view for ~300 deg.
     "room_loop": SynthConfig(motion="room_loop", frames=1080, people=0, seed=10),
     "mover_xyz": SynthConfig(motion="xyz", frames=300, people=0, mover=True, seed=9),
+    # A person pushes a large carton (no person, label 21) across the view, lifts it and
+    # carries it up to the camera (up to ~60 % of the image); 10 s period.
+    "walking_box": SynthConfig(motion="xyz", frames=450, people=0, box_carrier=True, seed=11),
 }
 
 

@@ -9,7 +9,9 @@ from semslam.features.orb.descriptors import (
     Scratch,
     SteeredBrief,
     ic_angles,
+    ic_angles_numpy,
     orb_descriptors,
+    orb_descriptors_numpy,
     umax,
 )
 from semslam.features.orb.detection import (
@@ -24,12 +26,15 @@ from semslam.features.orb.detection import (
     detection_levels,
     detection_region,
     fast_points,
+    fast_points_cv2,
     region_sizes,
 )
+from semslam.features.orb.jit import warm_up
 from semslam.features.orb.pyramid import (
     EDGE_THRESHOLD,
     HALF_PATCH_SIZE,
     PATCH_SIZE,
+    MaskSampler,
     StackedPyramid,
     build_pyramid,
     features_per_level,
@@ -37,6 +42,8 @@ from semslam.features.orb.pyramid import (
     inv_scale_factors,
     level0_xy,
     level_mask,
+    level_mask_indices,
+    level_mask_samplers,
     level_masks,
     level_sigma2,
     level_sizes,
@@ -51,10 +58,12 @@ from semslam.features.orb.quadtree import (
 
 __all__ = [
     "BIT_PATTERN_31", "BORDER", "CELL_SIZE", "EDGE_THRESHOLD", "EMPTY_DETECTION", "HALF_PATCH_SIZE",
-    "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
+    "MaskSampler", "PATCH", "PATCH_SIZE", "CellGrid", "Scratch", "SplitRule", "StackedPyramid", "SteeredBrief",
     "build_pyramid", "cell_grid", "detect_level", "detect_level_reference", "detect_levels",
     "detection_levels", "detection_region", "distribute_quadtree", "distribute_quadtree_leaves",
-    "distribute_quadtree_levels", "fast_points", "features_per_level", "ic_angles",
-    "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_masks",
-    "level_sigma2", "level_sizes", "orb_descriptors", "region_sizes", "scale_factors", "umax",
+    "distribute_quadtree_levels", "fast_points", "fast_points_cv2", "features_per_level", "ic_angles", "ic_angles_numpy",
+    "inv_level_sigma2", "inv_scale_factors", "level0_xy", "level_mask", "level_mask_indices",
+    "level_mask_samplers", "level_masks",
+    "level_sigma2", "level_sizes", "orb_descriptors", "orb_descriptors_numpy", "region_sizes", "scale_factors", "umax",
+    "warm_up",
 ]
