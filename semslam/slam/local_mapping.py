@@ -32,8 +32,8 @@ from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
-from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
-from semslam.slam.map_batch import compute_distinctive_descriptors
+from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map_batch import distinctive_descriptors, normals_and_depths
 from semslam.slam.search import project
 
 if TYPE_CHECKING:
@@ -175,6 +175,18 @@ class LocalMapping(KeyframeWorker):
                     self._cull_keyframes(kf)
         self.next_stage.insert(kf)
 
+    def _write_statistics(self, points: list[MapPoint], descriptors: bool = True) -> None:
+        """Distinctive descriptors (optionally) and normals / depth ranges of ``points``:
+        computed without the lock, written to the point store under it."""
+        desc = distinctive_descriptors(points, self.map.matcher) if descriptors else None
+        normals = normals_and_depths(points, self.pyr.scales)
+        if not normals.points and (desc is None or not desc.points):
+            return
+        with self.map.lock:
+            if desc is not None:
+                desc.write(self.map.store)
+            normals.write(self.map.store)
+
     @contextmanager
     def _step(self, name: str) -> Iterator[None]:
         """Wall and CPU (this thread) milliseconds of one step, in ``stats["steps"]``."""
@@ -204,8 +216,7 @@ class LocalMapping(KeyframeWorker):
                 else:  # created by tracking for this keyframe
                     self.recent_points.append(p)
             kf.update_connections()
-        compute_distinctive_descriptors(matched, self.map.matcher)
-        update_normals_and_depths(matched, self.pyr.scales)
+        self._write_statistics(matched)
 
     def _cull_points(self, kf: KeyFrame) -> None:
         """Recent points seen in < 25 % of the frames that should see them, or by < 3
@@ -377,9 +388,7 @@ class LocalMapping(KeyframeWorker):
         with self.map.lock:
             self.fusion.apply(kf, matches, touched=touched)
             kf.update_connections()
-        changed = [p for p in touched.values() if not p.bad]
-        compute_distinctive_descriptors(changed, self.map.matcher)
-        update_normals_and_depths(changed, self.pyr.scales)
+        self._write_statistics([p for p in touched.values() if not p.bad])
 
     # ---------------------------------------------------------------- local BA
     def _local_bundle_adjustment(self, kf: KeyFrame) -> None:
@@ -416,6 +425,8 @@ class LocalMapping(KeyframeWorker):
             self.stats["local_ba_failed"] += 1
         kfs = free + fixed_list
         outliers = np.flatnonzero(~result.inlier_obs)
+        rows = np.fromiter((p.row for p in points), np.intp, len(points))
+        store = self.map.store
         with self.map.lock:
             if self.map.generation != gen:
                 return
@@ -429,11 +440,10 @@ class LocalMapping(KeyframeWorker):
                     if k.points[idx] is p:
                         k.points[idx] = None
                     p.erase_observation(k)
-            for p, pos in zip(points, result.points_w):
-                if not p.bad:
-                    p.pos = pos
+            alive = ~store.bad[rows]
+            store.pos[rows[alive]] = result.points_w[alive]
         t3 = time.perf_counter()
-        update_normals_and_depths(points, self.pyr.scales)
+        self._write_statistics(points, descriptors=False)
         t4 = time.perf_counter()
         self.stats["local_ba"] += int(result.converged)
         self.stats["local_ba_ms"].append((t4 - t0) * 1e3)

@@ -1,15 +1,23 @@
-"""Map point statistics for many points at once (ORB-SLAM's ComputeDistinctiveDescriptors).
+"""Map point statistics for many points at once (ORB-SLAM's ComputeDistinctiveDescriptors
+and UpdateNormalAndDepth).
 
 Python objects hold the map; what costs is visiting them one by one and paying numpy's call
-overhead per point.  Here the observations' descriptors of all points are gathered once into
-one array, and the choice is made by one compiled kernel for binary descriptors (Hamming
+overhead per point.  Here the observations of all points are gathered once into arrays; the
+distinctive descriptor is chosen by one compiled kernel for binary descriptors (Hamming
 distance, the map's usual kind) or per group of points with the same observation count with
 the matcher's own distances for any other kind.
+
+Computing and writing are separate (:func:`distinctive_descriptors` and
+:func:`normals_and_depths` return an update whose ``write`` stores it): local mapping and loop
+closing compute without the map lock and write under it, as every write to the point store
+must happen (docs/architecture.md).  ``write(store)`` writes by store rows in one numpy
+assignment per field; without a store, attribute by attribute.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
@@ -19,16 +27,38 @@ from semslam.features.matching import HammingMatcher
 
 if TYPE_CHECKING:
     from semslam.core.protocols import Matcher
-    from semslam.slam.map import MapPoint
+    from semslam.slam.map import KeyFrame, MapPoint, PointStore
 
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int32)
 
 
-def compute_distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher") -> None:
+def _rows(points: list["MapPoint"]) -> NDArray[np.intp]:
+    return np.fromiter((p.row for p in points), np.intp, len(points))
+
+
+@dataclass
+class DescriptorUpdate:
+    """Chosen descriptors (one row per point), to be written under the map lock."""
+
+    points: list["MapPoint"] = field(default_factory=list)
+    descriptors: NDArray[Any] | None = None
+
+    def write(self, store: "PointStore | None" = None) -> None:
+        if not self.points or self.descriptors is None:
+            return
+        if store is not None:
+            store.descriptor[_rows(self.points)] = self.descriptors
+            return
+        for p, d in zip(self.points, self.descriptors):
+            p.descriptor = d
+
+
+def distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher") -> DescriptorUpdate:
     """For each point, the observation descriptor with the least median distance to the
     other observations' descriptors (ORB-SLAM ComputeDistinctiveDescriptors; ties: the
     first observation in insertion order).  Observations by bad keyframes are ignored; a
-    point with one observation takes its descriptor, one with none keeps its own.
+    point with one observation takes its descriptor, one with none keeps its own (it is not
+    in the update).
 
     The median runs over the full distance row, the zero distance to itself included, as
     ``MapPoint.compute_distinctive_descriptor`` always did.
@@ -43,7 +73,7 @@ def compute_distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher"
             counts.append(len(obs))
             rows.extend(obs)
     if not owners:
-        return
+        return DescriptorUpdate()
     desc = np.stack(rows)
     cnt = np.asarray(counts, np.intp)
     start = np.zeros(cnt.size, np.intp)
@@ -52,9 +82,77 @@ def compute_distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher"
         chosen = _hamming_choice(desc, start, cnt, _POPCOUNT)
     else:
         chosen = _generic_choice(desc, start, cnt, matcher)
-    best = desc[chosen]  # a fresh array: each point's row is its own copy
-    for p, d in zip(owners, best):
-        p.descriptor = d
+    return DescriptorUpdate(owners, desc[chosen])
+
+
+def compute_distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher") -> None:
+    """:func:`distinctive_descriptors` written at once (the caller holds the map lock)."""
+    distinctive_descriptors(points, matcher).write()
+
+
+@dataclass
+class NormalUpdate:
+    """Normals of ``points`` and the depth ranges of ``points[ranged]``, to be written
+    under the map lock."""
+
+    points: list["MapPoint"] = field(default_factory=list)
+    normal: NDArray[np.float64] | None = None
+    ranged: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
+    min_dist: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    max_dist: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    def write(self, store: "PointStore | None" = None) -> None:
+        if not self.points or self.normal is None:
+            return
+        if store is not None:
+            rows = _rows(self.points)
+            store.normal[rows] = self.normal
+            store.min_dist[rows[self.ranged]] = self.min_dist
+            store.max_dist[rows[self.ranged]] = self.max_dist
+            return
+        for p, n in zip(self.points, self.normal):
+            p.normal = n
+        for j, mn, mx in zip(self.ranged.tolist(), self.min_dist.tolist(), self.max_dist.tolist()):
+            p = self.points[j]
+            p.max_dist = mx
+            p.min_dist = mn
+
+
+def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float64]) -> NormalUpdate:
+    """Mean viewing direction of each point and the distance range it can be matched at
+    (ORB-SLAM UpdateNormalAndDepth): one pass over the observations in Python, the rest in
+    numpy.  Bad points and points without observations are left out; the depth range needs
+    the reference keyframe among the observations."""
+    live = [p for p in points if not p.bad and p.observations]
+    if not live:
+        return NormalUpdate()
+    kf_row: dict[KeyFrame, int] = {}
+    rows = [kf_row.setdefault(kf, len(kf_row)) for p in live for kf in p.observations]
+    counts = np.fromiter((len(p.observations) for p in live), np.intp, len(live))
+    centers = np.array([kf.center for kf in kf_row])
+    pos = np.array([p.pos for p in live])
+    d = np.repeat(pos, counts, axis=0) - centers[rows]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    starts = np.zeros(len(live), np.intp)
+    np.cumsum(counts[:-1], out=starts[1:])
+    normals = np.add.reduceat(d, starts, axis=0)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
+    ref_rows: list[int] = []
+    ref_kfs: list[int] = []
+    ref_levels: list[int] = []
+    for j, p in enumerate(live):
+        idx = p.observations.get(p.ref_kf)
+        if idx is not None:
+            ref_rows.append(j)
+            ref_kfs.append(kf_row[p.ref_kf])
+            ref_levels.append(int(p.ref_kf.keypoints.octave[idx]))
+    rr = np.asarray(ref_rows, np.intp)
+    if rr.size:
+        dist = np.linalg.norm(pos[rr] - centers[ref_kfs], axis=1)
+        max_d = dist * scale_factors[np.asarray(ref_levels, np.intp)]
+    else:
+        max_d = np.zeros(0)
+    return NormalUpdate(live, normals, rr, max_d / scale_factors[-1], max_d)
 
 
 def _generic_choice(desc: NDArray, start: NDArray[np.intp], cnt: NDArray[np.intp],
