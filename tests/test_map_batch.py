@@ -179,3 +179,67 @@ def test_ba_problem_from_an_observation_table_equals_the_direct_one() -> None:
         i = p.observations[kf]
         np.testing.assert_array_equal(a.uv[m_], kf.xy[i])
         assert a.inv_sigma2[m_] == m.spec.pyramid.inv_sigma2[kf.keypoints.octave[i]]
+
+
+def _fusion_world() -> tuple[Map, list[KeyFrame], list[MapPoint], list[MapPoint]]:
+    """Three keyframes looking at 30 points; keyframes 0 and 1 share points ``a`` (also seen
+    by keyframe 2), keyframe 2 has its own duplicates ``b`` of the same 3D points at the same
+    keypoints."""
+    from semslam.slam.map import update_normals_and_depths
+
+    rng = np.random.default_rng(6)
+    m = Map(orb_spec(1.2, 8))
+    n = 30
+    X = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-0.7, 0.7, n), rng.uniform(2.5, 4.0, n)])
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    kfs = []
+    for k in range(3):
+        T = np.eye(4)
+        T[0, 3] = -0.1 * k  # camera k at x = 0.1 k
+        pc = X + T[:3, 3]
+        xy = np.column_stack([525 * pc[:, 0] / pc[:, 2] + 319.5, 525 * pc[:, 1] / pc[:, 2] + 239.5])
+        kps = Keypoints(xy.astype(np.float32), np.zeros(n, np.int32), np.ones(n, np.float32),
+                        np.zeros(n, np.float32), desc.copy())
+        kf = KeyFrame(m.new_kf_id(), k, float(k), T, kps, xy, pc[:, 2].astype(np.float32),
+                      xy[:, 0] - 40.0 / pc[:, 2], [None] * n)
+        m.add_keyframe(kf)
+        kfs.append(kf)
+    a, b = [], []
+    for i in range(n):
+        p = m.new_point(X[i], desc[i].copy(), kfs[0])
+        for kf in kfs[:2]:
+            p.add_observation(kf, i)
+            kf.points[i] = p
+        a.append(p)
+        q = m.new_point(X[i] + 1e-4, desc[i].copy(), kfs[2])
+        q.add_observation(kfs[2], i)
+        kfs[2].points[i] = q
+        b.append(q)
+    update_normals_and_depths(a + b, m.spec.pyramid.scales)
+    return m, kfs, a, b
+
+
+def test_fusion_plan_reads_only_and_apply_merges_duplicates() -> None:
+    """Fuse split in plan (no change to the map) and apply: a's points projected into
+    keyframe 2 find b's duplicates and replace them (a has more observations); points
+    keyframe 2 already observes are not planned; matches gone stale are dropped."""
+    from semslam.geometry.camera import PinholeCamera
+    from semslam.slam.fusion import PointArrays, PointFusion
+
+    m, kfs, a, b = _fusion_world()
+    fusion = PointFusion(m, PinholeCamera(525.0, 525.0, 319.5, 239.5, width=640, height=480), 40.0)
+    before = {p.id: dict(p.observations) for p in a + b}
+    plan = fusion.plan(kfs[2], PointArrays.of(a))
+    assert len(plan) == len(a) and {(p.id, t) for p, t in plan} == {(p.id, i) for i, p in enumerate(a)}
+    assert {p.id: dict(p.observations) for p in a + b} == before  # planning changed nothing
+    assert fusion.plan(kfs[0], PointArrays.of(a)) == []  # keyframe 0 observes them already
+    b[0].bad = True  # gone bad meanwhile: a[0] is added to the free keypoint instead
+    kfs[2].points[0] = None
+    a[1].bad = True  # a planned point gone bad: dropped
+    touched: dict[int, MapPoint] = {}
+    n = fusion.apply(kfs[2], plan, touched)
+    assert n == len(a) - 1 and a[1].id not in touched
+    assert kfs[2].points[0] is a[0] and a[0].observations[kfs[2]] == 0
+    for i in range(2, len(a)):
+        assert b[i].bad and b[i].replaced_by is a[i] and kfs[2].points[i] is a[i]
+        assert set(a[i].observations) == set(kfs)
