@@ -40,9 +40,13 @@ class BundleAdjustmentRunner:
         self._pool: ProcessPoolExecutor | None = None
 
     def start(self, use_process: bool) -> None:
+        """Start the worker process, which loads the compiled solver while tracking starts;
+        in-process, load it now (so no frame pays for it)."""
         if use_process and self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
             self._pool.submit(_warm)
+        elif not use_process:
+            warm_up()
 
     def run(self, problem: BAProblem, **kwargs: Any) -> BAResult:
         if self._pool is None:

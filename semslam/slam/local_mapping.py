@@ -34,6 +34,7 @@ from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
 from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.map_batch import distinctive_descriptors, normals_and_depths
+from semslam.slam.map_batch import warm_up as warm_up_kernels
 from semslam.slam.search import project
 
 if TYPE_CHECKING:
@@ -150,6 +151,7 @@ class LocalMapping(KeyframeWorker):
         self.fusion = fusion
         self.next_stage = next_stage
         self.recent_points: list[MapPoint] = []
+        warm_up_kernels()  # never compiled inside a critical section
         self.stats: dict[str, Any] = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0,
                                       "triangulated": 0, "local_ba_split": [], "steps": {}}
 

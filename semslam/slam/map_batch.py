@@ -206,3 +206,11 @@ def _hamming_choice(desc: NDArray[np.uint8], start: NDArray[np.intp], cnt: NDArr
                 best = i
         out[s] = b + best
     return out
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the kernel here before local mapping first
+    needs it: the first call otherwise compiles inside a critical section (fusion's
+    ``replace_point`` runs under the map lock)."""
+    desc = np.zeros((3, 32), np.uint8)
+    _hamming_choice(desc, np.zeros(1, np.intp), np.full(1, 3, np.intp), _POPCOUNT)
