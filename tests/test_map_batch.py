@@ -243,3 +243,41 @@ def test_fusion_plan_reads_only_and_apply_merges_duplicates() -> None:
     for i in range(2, len(a)):
         assert b[i].bad and b[i].replaced_by is a[i] and kfs[2].points[i] is a[i]
         assert set(a[i].observations) == set(kfs)
+
+
+def test_normals_of_a_pending_change_equal_those_after_it() -> None:
+    """normals_and_depths with new positions, camera centres and observations to erase
+    (local BA computes them before taking the lock) equals it computed after the change:
+    reference keyframes that go take the first remaining one, points left with <= 1
+    observation go bad and are left out."""
+    from semslam.slam.map_batch import normals_and_depths
+
+    rng = np.random.default_rng(7)
+    m, points = _world(rng, orb_spec(1.2, 8), max_obs=6)
+    points = [p for p in points if p.observations]
+    kfs = m.all_keyframes()
+    scales = m.spec.pyramid.scales
+    new_pos = np.array([p.pos for p in points]) + rng.normal(0, 0.05, (len(points), 3))
+    new_T = {kf: kf.T_cw @ np.r_[np.c_[np.eye(3), rng.normal(0, 0.1, 3)], [[0, 0, 0, 1]]] for kf in kfs[:4]}
+    centers = {kf: -T[:3, :3].T @ T[:3, 3] for kf, T in new_T.items()}
+    erased: dict[int, set] = {}
+    for p in points[::3]:
+        obs = list(p.observations)
+        gone = {p.ref_kf} if p.ref_kf in p.observations else set()
+        gone |= set(obs[1:2]) if len(obs) > 3 else set(obs[:1])
+        erased[p.id] = gone
+    pending = normals_and_depths(points, scales, new_pos, centers, erased)
+    for p, x in zip(points, new_pos):
+        p.pos = x
+    for kf, T in new_T.items():
+        kf.set_pose(T)
+    for p in points:
+        for kf in erased.get(p.id, ()):
+            p.erase_observation(kf)
+    assert any(p.bad for p in points) and any(not p.bad for p in points if p.id in erased)
+    after = normals_and_depths(points, scales)
+    assert [p.id for p in pending.points] == [p.id for p in after.points]
+    np.testing.assert_allclose(pending.normal, after.normal, atol=1e-12)
+    np.testing.assert_array_equal(pending.ranged, after.ranged)
+    np.testing.assert_allclose(pending.max_dist, after.max_dist, rtol=1e-12)
+    np.testing.assert_allclose(pending.min_dist, after.min_dist, rtol=1e-12)

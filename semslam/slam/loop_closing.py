@@ -294,11 +294,10 @@ class LoopClosing(KeyframeWorker):
         src = PointArrays.of(loop_pts)
         plans = [(k, self.fusion.plan(k, src, th=4.0)) for k in connected]
         apply_in_slices(self.map.lock, [partial(self.fusion.apply, k, m) for k, m in plans if m])
+        before = {k: set(k.covis) for k in connected}
+        apply_in_slices(self.map.lock, [k.update_connections for k in connected])
+        new_links = {k: set(k.covis) - before[k] - set(connected) for k in connected}
         with self.map.lock:
-            before = {k: set(k.covis) for k in connected}
-            for k in connected:
-                k.update_connections()
-            new_links = {k: set(k.covis) - before[k] - set(connected) for k in connected}
             kf.loop_edges.add(cand)
             cand.loop_edges.add(kf)
             cand.not_erase = True

@@ -118,20 +118,51 @@ class NormalUpdate:
             p.min_dist = mn
 
 
-def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float64]) -> NormalUpdate:
+def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float64],
+                       pos: NDArray[np.float64] | None = None,
+                       centers: dict["KeyFrame", NDArray[np.float64]] | None = None,
+                       erased: dict[int, set["KeyFrame"]] | None = None) -> NormalUpdate:
     """Mean viewing direction of each point and the distance range it can be matched at
     (ORB-SLAM UpdateNormalAndDepth): one pass over the observations in Python, the rest in
     numpy.  Bad points and points without observations are left out; the depth range needs
-    the reference keyframe among the observations."""
-    live = [p for p in points if not p.bad and p.observations]
+    the reference keyframe among the observations.
+
+    The map as it will be after a change not made yet (a BA result about to be applied):
+    ``pos`` (one row per point) replaces the positions, ``centers`` some keyframes' camera
+    centres, and ``erased[point id]`` are observations left out as ``erase_observation``
+    will erase them (a point left with <= 1 observation by that goes bad and is left out;
+    one that loses its reference keyframe takes the first remaining one, as it will)."""
+    erased = erased or {}
+    centers = centers or {}
+    live: list[MapPoint] = []
+    live_idx: list[int] = []
+    obs_kfs: list[list[KeyFrame]] = []
+    refs: list[tuple[KeyFrame, int] | None] = []
+    for j, p in enumerate(points):
+        if p.bad or not p.observations:
+            continue
+        gone = erased.get(p.id)
+        if gone:
+            kfs = [kf for kf in p.observations if kf not in gone]
+            if len(kfs) <= 1:
+                continue
+            ref = p.ref_kf if p.ref_kf not in gone else kfs[0]
+        else:
+            kfs = list(p.observations)
+            ref = p.ref_kf
+        live.append(p)
+        live_idx.append(j)
+        obs_kfs.append(kfs)
+        idx = p.observations.get(ref)
+        refs.append(None if idx is None else (ref, idx))
     if not live:
         return NormalUpdate()
     kf_row: dict[KeyFrame, int] = {}
-    rows = [kf_row.setdefault(kf, len(kf_row)) for p in live for kf in p.observations]
-    counts = np.fromiter((len(p.observations) for p in live), np.intp, len(live))
-    centers = np.array([kf.center for kf in kf_row])
-    pos = np.array([p.pos for p in live])
-    d = np.repeat(pos, counts, axis=0) - centers[rows]
+    rows = [kf_row.setdefault(kf, len(kf_row)) for kfs in obs_kfs for kf in kfs]
+    counts = np.fromiter((len(kfs) for kfs in obs_kfs), np.intp, len(live))
+    center = np.array([centers[kf] if kf in centers else kf.center for kf in kf_row])
+    xyz = np.array([p.pos for p in live]) if pos is None else np.asarray(pos)[live_idx]
+    d = np.repeat(xyz, counts, axis=0) - center[rows]
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
     starts = np.zeros(len(live), np.intp)
     np.cumsum(counts[:-1], out=starts[1:])
@@ -140,15 +171,14 @@ def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float
     ref_rows: list[int] = []
     ref_kfs: list[int] = []
     ref_levels: list[int] = []
-    for j, p in enumerate(live):
-        idx = p.observations.get(p.ref_kf)
-        if idx is not None:
+    for j, r in enumerate(refs):
+        if r is not None:
             ref_rows.append(j)
-            ref_kfs.append(kf_row[p.ref_kf])
-            ref_levels.append(int(p.ref_kf.keypoints.octave[idx]))
+            ref_kfs.append(kf_row[r[0]])
+            ref_levels.append(int(r[0].keypoints.octave[r[1]]))
     rr = np.asarray(ref_rows, np.intp)
     if rr.size:
-        dist = np.linalg.norm(pos[rr] - centers[ref_kfs], axis=1)
+        dist = np.linalg.norm(xyz[rr] - center[ref_kfs], axis=1)
         max_d = dist * scale_factors[np.asarray(ref_levels, np.intp)]
     else:
         max_d = np.zeros(0)
