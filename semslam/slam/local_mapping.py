@@ -3,14 +3,16 @@ triangulation, duplicate fusion with neighbours, local bundle adjustment and red
 keyframe culling. Runs as a thread, or inline when ``slam.sequential`` is set.
 
 Locking (see docs/architecture.md): tracking holds ``map.lock`` for a whole frame, so every
-step here reads the map and does its work without the lock, then applies what it found in
-one short critical section that checks again what may have changed meanwhile.  That is
-safe because the map's structure (observations, keyframes' point slots, covisibility) has
-only two writers, this thread and loop closing, and loop closing pauses this thread
-(``KeyframeInbox.paused``) around everything it writes; tracking only adds new keyframes and
-points (unreachable from here until published) and replaces whole attributes (counters,
-bad flags with their observations).  Derived values that are replaced whole (descriptor,
-normal, depth range) are written outside the lock: a reader sees the old or the new array.
+step here reads the map and does its work without the lock, then writes what it found under
+the lock in short critical sections (``apply_in_slices`` lets go of the lock every ~1 ms
+when there are many small changes) that check again what may have changed meanwhile.
+Reading without the lock is safe because the map's structure (observations, keyframes'
+point slots, covisibility) has only two writers, this thread and loop closing, and loop
+closing pauses this thread (``KeyframeInbox.paused``) around everything it writes; tracking
+only adds new keyframes and points (unreachable from here until published), counts
+(``n_visible``, ``n_found``) and marks points bad, which every write here checks.  Every
+write, to the structure and to the point store (positions, descriptors, normals, depth
+ranges), happens under the lock: values are computed first, then stored by rows.
 """
 
 from __future__ import annotations
