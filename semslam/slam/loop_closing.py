@@ -378,10 +378,11 @@ class LoopClosing(KeyframeWorker):
         self._write_normals(all_points)
 
     def global_bundle_adjustment(self) -> None:
-        """Full BA over all keyframes and points (first keyframe fixed), solved in the BA
-        worker while local mapping goes on; the problem is gathered and the result applied
-        with local mapping paused, the result written in one critical section.  Keyframes
-        and points added while it ran are moved with their parent / reference keyframe."""
+        """Full BA over all keyframes and points (first keyframe fixed), solved without the
+        lock while local mapping goes on (the Schur solver releases the GIL); the problem is
+        gathered and the result applied with local mapping paused, the result written in
+        one critical section.  Keyframes and points added while it ran are moved with their
+        parent / reference keyframe."""
         t0 = time.perf_counter()
         with self.mapping.paused():
             with self.map.lock:
