@@ -189,7 +189,8 @@ def synthetic(args: argparse.Namespace) -> dict[str, Any]:
 # --------------------------------------------------------------------------- real windows
 
 
-def record_windows(seq: Path, frames: int, preset: str) -> list[BAProblem]:
+def record_windows(seq: Path, frames: int, preset: str,
+                   overrides: list[str] | None = None) -> list[BAProblem]:
     """Every local BA problem of a sequential run over the first ``frames`` frames."""
     import tempfile
 
@@ -208,7 +209,7 @@ def record_windows(seq: Path, frames: int, preset: str) -> list[BAProblem]:
 
     BundleAdjustmentRunner.run = recording
     try:
-        cfg = load_config(preset, ["slam.sequential=true"])
+        cfg = load_config(preset, ["slam.sequential=true", *(overrides or [])])
         with tempfile.TemporaryDirectory() as tmp:
             run_slam(open_sequence(seq), cfg, tmp, max_frames=frames, progress=False, report=False)
     finally:
@@ -290,7 +291,7 @@ def windows(args: argparse.Namespace) -> dict[str, Any]:
     if cache.is_file():
         problems = pickle.loads(cache.read_bytes())
     else:
-        problems = record_windows(Path(args.sequence), args.frames, args.preset)
+        problems = record_windows(Path(args.sequence), args.frames, args.preset, args.set)
         cache.parent.mkdir(parents=True, exist_ok=True)
         cache.write_bytes(pickle.dumps(problems))
     sizes = {
@@ -366,7 +367,8 @@ class TimedLock:
         self.release()
 
 
-def slam_run(seq: Path, preset: str, frames: int | None, out_dir: Path) -> dict[str, Any]:
+def slam_run(seq: Path, preset: str, frames: int | None, out_dir: Path,
+             overrides: list[str] | None = None) -> dict[str, Any]:
     """One threaded run with the timed lock; returns the lock, BA and run statistics."""
     from semslam.config import load_config
     from semslam.io.sequence import open_sequence
@@ -390,7 +392,7 @@ def slam_run(seq: Path, preset: str, frames: int | None, out_dir: Path) -> dict[
     map_mod.Map.__init__ = timed_map_init
     local_mapping.LocalMapping.__init__ = collecting_lm_init
     try:
-        cfg = load_config(preset)
+        cfg = load_config(preset, overrides or [])
         result = run_slam(open_sequence(seq), cfg, out_dir, max_frames=frames, progress=False,
                           report=False)
     finally:
@@ -421,7 +423,7 @@ def slam(args: argparse.Namespace) -> dict[str, Any]:
     runs = []
     for r in range(args.runs):
         runs.append(slam_run(Path(args.sequence), args.preset, args.frames,
-                             Path(args.out) / f"run{r}"))
+                             Path(args.out) / f"run{r}", args.set))
     merged: dict[str, Any] = {"runs": runs}
     merged["ate_rmse_m"] = [r["ate_rmse_m"] for r in runs]
     for key in ("tracking_lock_wait_ms",):
@@ -470,12 +472,14 @@ def main() -> None:
     w.add_argument("--cache", default="out/backend_timing/windows.pkl")
     w.add_argument("--stride", type=int, default=1, help="time every n-th window")
     w.add_argument("--skip-variants", action="store_true", help="no GTSAM optimiser variants")
+    w.add_argument("--set", action="append", default=[], help="config override for the recording run")
     r = sub.add_parser("slam")
     r.add_argument("sequence")
     r.add_argument("--preset", default="orb")
     r.add_argument("--runs", type=int, default=1)
     r.add_argument("--frames", type=int, default=None)
     r.add_argument("--out", default="out/backend_timing/slam")
+    r.add_argument("--set", action="append", default=[], help="config override section.key=value")
     args = ap.parse_args()
     if args.mode in (None, "synthetic"):
         args.repeat = getattr(args, "repeat", 20)

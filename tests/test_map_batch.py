@@ -152,3 +152,132 @@ def test_hamming_kernel_equals_generic_path() -> None:
         fast = _hamming_choice(desc, start, cnt, _POPCOUNT)
         slow = _generic_choice(desc, start, cnt, matcher_for(orb_spec(1.2, 8)))
         np.testing.assert_array_equal(fast, slow)
+
+
+def test_ba_problem_from_an_observation_table_equals_the_direct_one() -> None:
+    """build_ba_problem gives the same arrays whether it walks the observations itself or
+    gets local mapping's one-pass table of every observer."""
+    from semslam.geometry.camera import PinholeCamera
+    from semslam.slam.local_mapping import build_ba_problem, observation_table
+
+    rng = np.random.default_rng(5)
+    m, points = _world(rng, orb_spec(1.2, 8))
+    for kf in m.all_keyframes():
+        kf.ur[::3] = 100.0  # some observations with depth
+    points = [p for p in points if p.observations]
+    kfs = m.all_keyframes()
+    free, fixed = kfs[2:7], kfs[8:10]  # the others observe too and are left out
+    cam = PinholeCamera(525.0, 525.0, 319.5, 239.5)
+    a = build_ba_problem(free, fixed, points, cam, m.spec.pyramid, 40.0)
+    b = build_ba_problem(free, fixed, points, cam, m.spec.pyramid, 40.0, observation_table(points))
+    assert a.obs_pose.size > 100
+    for field in ("poses_cw", "pose_fixed", "points_w", "obs_pose", "obs_point", "uv", "ur", "inv_sigma2"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+    # and they are the observations themselves
+    for m_ in range(0, a.obs_pose.size, 7):
+        kf, p = (free + fixed)[a.obs_pose[m_]], points[a.obs_point[m_]]
+        i = p.observations[kf]
+        np.testing.assert_array_equal(a.uv[m_], kf.xy[i])
+        assert a.inv_sigma2[m_] == m.spec.pyramid.inv_sigma2[kf.keypoints.octave[i]]
+
+
+def _fusion_world() -> tuple[Map, list[KeyFrame], list[MapPoint], list[MapPoint]]:
+    """Three keyframes looking at 30 points; keyframes 0 and 1 share points ``a`` (also seen
+    by keyframe 2), keyframe 2 has its own duplicates ``b`` of the same 3D points at the same
+    keypoints."""
+    from semslam.slam.map import update_normals_and_depths
+
+    rng = np.random.default_rng(6)
+    m = Map(orb_spec(1.2, 8))
+    n = 30
+    X = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-0.7, 0.7, n), rng.uniform(2.5, 4.0, n)])
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    kfs = []
+    for k in range(3):
+        T = np.eye(4)
+        T[0, 3] = -0.1 * k  # camera k at x = 0.1 k
+        pc = X + T[:3, 3]
+        xy = np.column_stack([525 * pc[:, 0] / pc[:, 2] + 319.5, 525 * pc[:, 1] / pc[:, 2] + 239.5])
+        kps = Keypoints(xy.astype(np.float32), np.zeros(n, np.int32), np.ones(n, np.float32),
+                        np.zeros(n, np.float32), desc.copy())
+        kf = KeyFrame(m.new_kf_id(), k, float(k), T, kps, xy, pc[:, 2].astype(np.float32),
+                      xy[:, 0] - 40.0 / pc[:, 2], [None] * n)
+        m.add_keyframe(kf)
+        kfs.append(kf)
+    a, b = [], []
+    for i in range(n):
+        p = m.new_point(X[i], desc[i].copy(), kfs[0])
+        for kf in kfs[:2]:
+            p.add_observation(kf, i)
+            kf.points[i] = p
+        a.append(p)
+        q = m.new_point(X[i] + 1e-4, desc[i].copy(), kfs[2])
+        q.add_observation(kfs[2], i)
+        kfs[2].points[i] = q
+        b.append(q)
+    update_normals_and_depths(a + b, m.spec.pyramid.scales)
+    return m, kfs, a, b
+
+
+def test_fusion_plan_reads_only_and_apply_merges_duplicates() -> None:
+    """Fuse split in plan (no change to the map) and apply: a's points projected into
+    keyframe 2 find b's duplicates and replace them (a has more observations); points
+    keyframe 2 already observes are not planned; matches gone stale are dropped."""
+    from semslam.geometry.camera import PinholeCamera
+    from semslam.slam.fusion import PointArrays, PointFusion
+
+    m, kfs, a, b = _fusion_world()
+    fusion = PointFusion(m, PinholeCamera(525.0, 525.0, 319.5, 239.5, width=640, height=480), 40.0)
+    before = {p.id: dict(p.observations) for p in a + b}
+    plan = fusion.plan(kfs[2], PointArrays.of(a))
+    assert len(plan) == len(a) and {(p.id, t) for p, t in plan} == {(p.id, i) for i, p in enumerate(a)}
+    assert {p.id: dict(p.observations) for p in a + b} == before  # planning changed nothing
+    assert fusion.plan(kfs[0], PointArrays.of(a)) == []  # keyframe 0 observes them already
+    b[0].bad = True  # gone bad meanwhile: a[0] is added to the free keypoint instead
+    kfs[2].points[0] = None
+    a[1].bad = True  # a planned point gone bad: dropped
+    touched: dict[int, MapPoint] = {}
+    n = fusion.apply(kfs[2], plan, touched)
+    assert n == len(a) - 1 and a[1].id not in touched
+    assert kfs[2].points[0] is a[0] and a[0].observations[kfs[2]] == 0
+    for i in range(2, len(a)):
+        assert b[i].bad and b[i].replaced_by is a[i] and kfs[2].points[i] is a[i]
+        assert set(a[i].observations) == set(kfs)
+
+
+def test_normals_of_a_pending_change_equal_those_after_it() -> None:
+    """normals_and_depths with new positions, camera centres and observations to erase
+    (local BA computes them before taking the lock) equals it computed after the change:
+    reference keyframes that go take the first remaining one, points left with <= 1
+    observation go bad and are left out."""
+    from semslam.slam.map_batch import normals_and_depths
+
+    rng = np.random.default_rng(7)
+    m, points = _world(rng, orb_spec(1.2, 8), max_obs=6)
+    points = [p for p in points if p.observations]
+    kfs = m.all_keyframes()
+    scales = m.spec.pyramid.scales
+    new_pos = np.array([p.pos for p in points]) + rng.normal(0, 0.05, (len(points), 3))
+    new_T = {kf: kf.T_cw @ np.r_[np.c_[np.eye(3), rng.normal(0, 0.1, 3)], [[0, 0, 0, 1]]] for kf in kfs[:4]}
+    centers = {kf: -T[:3, :3].T @ T[:3, 3] for kf, T in new_T.items()}
+    erased: dict[int, set] = {}
+    for p in points[::3]:
+        obs = list(p.observations)
+        gone = {p.ref_kf} if p.ref_kf in p.observations else set()
+        gone |= set(obs[1:2]) if len(obs) > 3 else set(obs[:1])
+        erased[p.id] = gone
+    pending = normals_and_depths(points, scales, new_pos, centers, erased)
+    for p, x in zip(points, new_pos):
+        p.pos = x
+    for kf, T in new_T.items():
+        kf.set_pose(T)
+    for p in points:
+        for kf in erased.get(p.id, ()):
+            p.erase_observation(kf)
+    assert any(p.bad for p in points) and any(not p.bad for p in points if p.id in erased)
+    after = normals_and_depths(points, scales)
+    assert [p.id for p in pending.points] == [p.id for p in after.points]
+    np.testing.assert_allclose(pending.normal, after.normal, atol=1e-12)
+    np.testing.assert_array_equal(pending.ranged, after.ranged)
+    np.testing.assert_allclose(pending.max_dist, after.max_dist, rtol=1e-12)
+    np.testing.assert_allclose(pending.min_dist, after.min_dist, rtol=1e-12)

@@ -3,14 +3,16 @@ triangulation, duplicate fusion with neighbours, local bundle adjustment and red
 keyframe culling. Runs as a thread, or inline when ``slam.sequential`` is set.
 
 Locking (see docs/architecture.md): tracking holds ``map.lock`` for a whole frame, so every
-step here reads the map and does its work without the lock, then applies what it found in
-one short critical section that checks again what may have changed meanwhile.  That is
-safe because the map's structure (observations, keyframes' point slots, covisibility) has
-only two writers, this thread and loop closing, and loop closing pauses this thread
-(``KeyframeInbox.paused``) around everything it writes; tracking only adds new keyframes and
-points (unreachable from here until published) and replaces whole attributes (counters,
-bad flags with their observations).  Derived values that are replaced whole (descriptor,
-normal, depth range) are written outside the lock: a reader sees the old or the new array.
+step here reads the map and does its work without the lock, then writes what it found under
+the lock in short critical sections (``apply_in_slices`` lets go of the lock every ~1 ms
+when there are many small changes) that check again what may have changed meanwhile.
+Reading without the lock is safe because the map's structure (observations, keyframes'
+point slots, covisibility) has only two writers, this thread and loop closing, and loop
+closing pauses this thread (``KeyframeInbox.paused``) around everything it writes; tracking
+only adds new keyframes and points (unreachable from here until published), counts
+(``n_visible``, ``n_found``) and marks points bad, which every write here checks.  Every
+write, to the structure and to the point store (positions, descriptors, normals, depth
+ranges), happens under the lock: values are computed first, then stored by rows.
 """
 
 from __future__ import annotations
@@ -32,8 +34,9 @@ from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
-from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
-from semslam.slam.map_batch import compute_distinctive_descriptors
+from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map_batch import distinctive_descriptors, normals_and_depths
+from semslam.slam.map_batch import warm_up as warm_up_kernels
 from semslam.slam.search import project
 
 if TYPE_CHECKING:
@@ -84,12 +87,22 @@ def gather_keypoints(kfs: list[KeyFrame], kf_row: NDArray[np.intp], kp: NDArray[
 
 
 def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points: list[MapPoint],
-                     camera: PinholeCamera, pyr: ScalePyramid, bf: float) -> BAProblem:
+                     camera: PinholeCamera, pyr: ScalePyramid, bf: float,
+                     table: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[KeyFrame]] | None = None
+                     ) -> BAProblem:
     """Arrays of a bundle adjustment over the given keyframes and points (observations of
     the points by keyframes outside both lists are left out); observation ``m`` is point
-    ``points[obs_point[m]]`` in keyframe ``(kfs_free + kfs_fixed)[obs_pose[m]]``."""
+    ``points[obs_point[m]]`` in keyframe ``(kfs_free + kfs_fixed)[obs_pose[m]]``.
+    ``table`` is ``observation_table(points)`` when the caller has it already."""
     kfs = kfs_free + kfs_fixed
-    obs_point, obs_pose, kp, _ = observation_table(points, {kf: i for i, kf in enumerate(kfs)})
+    if table is None:
+        obs_point, obs_pose, kp, _ = observation_table(points, {kf: i for i, kf in enumerate(kfs)})
+    else:
+        pt_row, kf_row, kp_all, observers = table
+        where = {kf: i for i, kf in enumerate(kfs)}
+        pose_of = np.array([where.get(kf, -1) for kf in observers], np.intp)
+        sel = pose_of[kf_row] >= 0
+        obs_point, obs_pose, kp = pt_row[sel], pose_of[kf_row[sel]], kp_all[sel]
     uv, ur, octave = gather_keypoints(kfs, obs_pose, kp)
     return BAProblem(
         poses_cw=np.stack([kf.T_cw for kf in kfs]),
@@ -102,6 +115,10 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
         inv_sigma2=pyr.inv_sigma2[octave],
         fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, bf=bf,
     )
+
+
+def _chunks(items: list[Any], n: int) -> list[list[Any]]:
+    return [items[i:i + n] for i in range(0, len(items), n)]
 
 
 def apply_in_slices(lock: Any, jobs: list[Callable[[], object]], budget_s: float = 1e-3) -> None:
@@ -140,6 +157,7 @@ class LocalMapping(KeyframeWorker):
         self.fusion = fusion
         self.next_stage = next_stage
         self.recent_points: list[MapPoint] = []
+        warm_up_kernels()  # never compiled inside a critical section
         self.stats: dict[str, Any] = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0,
                                       "triangulated": 0, "local_ba_split": [], "steps": {}}
 
@@ -165,6 +183,18 @@ class LocalMapping(KeyframeWorker):
                     self._cull_keyframes(kf)
         self.next_stage.insert(kf)
 
+    def _write_statistics(self, points: list[MapPoint], descriptors: bool = True) -> None:
+        """Distinctive descriptors (optionally) and normals / depth ranges of ``points``:
+        computed without the lock, written to the point store under it."""
+        desc = distinctive_descriptors(points, self.map.matcher) if descriptors else None
+        normals = normals_and_depths(points, self.pyr.scales)
+        if not normals.points and (desc is None or not desc.points):
+            return
+        with self.map.lock:
+            if desc is not None:
+                desc.write(self.map.store)
+            normals.write(self.map.store)
+
     @contextmanager
     def _step(self, name: str) -> Iterator[None]:
         """Wall and CPU (this thread) milliseconds of one step, in ``stats["steps"]``."""
@@ -177,25 +207,33 @@ class LocalMapping(KeyframeWorker):
             rec["cpu_ms"].append((time.thread_time() - c0) * 1e3)
 
     def _process_new_keyframe(self, kf: KeyFrame) -> None:
+        """ORB-SLAM ProcessNewKeyFrame: bag of words (without the lock), the keyframe's
+        observations added to its points and its connections (under the lock, in slices),
+        the points' descriptors and normals (computed without the lock)."""
         bow = featvec = None
         if kf.bow is None:  # reads only the keyframe's own descriptors: no lock
             bow, featvec = self.voc.transform(kf.keypoints.descriptors)
-        matched = []
-        with self.map.lock:
+        matched: list[MapPoint] = []
+
+        def set_bow() -> None:
             if bow is not None and kf.bow is None:
                 kf.featvec = featvec
                 kf.bow = bow
-            for i, p in enumerate(kf.points):
-                if p is None or p.bad:
+
+        def observe(slots: list[tuple[int, MapPoint]]) -> None:
+            for i, p in slots:
+                if p.bad or kf.points[i] is not p:
                     continue
                 if kf not in p.observations:
                     p.add_observation(kf, i)
                     matched.append(p)
                 else:  # created by tracking for this keyframe
                     self.recent_points.append(p)
-            kf.update_connections()
-        compute_distinctive_descriptors(matched, self.map.matcher)
-        update_normals_and_depths(matched, self.pyr.scales)
+
+        slots = [(i, p) for i, p in enumerate(kf.points) if p is not None]
+        apply_in_slices(self.map.lock, [set_bow, *(partial(observe, c) for c in _chunks(slots, 64)),
+                                        kf.update_connections])
+        self._write_statistics(matched)
 
     def _cull_points(self, kf: KeyFrame) -> None:
         """Recent points seen in < 25 % of the frames that should see them, or by < 3
@@ -214,16 +252,13 @@ class LocalMapping(KeyframeWorker):
                 continue
             keep.append(p)
         self.recent_points = keep
-        if cull:
-            with self.map.lock:
-                for p in cull:
-                    self.map.set_bad_point(p)
+        apply_in_slices(self.map.lock, [partial(self.map.set_bad_point, p) for p in cull])
 
     # ---------------------------------------------------------------- triangulation
     def _create_new_points(self, kf: KeyFrame) -> None:
         """Triangulate unmatched keypoints with the best covisible keyframes (epipolar-guided);
-        the matching and triangulation run without the lock, the new points are added in
-        one critical section."""
+        the matching and triangulation run without the lock, the new points are added under
+        it (in slices, ``apply_in_slices``)."""
         baseline = self.cfg.bf / self.camera.fx
         free1 = np.array([p is None or p.bad for p in kf.points], bool)
         new: list[tuple[KeyFrame, int, int]] = []
@@ -260,21 +295,25 @@ class LocalMapping(KeyframeWorker):
         max_d = dist1 * self.pyr.scales[kf.keypoints.octave[a_idx]]
         min_d = max_d / self.pyr.scales[-1]
         desc = kf.keypoints.descriptors[a_idx]  # a copy: one row per new point
-        with self.map.lock:
-            if kf.bad:
-                return
-            for (nb, a, b), pw, n, mx, mn, d in zip(new, pos, normal, max_d.tolist(), min_d.tolist(), desc):
-                old_a, old_b = kf.points[a], nb.points[b]
-                if nb.bad or (old_a is not None and not old_a.bad) or (old_b is not None and not old_b.bad):
-                    continue
-                p = self.map.new_point(pw, d, kf)
-                p.add_observation(kf, a)
-                p.add_observation(nb, b)
-                p.normal, p.max_dist, p.min_dist = n, mx, mn
-                kf.points[a] = p
-                nb.points[b] = p
-                self.recent_points.append(p)
-                self.stats["triangulated"] += 1
+        apply_in_slices(self.map.lock, [partial(self._add_triangulated, kf, nb, a, b, pw, n, mx, mn, d)
+                                        for (nb, a, b), pw, n, mx, mn, d
+                                        in zip(new, pos, normal, max_d.tolist(), min_d.tolist(), desc)])
+
+    def _add_triangulated(self, kf: KeyFrame, nb: KeyFrame, a: int, b: int, pw: NDArray[np.float64],
+                          normal: NDArray[np.float64], max_dist: float, min_dist: float,
+                          descriptor: NDArray[Any]) -> None:
+        """One new point seen by keypoint a of kf and b of nb, if both are still free."""
+        old_a, old_b = kf.points[a], nb.points[b]
+        if kf.bad or nb.bad or (old_a is not None and not old_a.bad) or (old_b is not None and not old_b.bad):
+            return
+        p = self.map.new_point(pw, descriptor, kf)
+        p.add_observation(kf, a)
+        p.add_observation(nb, b)
+        p.normal, p.max_dist, p.min_dist = normal, max_dist, min_dist
+        kf.points[a] = p
+        nb.points[b] = p
+        self.recent_points.append(p)
+        self.stats["triangulated"] += 1
 
     def _epipolar_matches(self, kf1: KeyFrame, kf2: KeyFrame, free1: NDArray[np.bool_], free2: NDArray[np.bool_]
                           ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -347,7 +386,7 @@ class LocalMapping(KeyframeWorker):
     def _search_in_neighbours(self, kf: KeyFrame) -> None:
         """ORB-SLAM SearchInNeighbors: kf's points fused into its neighbours (two levels of
         covisibility), then the neighbours' points into kf.  Each direction is searched
-        without the lock for all keyframes at once and applied in one critical section."""
+        without the lock for all keyframes at once and applied under it in slices."""
         targets: dict[KeyFrame, None] = {}
         for nb in kf.best_covisibles(10):
             targets.setdefault(nb)
@@ -364,20 +403,17 @@ class LocalMapping(KeyframeWorker):
             for p in t.valid_points():
                 cand.setdefault(p.id, p)
         matches = self.fusion.plan(kf, PointArrays.of(list(cand.values())))
-        with self.map.lock:
-            self.fusion.apply(kf, matches, touched=touched)
-            kf.update_connections()
-        changed = [p for p in touched.values() if not p.bad]
-        compute_distinctive_descriptors(changed, self.map.matcher)
-        update_normals_and_depths(changed, self.pyr.scales)
+        apply_in_slices(self.map.lock, [*(partial(self.fusion.apply, kf, c, touched) for c in _chunks(matches, 32)),
+                                        kf.update_connections])
+        self._write_statistics([p for p in touched.values() if not p.bad])
 
     # ---------------------------------------------------------------- local BA
     def _local_bundle_adjustment(self, kf: KeyFrame) -> None:
         """ORB-SLAM LocalBundleAdjustment: kf and its covisible keyframes free, the other
-        keyframes that see their points fixed.  The problem is gathered and the result's
-        normals are computed without the lock; poses, outlier observations and positions
-        are applied in one critical section, unless a loop correction or global BA moved
-        the map meanwhile (``Map.generation``)."""
+        keyframes that see their points fixed.  The problem is gathered and the normals of
+        the result are computed without the lock; poses, outlier observations, positions
+        and normals are applied in one critical section, unless a loop correction or global
+        BA moved the map meanwhile (``Map.generation``)."""
         t0 = time.perf_counter()
         gen = self.map.generation
         local = [kf] + [k for k in kf.ordered_covis if not k.bad][: self.cfg.local_ba_max_keyframes - 1]
@@ -387,16 +423,18 @@ class LocalMapping(KeyframeWorker):
             for p in k.valid_points():
                 pts.setdefault(p.id, p)
         points = list(pts.values())
-        fixed: dict[KeyFrame, int] = {}
-        for p in points:
-            for k in p.observations:
-                if k not in local_set and not k.bad:
-                    fixed[k] = fixed.get(k, 0) + 1
         free = [k for k in local if k.id != 0]
-        fixed_list = sorted(fixed, key=lambda k: -fixed[k])[: self.cfg.local_ba_max_fixed] + [k for k in local if k.id == 0]
         if not points or not free:
             return
-        problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)
+        # Fixed: the other keyframes that see the local points, the most observations first
+        # (ties in first-seen order), from one pass over the observations.
+        table = observation_table(points)
+        observers = table[3]
+        n_seen = np.bincount(table[1], minlength=len(observers))
+        outside = [i for i, k in enumerate(observers) if k not in local_set and not k.bad]
+        order = sorted(outside, key=lambda i: -n_seen[i])[: self.cfg.local_ba_max_fixed]
+        fixed_list = [observers[i] for i in order] + [k for k in local if k.id == 0]
+        problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf, table)
         t1 = time.perf_counter()
         result: BAResult = self.ba.run(problem)
         t2 = time.perf_counter()
@@ -404,10 +442,23 @@ class LocalMapping(KeyframeWorker):
             self.stats["local_ba_failed"] += 1
         kfs = free + fixed_list
         outliers = np.flatnonzero(~result.inlier_obs)
+        erased: dict[int, set[KeyFrame]] = {}
+        for m in outliers.tolist():
+            p, k = points[problem.obs_point[m]], kfs[problem.obs_pose[m]]
+            if k in p.observations:
+                erased.setdefault(p.id, set()).add(k)
+        # Normals and depth ranges of the map as the result will leave it, computed now
+        # without the lock, written with the result.
+        poses = result.poses_cw[: len(free)]
+        centers = dict(zip(free, -np.einsum("kji,kj->ki", poses[:, :3, :3], poses[:, :3, 3])))
+        normals = normals_and_depths(points, self.pyr.scales, result.points_w, centers, erased)
+        rows = np.fromiter((p.row for p in points), np.intp, len(points))
+        store = self.map.store
+        t3 = time.perf_counter()
         with self.map.lock:
             if self.map.generation != gen:
                 return
-            for k, T in zip(free, result.poses_cw[: len(free)]):
+            for k, T in zip(free, poses):
                 if not k.bad:
                     k.set_pose(T)
             for m in outliers.tolist():
@@ -417,11 +468,9 @@ class LocalMapping(KeyframeWorker):
                     if k.points[idx] is p:
                         k.points[idx] = None
                     p.erase_observation(k)
-            for p, pos in zip(points, result.points_w):
-                if not p.bad:
-                    p.pos = pos
-        t3 = time.perf_counter()
-        update_normals_and_depths(points, self.pyr.scales)
+            alive = ~store.bad[rows]
+            store.pos[rows[alive]] = result.points_w[alive]
+            normals.write(store)
         t4 = time.perf_counter()
         self.stats["local_ba"] += int(result.converged)
         self.stats["local_ba_ms"].append((t4 - t0) * 1e3)
@@ -431,13 +480,14 @@ class LocalMapping(KeyframeWorker):
                          t2: float, t3: float, t4: float) -> None:
         """Where one local BA's time went (ms), for ``benchmarks/backend_timing.py``: gathering
         the problem from the map, the solver's own phases, the hand-over to and from the
-        runner (IPC to the worker process: the runner's wall time minus the solver's) and
-        applying the result to the map (under the lock) and the normals (without it)."""
+        runner (IPC when it runs in the worker process: the runner's wall time minus the
+        solver's), the normals of the result (without the lock) and applying it (waiting for
+        the lock and holding it)."""
         solve = (t2 - t1) * 1e3
         self.stats["local_ba_split"].append({
             "gather": (t1 - t0) * 1e3, "ipc": max(solve - result.time_ms, 0.0), "solve": solve,
-            **{k: v for k, v in result.timings.items()}, "apply": (t3 - t2) * 1e3,
-            "normals": (t4 - t3) * 1e3, "total": (t4 - t0) * 1e3,
+            **{k: v for k, v in result.timings.items()}, "normals": (t3 - t2) * 1e3,
+            "apply": (t4 - t3) * 1e3, "total": (t4 - t0) * 1e3,
             "keyframes": int(problem.poses_cw.shape[0]),
             "free": int((~np.asarray(problem.pose_fixed)).sum()),
             "points": int(problem.points_w.shape[0]), "observations": int(problem.obs_pose.size)})
@@ -450,7 +500,7 @@ class LocalMapping(KeyframeWorker):
         Decided without the lock on one observation table of the candidates' points (a
         per-point histogram of observation levels), updated as each culled keyframe's
         observations go, exactly as the sequential per-point loops decided; the culled
-        keyframes are removed in one critical section."""
+        keyframes are removed under the lock, one per slice."""
         cands = [c for c in kf.ordered_covis if c.id != 0 and not c.bad and c is not kf]
         if not cands:
             return
@@ -508,9 +558,5 @@ class LocalMapping(KeyframeWorker):
             n_obs[r] -= np.where(c.ur[idx[alive]] >= 0, 2, 1)
             n_left[r] -= 1
             gone[r[n_left[r] <= 1]] = True
-        if not culled:
-            return
-        with self.map.lock:
-            for c in culled:
-                self.map.set_bad_keyframe(c)
-                self.stats["culled_keyframes"] += 1
+        apply_in_slices(self.map.lock, [partial(self.map.set_bad_keyframe, c) for c in culled])
+        self.stats["culled_keyframes"] += len(culled)

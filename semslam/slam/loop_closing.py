@@ -25,7 +25,8 @@ from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
-from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
+from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map_batch import normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
@@ -115,6 +116,14 @@ class LoopClosing(KeyframeWorker):
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
                       "global_ba_ms": [], "pose_graph_ms": []}
+
+    def _write_normals(self, points: list[MapPoint]) -> None:
+        """Normals and depth ranges of ``points``: computed without the lock, written to the
+        point store under it."""
+        update = normals_and_depths(points, self.pyr.scales)
+        if update.points:
+            with self.map.lock:
+                update.write(self.map.store)
 
     # ---------------------------------------------------------------- per keyframe
     def process(self, kf: KeyFrame) -> None:
@@ -261,13 +270,14 @@ class LoopClosing(KeyframeWorker):
                 new_ref.append(k if p.ref_kf not in corrected else p.ref_kf)
         points = list(moved.values())
         positions = np.concatenate(new_pos) if new_pos else np.zeros((0, 3))
+        rows = np.fromiter((p.row for p in points), np.intp, len(points))
         with self.map.lock:
-            for p, x, r in zip(points, positions, new_ref):
-                p.pos = x
+            self.map.store.pos[rows] = positions
+            for p, r in zip(points, new_ref):
                 p.ref_kf = r
             for k in connected:
                 k.set_pose(corrected[k])
-        update_normals_and_depths(points, self.pyr.scales)
+        self._write_normals(points)
         # Fuse: the loop's points replace the current keyframe's duplicates, then are
         # searched in every connected keyframe (planned without the lock).
         with self.map.lock:
@@ -284,11 +294,10 @@ class LoopClosing(KeyframeWorker):
         src = PointArrays.of(loop_pts)
         plans = [(k, self.fusion.plan(k, src, th=4.0)) for k in connected]
         apply_in_slices(self.map.lock, [partial(self.fusion.apply, k, m) for k, m in plans if m])
+        before = {k: set(k.covis) for k in connected}
+        apply_in_slices(self.map.lock, [k.update_connections for k in connected])
+        new_links = {k: set(k.covis) - before[k] - set(connected) for k in connected}
         with self.map.lock:
-            before = {k: set(k.covis) for k in connected}
-            for k in connected:
-                k.update_connections()
-            new_links = {k: set(k.covis) - before[k] - set(connected) for k in connected}
             kf.loop_edges.add(cand)
             cand.loop_edges.add(kf)
             cand.not_erase = True
@@ -360,19 +369,20 @@ class LoopClosing(KeyframeWorker):
                 new_pos.append(np.array([p.pos for p in own]) @ delta[:3, :3].T + delta[:3, 3])
                 pts.extend(own)
         positions = np.concatenate(new_pos) if new_pos else np.zeros((0, 3))
+        rows = np.fromiter((p.row for p in pts), np.intp, len(pts))
         with self.map.lock:
-            for p, x in zip(pts, positions):
-                p.pos = x
+            self.map.store.pos[rows] = positions
             for k, T_wc_new in zip(kfs, poses_wc):
                 k.set_pose(invert(T_wc_new))
             all_points = list(self.map.points.values())
-        update_normals_and_depths(all_points, self.pyr.scales)
+        self._write_normals(all_points)
 
     def global_bundle_adjustment(self) -> None:
-        """Full BA over all keyframes and points (first keyframe fixed), solved in the BA
-        worker while local mapping goes on; the problem is gathered and the result applied
-        with local mapping paused, the result written in one critical section.  Keyframes
-        and points added while it ran are moved with their parent / reference keyframe."""
+        """Full BA over all keyframes and points (first keyframe fixed), solved without the
+        lock while local mapping goes on (the Schur solver releases the GIL); the problem is
+        gathered and the result applied with local mapping paused, the result written in
+        one critical section.  Keyframes and points added while it ran are moved with their
+        parent / reference keyframe."""
         t0 = time.perf_counter()
         with self.mapping.paused():
             with self.map.lock:
@@ -382,6 +392,7 @@ class LoopClosing(KeyframeWorker):
             if len(kfs) < 2:
                 return
             points = [p for p in candidates if not p.bad and p.observations]
+            rows = np.fromiter((p.row for p in points), np.intp, len(points))
             free, fixed = kfs[1:], kfs[:1]
             problem = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)
             before = {k: k.T_cw.copy() for k in kfs}
@@ -396,9 +407,9 @@ class LoopClosing(KeyframeWorker):
                 self.map.generation += 1
                 after = {k: T for k, T in zip(free, result.poses_cw[: len(free)])}
                 after[kfs[0]] = kfs[0].T_cw
-                for p, pos in zip(points, result.points_w):
-                    if not p.bad:
-                        p.pos = pos
+                store = self.map.store
+                alive = ~store.bad[rows]
+                store.pos[rows[alive]] = result.points_w[alive]
                 # Keyframes created during BA: follow their parent's correction.
                 for k in self.map.all_keyframes():
                     if k in after:
@@ -417,6 +428,6 @@ class LoopClosing(KeyframeWorker):
                         delta = invert(after[p.ref_kf]) @ before[p.ref_kf]
                         p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
                 all_points = list(self.map.points.values())
-            update_normals_and_depths(all_points, self.pyr.scales)
+            self._write_normals(all_points)
         self.stats["global_ba"] += int(result.converged)
         self.stats["global_ba_ms"].append((time.perf_counter() - t0) * 1e3)

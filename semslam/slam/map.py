@@ -178,42 +178,17 @@ class MapPoint:
 
 def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> None:
     """Mean viewing direction of each point and the distance range it can be matched at
-    (ORB-SLAM UpdateNormalAndDepth), for many points at once: one pass over the observations
-    in Python, the rest in numpy.  Bad points and points without observations are skipped;
-    the depth range needs the reference keyframe among the observations."""
-    live = [p for p in points if not p.bad and p.observations]
-    if not live:
-        return
-    kf_row: dict[KeyFrame, int] = {}
-    rows = [kf_row.setdefault(kf, len(kf_row)) for p in live for kf in p.observations]
-    counts = np.fromiter((len(p.observations) for p in live), np.intp, len(live))
-    centers = np.array([kf.center for kf in kf_row])
-    pos = np.array([p.pos for p in live])
-    d = np.repeat(pos, counts, axis=0) - centers[rows]
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
-    starts = np.zeros(len(live), np.intp)
-    np.cumsum(counts[:-1], out=starts[1:])
-    normals = np.add.reduceat(d, starts, axis=0)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
-    ref_rows: list[int] = []
-    ref_kfs: list[int] = []
-    ref_levels: list[int] = []
-    for j, p in enumerate(live):
-        p.normal = normals[j]
-        idx = p.observations.get(p.ref_kf)
-        if idx is not None:
-            ref_rows.append(j)
-            ref_kfs.append(kf_row[p.ref_kf])
-            ref_levels.append(int(p.ref_kf.keypoints.octave[idx]))
-    if ref_rows:
-        rr = np.asarray(ref_rows, np.intp)
-        dist = np.linalg.norm(pos[rr] - centers[ref_kfs], axis=1)
-        max_d = dist * scale_factors[np.asarray(ref_levels, np.intp)]
-        min_d = max_d / scale_factors[-1]
-        for j, mx, mn in zip(ref_rows, max_d.tolist(), min_d.tolist()):
-            p = live[j]
-            p.max_dist = mx
-            p.min_dist = mn
+    (ORB-SLAM UpdateNormalAndDepth), for many points at once; computed by
+    ``slam.map_batch.normals_and_depths`` and written here (the caller holds the map lock).
+    Bad points and points without observations are skipped; the depth range needs the
+    reference keyframe among the observations."""
+    from semslam.slam.map_batch import normals_and_depths
+
+    update = normals_and_depths(points, scale_factors)
+    if update.points:
+        store = update.points[0]._store
+        shared = all(p._store is store for p in update.points)
+        update.write(store if shared else None)
 
 
 class PointSlots(list):  # type: ignore[type-arg]
