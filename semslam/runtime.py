@@ -15,22 +15,38 @@ import os
 BLAS_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
+#: The interpreter's thread switch interval (seconds). Tracking's compiled kernels and
+#: OpenCV calls release the GIL; each time one returns, tracking waits for the thread that
+#: took the GIL (local mapping, mostly Python) to hand it back, up to one interval. Measured
+#: on 2 cores with a Python thread busy beside it (benchmarks/gil_handoff.py):
+#: ORB extraction 6.0 ms alone, 24.1 ms median at CPython's default 5 ms, 13.4 ms at 1 ms
+#: (0.2 ms: 16.4 ms, the switches themselves cost).
+SWITCH_INTERVAL_S = float(os.environ.get("SEMSLAM_SWITCH_INTERVAL", "0.001"))
+
+
 def limit_threads() -> None:
     """One BLAS thread (for libraries not yet loaded) and one OpenCV thread, unless the
-    environment (``*_NUM_THREADS``, ``SEMSLAM_OPENCV_THREADS``) says otherwise."""
+    environment (``*_NUM_THREADS``, ``SEMSLAM_OPENCV_THREADS``) says otherwise; the
+    interpreter's switch interval set to ``SWITCH_INTERVAL_S``."""
+    import sys
+
     for var in BLAS_VARIABLES:
         os.environ.setdefault(var, "1")
     import cv2
 
     cv2.setNumThreads(int(os.environ.get("SEMSLAM_OPENCV_THREADS", "1")))
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
 
 
 #: Niceness added to the threads and the process that tracking does not wait for (local
 #: mapping, loop closing, the BA worker): on 2 cores they then take the CPU when tracking
-#: and the semantic thread leave it, instead of delaying the current frame. Off by default:
-#: on this 2-core machine the comparison (4 runs of `default` on walking_xyz) was drowned
-#: by other load and showed no clear gain; set SEMSLAM_BACKGROUND_NICE=5 to try it.
-BACKGROUND_NICE = int(os.environ.get("SEMSLAM_BACKGROUND_NICE", "0"))
+#: and the semantic thread leave it, instead of delaying the current frame. Measured on a
+#: quiet 2-core machine (300 frames, threaded, switch interval 1 ms, 2 runs each): `orb`
+#: on walking_xyz 34-39 -> 20-21 ms median, `default` 31 -> 27-30 ms; static_xyz within
+#: run-to-run noise. 0 turns it off.
+BACKGROUND_NICE = int(os.environ.get("SEMSLAM_BACKGROUND_NICE", "5"))
+#: The semantic thread keeps its priority: niced by 5 it made no difference to `default`
+#: (2 runs each on static_xyz and walking_xyz).
 
 
 def lower_thread_priority(increment: int | None = None) -> bool:
