@@ -40,51 +40,53 @@ def dynamic_seeds(
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
     """Project reference keypoints (``refs``: per keyframe ``(T_cw, xy_undistorted, depth)``)
     into the current frame. Returns (pixels of all tested points, dynamic flags, their
-    projected depths)."""
+    projected depths).
+
+    All keyframes' points are transformed in one batch: each point is moved straight from
+    its keyframe into the current camera (``T_cw @ T_ref^-1``), and the parallax angle is
+    measured there (rays from the two camera centres to the point; rotations keep angles).
+    """
     h, w = depth.shape
-    center = -T_cw[:3, :3].T @ T_cw[:3, 3]
-    all_uv, all_dyn, all_z = [], [], []
-    cos_max = np.cos(np.radians(params.parallax_deg))
+    pcurs, centres = [], []
     for T_ref, xy, z in refs:
         ok = z > 0
         if not ok.any():
             continue
-        pc = camera.backproject(xy[ok], z[ok])
-        R, t = T_ref[:3, :3], T_ref[:3, 3]
-        pw = (pc - t) @ R
-        ref_center = -R.T @ t
-        pcur = pw @ T_cw[:3, :3].T + T_cw[:3, 3]
-        zp = pcur[:, 2]
-        front = zp > 0.1
-        pw, pcur, zp = pw[front], pcur[front], zp[front]
-        uv = camera.project(pcur)
-        u = np.rint(uv[:, 0]).astype(np.intp)
-        v = np.rint(uv[:, 1]).astype(np.intp)
-        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        pw, zp, uv, u, v = pw[inside], zp[inside], uv[inside], u[inside], v[inside]
-        r1 = pw - ref_center
-        r2 = pw - center
-        cosang = np.einsum("ij,ij->i", r1, r2) / np.maximum(np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1), 1e-12)
-        zm = depth[v, u]
-        tested = (cosang >= cos_max) & (zm > 0)
-        thr = params.depth_threshold_m + params.depth_threshold_rel * zp
-        dyn = tested & (zp - zm > thr)
-        all_uv.append(uv[tested])
-        all_dyn.append(dyn[tested])
-        all_z.append(zp[tested])
-    if not all_uv:
+        R = T_cw[:3, :3] @ T_ref[:3, :3].T  # ref camera -> current camera
+        t = T_cw[:3, 3] - R @ T_ref[:3, 3]  # = the ref camera centre, in the current camera
+        pcurs.append(camera.backproject(xy[ok], z[ok]) @ R.T + t)
+        centres.append(np.broadcast_to(t, (len(pcurs[-1]), 3)))
+    if not pcurs:
         return np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0)
-    return np.concatenate(all_uv), np.concatenate(all_dyn), np.concatenate(all_z)
+    pcur = np.concatenate(pcurs)
+    t_ref = np.concatenate(centres)
+    zp = pcur[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = camera.fx * pcur[:, 0] / zp + camera.cx
+        v = camera.fy * pcur[:, 1] / zp + camera.cy
+    ui = np.rint(u)
+    vi = np.rint(v)
+    keep = (zp > 0.1) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    pcur, t_ref, zp, u, v = pcur[keep], t_ref[keep], zp[keep], u[keep], v[keep]
+    ui, vi = ui[keep].astype(np.intp), vi[keep].astype(np.intp)
+    r1 = pcur - t_ref  # from the ref camera centre to the point
+    n12 = np.sqrt(np.einsum("ij,ij->i", r1, r1) * np.einsum("ij,ij->i", pcur, pcur))
+    cosang = np.einsum("ij,ij->i", r1, pcur) / np.maximum(n12, 1e-12)
+    zm = depth[vi, ui]
+    tested = (cosang >= np.cos(np.radians(params.parallax_deg))) & (zm > 0)
+    zp, zm = zp[tested], zm[tested]
+    dyn = zp - zm > params.depth_threshold_m + params.depth_threshold_rel * zp
+    return np.stack([u[tested], v[tested]], axis=1), dyn, zp
 
 
 def grow_regions(depth: NDArray[np.float32], uv: NDArray[np.float64], dynamic: NDArray[np.bool_],
                  params: DynamicsConfig = DynamicsConfig()) -> NDArray[np.bool_]:
     """Depth-continuous regions where enough tested points are dynamic (full resolution)."""
     h, w = depth.shape
-    if not dynamic.any():
+    if np.count_nonzero(dynamic) < params.min_seeds:  # no region can qualify
         return np.zeros((h, w), bool)
     s = max(int(params.downscale), 1)
-    d = depth[::s, ::s]
+    d = np.ascontiguousarray(depth[::s, ::s])
     valid = d > 0
     # Split at depth jumps between 4-neighbours.
     edge = np.zeros_like(valid)
@@ -103,6 +105,8 @@ def grow_regions(depth: NDArray[np.float32], uv: NDArray[np.float64], dynamic: N
     ratio = dyn / np.maximum(tested, 1)
     is_dyn = (dyn >= params.min_seeds) & (ratio >= params.min_dynamic_ratio)
     is_dyn[0] = False  # label 0 = edges and holes
+    if not is_dyn.any():
+        return np.zeros((h, w), bool)
     small = is_dyn[labels]
     # Edge pixels next to a dynamic region belong to it (silhouettes).
     small = cv2.dilate(small.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (valid | small)
