@@ -153,6 +153,8 @@ def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out
         skipped_frames=len(sequence.skipped), skipped=[msg for _, msg in sequence.skipped],
         ms_per_frame=_timing_stats(timing.frame_ms),
         stages_ms_median={k: float(np.median(v)) for k, v in timing.stage_ms.items()},
+        stages_ms_p95={k: float(np.percentile(v, 95)) for k, v in timing.stage_ms.items()},
+        stages_ms_max={k: float(np.max(v)) for k, v in timing.stage_ms.items()},
         dynamic_ratio_mean=float(np.mean(timing.dynamic_ratio)) if timing.dynamic_ratio else 0.0,
         wall_s=timing.wall_s, fps=n / timing.wall_s if timing.wall_s > 0 else 0.0,
         tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,

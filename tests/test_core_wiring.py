@@ -134,6 +134,40 @@ def test_inbox_wait_idle_wakes_on_done_and_times_out() -> None:
     assert inbox.take() is None
 
 
+def test_inbox_pause_waits_for_the_keyframe_in_hand_and_holds_the_queue() -> None:
+    """ORB-SLAM's RequestStop / Release: the worker finishes what it holds, takes nothing
+    while paused, and goes on afterwards."""
+    inbox = KeyframeInbox()
+    log: list[str] = []
+    started = threading.Event()
+
+    def worker() -> None:
+        while (item := inbox.take()) is not None:
+            log.append(f"start {item}")
+            started.set()
+            time.sleep(0.05)
+            log.append(f"end {item}")
+            inbox.done()
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    inbox.put("a")  # type: ignore[arg-type]
+    assert started.wait(5.0)
+    with inbox.paused(timeout=5.0) as ok:
+        assert ok and log == ["start a", "end a"]  # waited for "a" to finish
+        inbox.put("b")  # type: ignore[arg-type]
+        time.sleep(0.1)
+        assert log == ["start a", "end a"] and inbox.queue_size() == 1  # not taken while paused
+        log.append("paused section")
+    assert inbox.wait_idle(timeout=5.0)
+    assert log == ["start a", "end a", "paused section", "start b", "end b"]
+    with inbox.paused(timeout=0.01) as ok:  # idle worker: immediately
+        assert ok
+    inbox.close()
+    thread.join(5.0)
+    assert not thread.is_alive()
+
+
 # ---------------------------------------------------------------- failures
 def test_worker_exception_ends_the_run_with_one_line_after_writing(
         static_seq: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
@@ -177,9 +211,17 @@ def test_failed_ba_is_counted_not_reported_as_run(monkeypatch: pytest.MonkeyPatc
             raise RuntimeError("Indeterminant linear system")
 
     monkeypatch.setattr(gtsam, "LevenbergMarquardtOptimizer", Failing)
-    result = ba.bundle_adjust(problem)
+    result = ba.bundle_adjust(problem, solver="gtsam")
     assert not result.converged
     np.testing.assert_array_equal(result.poses_cw, poses)  # estimate left unchanged
+
+    def no_step(R, t, X, *args):  # the Schur solver found no positive definite damped system
+        return R, t, X, 1, False, 0.0, 0.0
+
+    monkeypatch.setattr(ba, "levenberg_marquardt", no_step)
+    result = ba.bundle_adjust(problem, solver="schur")
+    assert not result.converged
+    np.testing.assert_array_equal(result.poses_cw, poses)
 
 
 # ---------------------------------------------------------------- trajectories and maps

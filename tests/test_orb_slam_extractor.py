@@ -304,22 +304,28 @@ def test_quadtree_degenerate_inputs() -> None:
 
 # --------------------------------------------------------------------------- detection
 
-def test_detection_close_to_per_cell_reference(real_gray: np.ndarray, extractor: OrbSlamExtractor) -> None:
+def test_detection_equals_per_cell_reference(real_gray: np.ndarray) -> None:
     pyr = build_pyramid(real_gray, 8, 1.2)
     for level in (0, 2, 5):
         image = pyr.levels[level]
-        x, y, r = detect_level(image, 20, 7)
-        rx, ry, rr = detect_level_reference(image, 20, 7)
-        ours = set(zip(x.tolist(), y.tolist(), r.tolist()))
-        ref = set(zip(rx.tolist(), ry.tolist(), rr.tolist()))
-        # Differences only from non-max suppression across cell boundaries.
-        assert len(ours & ref) >= 0.9 * len(ref)
-        assert len(ours - ref) <= 0.05 * len(ref)
-    fast = OrbSlamExtractor(reference_detection=False).extract(real_gray)
-    ref_kp = OrbSlamExtractor(reference_detection=True).extract(real_gray)
-    a = set(map(tuple, np.c_[fast.xy, fast.octave].tolist()))
-    b = set(map(tuple, np.c_[ref_kp.xy, ref_kp.octave].tolist()))
-    assert len(a & b) >= 0.95 * len(b)
+        got, ref = detect_level(image, 20, 7), detect_level_reference(image, 20, 7)
+        assert all(np.array_equal(u, v) for u, v in zip(got, ref))
+
+
+@pytest.mark.parametrize("masked", [False, True])
+def test_extractor_equals_reference_detection(real_grays: list[np.ndarray], synth_gray: np.ndarray,
+                                              masked: bool) -> None:
+    """The compiled per-cell detection is ORB-SLAM's, so the whole extractor equals the
+    one running ORB-SLAM's literal per-cell OpenCV calls, keypoints and descriptors."""
+    fast, reference = OrbSlamExtractor(), OrbSlamExtractor(reference_detection=True)
+    for gray in [*real_grays, synth_gray, cv2.GaussianBlur(real_grays[0], (0, 0), 2.0)]:
+        mask = None
+        if masked:
+            mask = np.full(gray.shape, 255, np.uint8)
+            mask[100:300, 250:450] = 0
+        a, b = fast.extract(gray, mask), reference.extract(gray, mask)
+        for field in ("xy", "octave", "response", "angle", "descriptors"):
+            assert np.array_equal(getattr(a, field), getattr(b, field)), field
 
 
 def test_detection_order_is_cell_by_cell(real_gray: np.ndarray, extractor: OrbSlamExtractor) -> None:

@@ -16,7 +16,7 @@ from semslam.config import FeatureConfig
 from semslam.core.types import Keypoints
 from semslam.features import create_extractor
 from semslam.features.orb import BORDER, build_pyramid
-from semslam.features.orb import fast_points as _fast
+from semslam.features.orb import fast_points_cv2 as _fast
 from semslam.features.orb_slam2 import OrbSlamExtractor
 from semslam.features.qtree_orb import (
     QtreeOrbExtractor,
@@ -119,13 +119,12 @@ def test_fast_score_does_not_depend_on_threshold(real_gray: np.ndarray) -> None:
 
 
 def test_low_pass_only_when_needed_and_stops_at_budget(real_gray: np.ndarray) -> None:
-    fast_hi = cv2.FastFeatureDetector_create(20, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     fast_lo = cv2.FastFeatureDetector_create(7, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     blurred = cv2.GaussianBlur(real_gray, (0, 0), 2.0)  # few strong corners left
     for gray in (real_gray, blurred):
         pyr = build_pyramid(gray, 6, 1.2, pad=3)
         wanted = paper_features_per_level(N, 6, 1.2)
-        det = detect_two_thresholds(pyr.levels, wanted, fast_hi, fast_lo)
+        det = detect_two_thresholds(pyr.levels, wanted, 20, 7)
         for level in range(6):
             sel = det.level == level
             high, score = det.high[sel], det.score[sel]
@@ -142,17 +141,42 @@ def test_low_pass_only_when_needed_and_stops_at_budget(real_gray: np.ndarray) ->
                     or det.n_low[level] == n_low_available)
     # The blurred frame does need the low pass on its first levels.
     pyr = build_pyramid(blurred, 6, 1.2, pad=3)
-    det = detect_two_thresholds(pyr.levels, paper_features_per_level(N, 6, 1.2), fast_hi, fast_lo)
+    det = detect_two_thresholds(pyr.levels, paper_features_per_level(N, 6, 1.2), 20, 7)
     assert det.n_low[0] > 0
+
+
+def test_two_thresholds_same_with_opencv_fast(real_gray: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Algorithm 2 on the compiled FAST gives exactly what it gave on OpenCV's FAST (the
+    detector it used before), with and without a mask, low pass included."""
+    from semslam.features import qtree_orb
+    from semslam.features.orb import level_mask_samplers, scale_factors
+
+    def opencv_fast(image, threshold, mask=None, scratch=None):
+        detector = cv2.FastFeatureDetector_create(threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        return _fast(detector, np.ascontiguousarray(image), None if mask is None else mask.image())
+
+    mask = np.full(real_gray.shape, 255, np.uint8)
+    mask[100:300, 250:450] = 0
+    for gray in (real_gray, cv2.GaussianBlur(real_gray, (0, 0), 1.5)):
+        levels = build_pyramid(gray, 6, 1.2, pad=3).levels
+        wanted = paper_features_per_level(N, 6, 1.2)
+        for m in (None, mask):
+            samplers = level_mask_samplers(m, levels, scale_factors(6, 1.2))
+            ours = detect_two_thresholds(levels, wanted, 20, 7, samplers)
+            with monkeypatch.context() as patch:
+                patch.setattr(qtree_orb, "fast_points", opencv_fast)
+                theirs = detect_two_thresholds(levels, wanted, 20, 7, samplers)
+            for name in ("x", "y", "score", "high", "level", "n_high", "n_low"):
+                assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
+            assert ours.n_low.sum() > 0 or gray is real_gray
 
 
 def test_low_points_come_from_a_prefix_of_cells(real_gray: np.ndarray) -> None:
     from semslam.features.orb import cell_grid as _cell_grid
 
-    fast_hi = cv2.FastFeatureDetector_create(20, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     fast_lo = cv2.FastFeatureDetector_create(7, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     image = cv2.GaussianBlur(real_gray, (0, 0), 1.5)
-    det = detect_two_thresholds([image], np.array([344]), fast_hi, fast_lo)
+    det = detect_two_thresholds([image], np.array([344]), 20, 7)
     assert 0 < det.n_low[0]
     h, w = image.shape
     grid = _cell_grid(w - 2 * BORDER, h - 2 * BORDER)
@@ -318,10 +342,8 @@ def test_node_with_only_low_quality_points_is_never_split() -> None:
 
 
 def test_kept_point_is_the_max_harris_of_its_leaf(real_gray: np.ndarray) -> None:
-    fast_hi = cv2.FastFeatureDetector_create(20, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
-    fast_lo = cv2.FastFeatureDetector_create(7, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     image = cv2.GaussianBlur(real_gray, (0, 0), 1.2)  # gives a mix of high and low points
-    det = detect_two_thresholds([image], np.array([344]), fast_hi, fast_lo)
+    det = detect_two_thresholds([image], np.array([344]), 20, 7)
     harris = harris_responses(image, det.x + BORDER, det.y + BORDER)
     keep, leaf = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level,
                                               [image.shape[1] - 2 * BORDER], [image.shape[0] - 2 * BORDER], [344])

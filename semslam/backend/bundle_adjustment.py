@@ -1,8 +1,16 @@
-"""Local / global bundle adjustment on GTSAM (ORB-SLAM2 LocalBundleAdjustment, BundleAdjustment).
+"""Local / global bundle adjustment (ORB-SLAM2 LocalBundleAdjustment, BundleAdjustment).
 
 One function serves both uses: the caller decides which keyframes are free and which are fixed
 (local BA: covisible keyframes free, keyframes that also see the local points fixed; global BA:
 all keyframes, the first fixed) and passes the observations as flat arrays.
+
+Two solvers minimise the same cost with the same LM schedule: ``solver="schur"`` (default), a
+sparse LM with the points eliminated by the Schur complement, compiled with numba
+(``backend/schur_ba.py``), and ``solver="gtsam"``, the factor graph below.  They agree to the
+solver tolerance (``tests/test_backend.py``); ``benchmarks/backend_timing.py`` measures both:
+on ORB-SLAM2's local windows the GTSAM path spends its time building the graph in Python
+(one factor object per observation: GTSAM's Python API has a bulk constructor only for
+monocular projection factors) and in its generic sparse elimination, the Schur solver ~10x less.
 
 GTSAM modelling:
 
@@ -22,7 +30,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -37,6 +45,7 @@ from semslam.backend.gtsam_utils import (
     poses_from_rows,
     stereo_calibration,
 )
+from semslam.backend.schur_ba import levenberg_marquardt, reprojection_chi2
 from semslam.geometry.se3 import invert
 
 Array = NDArray[np.float64]
@@ -85,6 +94,10 @@ class BAResult:
     initial_error: float
     final_error: float
     time_ms: float
+    # Where the time went (CPU ms of the solving thread): "build" (graph / index arrays),
+    # "optimize" (the LM solves), "check" (chi2 of every observation); and "iterations" (LM
+    # linearisations, both stages).  ``time_ms`` is wall time.
+    timings: dict[str, float] = field(default_factory=dict)
     # False when an LM solve threw (e.g. an indeterminant system): the estimate of that
     # stage was left unchanged, and the caller counts it as a failed BA.
     converged: bool = True
@@ -97,22 +110,14 @@ def reprojection_errors(problem: BAProblem, poses_cw: Array, points_w: Array) ->
     virtual right coordinate ``ur = u - bf / z``.
     """
     problem = _normalized(problem)
-    poses_cw = np.asarray(poses_cw, dtype=np.float64)
-    points_w = np.asarray(points_w, dtype=np.float64)
-    R = poses_cw[problem.obs_pose, :3, :3]
-    t = poses_cw[problem.obs_pose, :3, 3]
-    pc = np.einsum("mij,mj->mi", R, points_w[problem.obs_point]) + t
-    z = pc[:, 2]
-    front = z > 1e-6
-    iz = 1.0 / np.where(front, z, 1.0)
-    u = problem.fx * pc[:, 0] * iz + problem.cx
-    v = problem.fy * pc[:, 1] * iz + problem.cy
-    du = problem.uv[:, 0] - u
-    dv = problem.uv[:, 1] - v
-    dr = np.where(problem.ur >= 0, problem.ur - (u - problem.bf * iz), 0.0)
-    chi2 = (du * du + dv * dv + dr * dr) * problem.inv_sigma2
-    chi2[~front] = np.inf
-    return chi2
+    poses_cw = np.asarray(poses_cw, dtype=np.float64).reshape(-1, 4, 4)
+    return reprojection_chi2(np.ascontiguousarray(poses_cw[:, :3, :3]),
+                             np.ascontiguousarray(poses_cw[:, :3, 3]),
+                             np.ascontiguousarray(points_w, dtype=np.float64).reshape(-1, 3),
+                             problem.obs_pose, problem.obs_point,
+                             np.ascontiguousarray(problem.uv), np.ascontiguousarray(problem.ur),
+                             np.ascontiguousarray(problem.inv_sigma2), problem.fx, problem.fy,
+                             problem.cx, problem.cy, problem.bf)
 
 
 def _normalized(p: BAProblem) -> BAProblem:
@@ -206,18 +211,31 @@ def _values(poses_wc: Array, points_w: Array, pose_keys: Array, point_idx: Array
     return values
 
 
-def _optimize(problem: BAProblem, poses_cw: Array, points_w: Array, active: NDArray[np.bool_],
-              robust: bool, iterations: int, Ks: gtsam.Cal3_S2Stereo,
-              Km: gtsam.Cal3_S2) -> tuple[Array, Array, bool]:
-    """One LM solve over the active observations; returns updated (poses_cw, points_w) and
-    whether the solve succeeded (on failure the inputs come back unchanged)."""
-    pts_ok = _constrained_points(problem, active)
-    active = active & pts_ok[problem.obs_point]
-    if iterations <= 0 or not active.any():
-        return poses_cw, points_w, True
+class _Clock:
+    """Accumulates the CPU milliseconds (of the solving thread) per phase of one bundle
+    adjustment: CPU rather than wall time, as the machine is shared."""
+
+    def __init__(self) -> None:
+        self.ms: dict[str, float] = {"build": 0.0, "optimize": 0.0, "check": 0.0, "iterations": 0.0}
+        self._t = time.thread_time()
+
+    def lap(self, phase: str) -> None:
+        t = time.thread_time()
+        self.ms[phase] += (t - self._t) * 1e3
+        self._t = t
+
+
+def _optimize_gtsam(problem: BAProblem, poses_cw: Array, points_w: Array,
+                    active: NDArray[np.bool_], robust: bool, iterations: int,
+                    clock: _Clock) -> tuple[Array, Array, bool]:
+    """One GTSAM LM solve over the active observations (already restricted to determined
+    points); returns updated (poses_cw, points_w) and whether the solve succeeded (on
+    failure the inputs come back unchanged)."""
     K = poses_cw.shape[0]
     pose_keys = np.unique(problem.obs_pose[active])
     point_idx = np.unique(problem.obs_point[active])
+    Ks = stereo_calibration(problem.fx, problem.fy, problem.cx, problem.cy, problem.bf)
+    Km = mono_calibration(problem.fx, problem.fy, problem.cx, problem.cy)
     graph = _build_graph(problem, active, robust, Ks, Km)
     values = _values(invert(poses_cw), points_w, pose_keys, point_idx)
     # Schur-style elimination order: points first (each only touches its few cameras), then poses.
@@ -231,13 +249,18 @@ def _optimize(problem: BAProblem, poses_cw: Array, points_w: Array, active: NDAr
     # Measured on the 10-KF / 3000-point case: sequential Cholesky ~30 ms per solve against
     # ~45 ms multifrontal (the frontal cliques are tiny 3x3 point blocks).
     params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
+    clock.lap("build")
     try:
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        result = optimizer.optimize()
     except RuntimeError as exc:  # e.g. an indeterminant system LM's damping could not rescue
         # ORB-SLAM's g2o never throws; a failed BA must not take the mapping thread down.
         log.warning("bundle adjustment failed (%s); estimate left unchanged",
                     str(exc).strip()[:200])
+        clock.lap("optimize")
         return poses_cw, points_w, False
+    clock.ms["iterations"] += optimizer.iterations()
+    clock.lap("optimize")
 
     poses_cw = poses_cw.copy()
     points_w = points_w.copy()
@@ -247,11 +270,64 @@ def _optimize(problem: BAProblem, poses_cw: Array, points_w: Array, active: NDAr
         wc = poses_from_rows(gtsam.utilities.extractPose3(result))
         poses_cw[free] = invert(wc[~problem.pose_fixed[pose_keys]])
     points_w[point_idx] = gtsam.utilities.extractPoint3(result)
+    clock.lap("build")
     return poses_cw, points_w, True
 
 
+def _optimize_schur(problem: BAProblem, poses_cw: Array, points_w: Array,
+                    active: NDArray[np.bool_], robust: bool, iterations: int,
+                    clock: _Clock) -> tuple[Array, Array, bool]:
+    """The same solve as :func:`_optimize_gtsam` by ``schur_ba.levenberg_marquardt``."""
+    obs = np.flatnonzero(active)
+    opose = problem.obs_pose[obs]
+    point_idx, opoint = np.unique(problem.obs_point[obs], return_inverse=True)
+    used = np.unique(opose)
+    free = used[~problem.pose_fixed[used]]
+    pose_var = np.full(poses_cw.shape[0], -1, np.intp)
+    pose_var[free] = np.arange(free.size)
+    pt_obs = np.argsort(opoint, kind="stable").astype(np.intp)
+    pt_ptr = np.zeros(point_idx.size + 1, np.intp)
+    np.cumsum(np.bincount(opoint, minlength=point_idx.size), out=pt_ptr[1:])
+    clock.lap("build")
+    R, t, X, n_it, ok, _, _ = levenberg_marquardt(
+        np.ascontiguousarray(poses_cw[:, :3, :3]), np.ascontiguousarray(poses_cw[:, :3, 3]),
+        np.ascontiguousarray(points_w[point_idx]), opose.astype(np.intp), opoint.astype(np.intp),
+        np.ascontiguousarray(problem.uv[obs]), np.ascontiguousarray(problem.ur[obs]),
+        np.ascontiguousarray(problem.inv_sigma2[obs]), problem.fx, problem.fy, problem.cx,
+        problem.cy, problem.bf, robust, float(np.sqrt(CHI2_MONO)), float(np.sqrt(CHI2_STEREO)),
+        pose_var, free.astype(np.intp), pt_ptr, pt_obs, int(iterations))
+    clock.ms["iterations"] += n_it
+    clock.lap("optimize")
+    if not ok:
+        log.warning("bundle adjustment failed (no positive definite damped system); "
+                    "estimate left unchanged")
+        return poses_cw, points_w, False
+    poses_cw = poses_cw.copy()
+    points_w = points_w.copy()
+    poses_cw[free, :3, :3] = R[free]
+    poses_cw[free, :3, 3] = t[free]
+    points_w[point_idx] = X
+    clock.lap("build")
+    return poses_cw, points_w, True
+
+
+def _optimize(problem: BAProblem, poses_cw: Array, points_w: Array, active: NDArray[np.bool_],
+              robust: bool, iterations: int, solver: str,
+              clock: _Clock) -> tuple[Array, Array, bool]:
+    """One LM solve over the active observations whose points they determine."""
+    pts_ok = _constrained_points(problem, active)
+    active = active & pts_ok[problem.obs_point]
+    if iterations <= 0 or not active.any():
+        return poses_cw, points_w, True
+    solve = _optimize_schur if solver == "schur" else _optimize_gtsam
+    return solve(problem, poses_cw, points_w, active, robust, iterations, clock)
+
+
+SOLVERS = ("schur", "gtsam")
+
+
 def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), robust: bool = True,
-                  remove_outliers: bool = True) -> BAResult:
+                  remove_outliers: bool = True, solver: str = "schur") -> BAResult:
     """ORB-SLAM2 (local) bundle adjustment: robust LM, outlier removal, plain LM.
 
     Stage 1 runs ``iterations[0]`` LM iterations (Huber if ``robust``).  With
@@ -263,25 +339,30 @@ def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), rob
     the caller erases from the map as ORB-SLAM does with ``vToErase``.
 
     Free poses without any observation and points not determined by their observations are
-    returned unchanged.  GTSAM's LM stops earlier than the iteration budget once the relative
-    error decrease falls below 1e-5 (g2o always runs the full count).
+    returned unchanged.  Both solvers stop earlier than the iteration budget once the relative
+    error decrease falls below 1e-5 (GTSAM's default; g2o always runs the full count).
+    ``solver`` is ``"schur"`` (numba, default) or ``"gtsam"``.
     """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown bundle adjustment solver {solver!r} (one of {SOLVERS})")
     t0 = time.perf_counter()
+    clock = _Clock()
     problem = _normalized(problem)
     poses0 = problem.poses_cw
     points0 = problem.points_w
-    Ks = stereo_calibration(problem.fx, problem.fy, problem.cx, problem.cy, problem.bf)
-    Km = mono_calibration(problem.fx, problem.fy, problem.cx, problem.cy)
     thr = _chi2_threshold(problem)
     m = problem.obs_pose.shape[0]
 
     active = np.ones(m, bool)
     n1 = iterations[0] if remove_outliers else iterations[0] + iterations[1]
-    poses, points, ok = _optimize(problem, poses0, points0, active, robust, n1, Ks, Km)
+    clock.lap("build")
+    poses, points, ok = _optimize(problem, poses0, points0, active, robust, n1, solver, clock)
     if remove_outliers:
         chi2 = reprojection_errors(problem, poses, points)
         active = chi2 <= thr
-        poses, points, ok2 = _optimize(problem, poses, points, active, False, iterations[1], Ks, Km)
+        clock.lap("check")
+        poses, points, ok2 = _optimize(problem, poses, points, active, False, iterations[1],
+                                       solver, clock)
         ok = ok and ok2
 
     chi2 = reprojection_errors(problem, poses, points)
@@ -290,4 +371,23 @@ def bundle_adjust(problem: BAProblem, iterations: tuple[int, int] = (5, 10), rob
     sel = inlier & np.isfinite(chi2_0)
     initial = float(chi2_0[sel].mean()) if sel.any() else float("nan")
     final = float(chi2[sel].mean()) if sel.any() else float("nan")
-    return BAResult(poses, points, inlier, initial, final, (time.perf_counter() - t0) * 1e3, ok)
+    clock.lap("check")
+    return BAResult(poses, points, inlier, initial, final, (time.perf_counter() - t0) * 1e3,
+                    timings=dict(clock.ms), converged=ok)
+
+
+def warm_up() -> None:
+    """Load the compiled Schur solver (numba's on-disk cache; compiled on the very first use
+    on a machine) and GTSAM with a two-keyframe problem, so a SLAM run's first bundle
+    adjustment does not pay for it."""
+    poses = np.stack([np.eye(4), np.eye(4)])
+    poses[1, 0, 3] = -0.1
+    pts = np.array([[0.0, 0.0, 2.0], [0.3, -0.2, 2.5], [-0.4, 0.1, 3.0]])
+    pc = pts[None] + poses[:, None, :3, 3]
+    pc = pc.reshape(-1, 3)
+    uv = np.c_[500.0 * pc[:, 0] / pc[:, 2] + 320.0, 500.0 * pc[:, 1] / pc[:, 2] + 240.0]
+    ur = uv[:, 0] - 40.0 / pc[:, 2]
+    problem = BAProblem(poses, np.array([True, False]), pts, np.repeat([0, 1], 3),
+                        np.tile([0, 1, 2], 2), uv, ur, np.ones(6),
+                        500.0, 500.0, 320.0, 240.0, 40.0)
+    bundle_adjust(problem)

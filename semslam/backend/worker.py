@@ -1,9 +1,11 @@
-"""Run bundle adjustments in a separate process.
+"""Where bundle adjustments and pose graphs run.
 
-GTSAM's Python bindings hold the GIL while they optimise, so a BA in a thread stalls
-tracking for its whole duration (measured: other Python work ran 5x slower). A BA problem
-is a handful of numpy arrays, cheap to send to a worker process, which lets tracking and
-optimisation use both cores as ORB-SLAM's threads do.
+The default BA solver (``solver="schur"``, numba) releases the GIL while it solves, so it runs
+in the calling thread (local mapping's, loop closing's) beside tracking on the other core,
+with nothing to copy.  GTSAM's Python bindings hold the GIL while they optimise, so a GTSAM
+solve in a thread stalls tracking for its whole duration (measured: other Python work ran 5x
+slower): the essential graph and BAs with ``solver="gtsam"`` run in a worker process when the
+system is threaded.  A problem is a handful of numpy arrays, cheap to send there.
 """
 
 from __future__ import annotations
@@ -12,35 +14,50 @@ import multiprocessing as mp
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
+from semslam.backend.pose_graph import optimize_pose_graph
+from semslam.runtime import lower_thread_priority
 
 
 def _warm() -> bool:
-    import gtsam  # noqa: F401  (import once so the first BA does not pay for it)
+    lower_thread_priority()  # the worker's one thread runs every GTSAM solve: below tracking
+    import gtsam  # noqa: F401  (import once so the first solve does not pay for it)
 
     return True
 
 
 class BundleAdjustmentRunner:
-    """``run(problem, **kwargs) -> BAResult``, in this process or in one worker process.
+    """``run(problem, **kwargs) -> BAResult`` and ``run_pose_graph(...)``.
 
-    Built inert; ``start(use_process=True)`` starts the worker process (so the owner can
-    build everything that may fail first), ``close()`` ends it. Until started, or after
-    ``start(use_process=False)``, BAs run in the calling thread.
+    Built inert; ``start(use_process)`` loads the compiled solver into this process (from
+    numba's disk cache; so no frame pays for it) and, for a threaded system, starts the
+    worker process for GTSAM (so the owner can build everything that may fail first);
+    ``close()`` ends it.  Schur BAs always run in the calling thread; GTSAM solves run in the
+    worker once it is started, else in the calling thread.
     """
 
     def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
 
     def start(self, use_process: bool) -> None:
+        warm_up()
         if use_process and self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
             self._pool.submit(_warm)
 
     def run(self, problem: BAProblem, **kwargs: Any) -> BAResult:
-        if self._pool is None:
+        if self._pool is None or kwargs.get("solver", "schur") == "schur":
             return bundle_adjust(problem, **kwargs)
         return self._pool.submit(bundle_adjust, problem, **kwargs).result()
+
+    def run_pose_graph(self, *args: Any, **kwargs: Any) -> NDArray[np.float64]:
+        """``pose_graph.optimize_pose_graph`` in the worker (raises its ``PoseGraphFailed``)."""
+        if self._pool is None:
+            return optimize_pose_graph(*args, **kwargs)
+        return self._pool.submit(optimize_pose_graph, *args, **kwargs).result()
 
     def close(self) -> None:
         if self._pool is not None:

@@ -206,6 +206,8 @@ class RunResult:
     skipped: list[str] = field(default_factory=list)
     ms_per_frame: dict[str, float] = field(default_factory=dict)
     stages_ms_median: dict[str, float] = field(default_factory=dict)
+    stages_ms_p95: dict[str, float] = field(default_factory=dict)
+    stages_ms_max: dict[str, float] = field(default_factory=dict)
     dynamic_ratio_mean: float = 0.0
     wall_s: float = 0.0
     fps: float = 0.0

@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from semslam.core import registry
 from semslam.core.protocols import Matcher
 from semslam.core.types import FeatureSpec
+from semslam.features.matching_kernels import hamming_rows, select_best
 
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
 
@@ -48,23 +49,10 @@ def _unique_train(qi: NDArray[np.intp], ti: NDArray[np.intp], dd: NDArray[Any]) 
 def _select_candidates(cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], dist: NDArray[Any],
                        max_distance: float, ratio: float) -> Matches:
     """Best train point per query among its candidate pairs (ties: the first candidate),
-    the ratio test against the second-best candidate, each train point used at most once.
-    Integer distances are compared in int64 (exact), float ones in float64."""
-    integer = np.issubdtype(dist.dtype, np.integer)
-    order = np.lexsort((dist, cand_q))
-    q, t, d = cand_q[order], cand_t[order], dist[order]
-    first = np.r_[True, q[1:] != q[:-1]]
-    idx_first = np.nonzero(first)[0]
-    has_second = np.r_[idx_first[1:], len(q)] - idx_first > 1
-    if integer:
-        second = np.full(len(idx_first), np.iinfo(np.int32).max, np.int64)
-    else:
-        second = np.full(len(idx_first), np.inf, np.float64)
-    second[has_second] = d[idx_first[has_second] + 1]
-    best = d[idx_first].astype(np.int64 if integer else np.float64)
-    ok = (best <= max_distance) & (best < ratio * second)
-    sel = idx_first[ok]
-    return _unique_train(q[sel], t[sel], d[sel])
+    the ratio test against the second-best candidate, each train point used at most once
+    (ties: the lowest query); sorted by train index. One compiled pass
+    (``matching_kernels.select_best``)."""
+    return select_best(cand_q, cand_t, dist, max_distance, ratio)
 
 
 class HammingMatcher:
@@ -73,7 +61,8 @@ class HammingMatcher:
 
     def distances(self, a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int32]:
         """Hamming distance between row ``k`` of ``a`` and row ``k`` of ``b``."""
-        return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=1, dtype=np.int32)
+        d = hamming_rows(a, b) if len(a) else None
+        return d if d is not None else _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=1, dtype=np.int32)
 
     def match_candidates(self, desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8],
                          cand_q: NDArray[np.intp], cand_t: NDArray[np.intp], max_distance: float,
@@ -81,7 +70,9 @@ class HammingMatcher:
         """Best train point per query among its candidate pairs (see the module doc)."""
         if len(cand_q) == 0:
             return _empty()
-        dist = self.distances(desc_query[cand_q], desc_train[cand_t])
+        dist = hamming_rows(desc_query, desc_train, cand_q, cand_t)
+        if dist is None:
+            dist = self.distances(desc_query[cand_q], desc_train[cand_t])
         return _select_candidates(cand_q, cand_t, dist, max_distance, ratio)
 
     def match_brute_force(self, desc_query: NDArray[np.uint8], desc_train: NDArray[np.uint8],

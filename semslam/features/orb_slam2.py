@@ -1,7 +1,7 @@
-"""ORB extraction as ORB-SLAM2/3 does it (``ORBextractor.cc``), vectorised with numpy and
-OpenCV: scale pyramid, FAST per ~30 px cell with a lower threshold for empty cells,
-quadtree distribution, intensity-centroid orientation, steered rBRIEF on the blurred
-level image.
+"""ORB extraction as ORB-SLAM2/3 does it (``ORBextractor.cc``), with OpenCV (resize, blur)
+and compiled numba kernels for the rest: scale pyramid, FAST per ~30 px cell with a
+lower threshold for empty cells, quadtree distribution, intensity-centroid orientation,
+steered rBRIEF on the blurred level image.
 
 Why not ``cv2.ORB``: OpenCV keeps the strongest Harris responses over the whole image,
 which clusters keypoints on texture; ORB-SLAM's cells + quadtree spread them over the
@@ -11,46 +11,41 @@ Stages and where they differ from ORB-SLAM (all else is meant to be identical):
 - pyramid: ``semslam.features.orb.pyramid`` (each level resized from the previous one as
   in ORB-SLAM; all levels in one reused buffer with 3 px of reflect padding for the
   blur, instead of ORB-SLAM's EDGE_THRESHOLD padding that nothing reads);
-- detection: ORB-SLAM runs FAST (9-16, non-max suppression) on every ~30 px cell ROI,
-  again with ``fast_min_threshold`` where nothing was found. We run FAST at
-  ``fast_threshold`` once on each level's whole detection region and assign the
-  keypoints to ORB-SLAM's cells with integer arithmetic (``ceil``-sized cells, 3 px FAST
-  margin, same clipping: the cells' detection ranges tile the region exactly), then run
-  FAST at ``fast_min_threshold`` on ORB-SLAM's own ROI of each cell left empty. Why
-  this split: FAST costs ~0.3 us per corner found and little per pixel (~0.4 ms for all
-  levels) or per call (~2 us), so one low-threshold pass over everything costs 2-3x
-  more on textured frames, and one call per cell for the first pass costs ~3 ms of
-  Python loop. The one difference to ORB-SLAM is in that first pass: its per-cell
-  non-max suppression cannot see a stronger neighbour across a cell boundary (scores
-  outside the ROI are 0), ours can, so a few corners on cell boundaries next to a
-  stronger one in the next cell are suppressed here (and a cell whose only corners are
-  such is treated as empty). ``semslam.features.orb.detect_level_reference`` is the
-  literal per-cell version; on the real 640x480 test frames 97-98 % of the extracted keypoints are
-  identical (tests and ``benchmarks/extractor_timing.py``). Related fact, checked on
-  the test frames: FAST's score does not depend on the threshold and a pixel is a
-  corner at threshold t iff its score is >= t;
+- detection: exactly ORB-SLAM's. ORB-SLAM runs OpenCV's FAST (9-16, non-max
+  suppression) on every ~30 px cell ROI, again with ``fast_min_threshold`` where
+  nothing was found; so a corner's non-max suppression only sees neighbours inside its
+  cell. ``semslam.features.orb.detect_levels`` does the same in one compiled call for
+  all levels (``orb.fast_kernels``, a numba port of OpenCV's FAST): same keypoints,
+  scores and order as the literal per-cell OpenCV calls of ``detect_level_reference``
+  (``reference_detection=True``), checked on the real and synthetic test frames with
+  and without mask. Why compiled: the per-cell calls (~70 per frame) and the
+  ``cv2.KeyPoint`` objects they return cost more than the detection itself. (Earlier
+  versions ran FAST once per level and so differed from ORB-SLAM at cell borders; that
+  difference is gone.);
 - mask: FAST's own mask (applied after its non-max suppression) so masked corners
   neither count for a cell nor reach the quadtree and the budget goes to allowed pixels;
-- quadtree: ``semslam.features.orb.quadtree`` (``SplitRule.ORB_SLAM``; ties between
-  equal-sized nodes broken by position instead of heap address);
-- orientation: ``IC_Angle`` with ORB-SLAM's ``umax`` circle, as one gather + matmul
-  for all levels (levels stacked in one buffer, ``orb.pyramid.StackedPyramid``);
-  ``cv2.phase`` gives OpenCV's ``fastAtan2`` (what ORB-SLAM calls);
+- quadtree: ``semslam.features.orb.quadtree`` (``SplitRule.ORB_SLAM``, compiled; ties
+  between equal-sized nodes broken by position instead of heap address);
+- orientation: ``IC_Angle`` with ORB-SLAM's ``umax`` circle (compiled moments, exact
+  integers) for all levels at once (levels stacked in one buffer,
+  ``orb.pyramid.StackedPyramid``); ``cv2.phase`` gives OpenCV's ``fastAtan2`` (what
+  ORB-SLAM calls);
 - descriptors: ORB-SLAM's ``computeOrbDescriptor`` (pattern ``bit_pattern_31_`` from
-  OpenCV's orb.cpp, the learned rBRIEF test pairs, round-half-even like ``cvRound``)
-  as one gather for all levels; the 7x7 sigma-2 blur is one call on the stacked
-  levels, each padded with BORDER_REFLECT_101 (identical to blurring each level on its
-  own as ORB-SLAM does); bit ``k`` of byte ``i`` is test ``8 i + k``.
+  OpenCV's orb.cpp, the learned rBRIEF test pairs, round-half-even like ``cvRound``;
+  each rotated offset is ``rint(fma(b, -y, a x))``, i.e. one product rounded and one
+  fused, as the float32 BLAS product of the earlier numpy version did), compiled, for
+  all levels at once; the 7x7 sigma-2 blur is one call on the stacked levels, each
+  padded with BORDER_REFLECT_101 (identical to blurring each level on its own as
+  ORB-SLAM does); bit ``k`` of byte ``i`` is test ``8 i + k``.
 
 The kernels live in ``semslam.features.orb`` (shared with ``qtree_orb``); this module is
-the extractor that puts them together and its registry factory.
+the extractor that puts them together and its registry factory. Its constructor calls
+``orb.warm_up()``, so the numba kernels are compiled (or loaded from numba's disk
+cache) before the first frame.
 """
 
 from __future__ import annotations
 
-import time
-
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -59,6 +54,7 @@ from semslam.core.types import FeatureSpec, Keypoints, orb_spec
 from semslam.features.inputs import check_extractor_inputs
 from semslam.features.orb import (
     BORDER,
+    Scratch,
     SteeredBrief,
     build_pyramid,
     detect_level_reference,
@@ -68,11 +64,14 @@ from semslam.features.orb import (
     features_per_level,
     inv_level_sigma2,
     level0_xy,
+    level_mask_samplers,
     level_masks,
     level_sigma2,
     region_sizes,
     scale_factors,
+    warm_up,
 )
+from semslam.features.orb.timing import StageClock
 
 __all__ = ["OrbSlamExtractor", "create_extractor"]
 
@@ -88,7 +87,8 @@ class OrbSlamExtractor:
     0 = forbidden) drops keypoints whose nearest level-0 pixel is forbidden before the
     distribution, so the budget still goes to allowed pixels.
 
-    ``reference_detection=True`` uses the literal (slow) per-cell FAST of ORB-SLAM."""
+    ``reference_detection=True`` runs ORB-SLAM's literal per-cell OpenCV FAST calls
+    instead of the compiled detection (same output, slow; kept to check it against)."""
 
     def __init__(self, n_features: int = 1000, scale_factor: float = 1.2, n_levels: int = 8,
                  fast_threshold: int = 20, fast_min_threshold: int = 7, reference_detection: bool = False) -> None:
@@ -105,49 +105,51 @@ class OrbSlamExtractor:
         self.level_sigma2 = level_sigma2(self.n_levels, self.scale_factor)
         self.inv_level_sigma2 = inv_level_sigma2(self.n_levels, self.scale_factor)
         self.features_per_level = features_per_level(self.n_features, self.n_levels, self.scale_factor)
-        self._fast_hi = cv2.FastFeatureDetector_create(self.fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
-        self._fast_lo = cv2.FastFeatureDetector_create(self.fast_min_threshold, True,
-                                                       cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        warm_up()  # compile the kernels now, not in the first frame
         # Reused from frame to frame (an extractor is not meant to be shared by threads).
+        self._scratch = Scratch()
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
-        # Wall time of each stage of the last extract() (ms), for profiling.
+        # Wall and thread-CPU time of each stage of the last extract() (ms), for profiling.
         self.last_stage_ms: dict[str, float] = {}
+        self.last_stage_cpu_ms: dict[str, float] = {}
 
     def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
         gray, mask = check_extractor_inputs(gray, mask)
         if gray.size == 0 or self.n_features == 0:
             return Keypoints.empty()
 
-        clock = [time.perf_counter()]
+        clock = StageClock()
         pyr = build_pyramid(gray, self.n_levels, self.scale_factor, pad=3, buffer=self._pyramid_buffer)
         self._pyramid_buffer = pyr.buffer
-        clock.append(time.perf_counter())
+        clock.lap()
         images = detection_levels(pyr.levels)
         n_used = len(images)
         if n_used == 0:
             return Keypoints.empty()
-        masks = level_masks(mask, images, self.scale_factors)
         if self.reference_detection:
+            masks = level_masks(mask, images, self.scale_factors)
             found = [detect_level_reference(image, self.fast_threshold, self.fast_min_threshold,
                                             None if masks is None else masks[level])
                      for level, image in enumerate(images)]
             x, y, resp = (np.concatenate([f[i] for f in found]) for i in range(3))
             level = np.concatenate([np.full(len(f[0]), lvl, np.int64) for lvl, f in enumerate(found)])
         else:
-            x, y, resp, level = detect_levels(images, self._fast_hi, self._fast_lo, masks)
+            x, y, resp, level = detect_levels(images, self.fast_threshold, self.fast_min_threshold,
+                                              level_mask_samplers(mask, images, self.scale_factors), self._scratch)
         widths, heights = region_sizes(images)
-        clock.append(time.perf_counter())
-        keep = distribute_quadtree_levels(x, y, resp, level, widths, heights, self.features_per_level[:n_used])
-        clock.append(time.perf_counter())
+        clock.lap()
+        keep = distribute_quadtree_levels(x, y, resp, level, widths, heights, self.features_per_level[:n_used],
+                                          scratch=self._scratch)
+        clock.lap()
         if len(keep) == 0:
             return Keypoints.empty()
         kx, ky, klv = x[keep] + BORDER, y[keep] + BORDER, level[keep]
         sx, sy = kx + pyr.pad, ky + pyr.rows[klv]
         angle, desc = self._brief.compute(pyr, sx, sy, clock)
         xy = level0_xy(kx, ky, klv, self.scale_factors)
-        clock.append(time.perf_counter())
-        self.last_stage_ms = dict(zip(_STAGES, (1e3 * np.diff(clock)).tolist()))
+        clock.lap()
+        self.last_stage_ms, self.last_stage_cpu_ms = clock.stage_ms(_STAGES)
         return Keypoints(xy=xy, octave=klv.astype(np.int32), response=resp[keep].astype(np.float32),
                          angle=angle.astype(np.float32), descriptors=desc)
 

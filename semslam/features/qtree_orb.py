@@ -23,9 +23,10 @@ The paper's equations and how ``s`` relates to ORB-SLAM's ``scale_factor``:
   levels), i.e. budgets per unit *length*; ``budget="orb_slam"`` selects that.
 
 Choices where the paper is vague (all commented where they are made):
-- Algorithm 2 regions are ORB-SLAM's ~30 px FAST cells; as in our ORB-SLAM port FAST
-  runs once per level on the whole detection region and points are assigned to the
-  cells (non-max suppression can see across cell boundaries). The low-threshold pass is
+- Algorithm 2 regions are ORB-SLAM's ~30 px FAST cells; FAST (the compiled OpenCV FAST
+  of ``orb.fast_points``) runs once per level on the whole detection region and points
+  are assigned to the cells (so, unlike ORB-SLAM's per-cell FAST, non-max suppression
+  can see across cell boundaries; the paper does not say). The low-threshold pass is
   one FAST call at ``T_L`` on the region; its points with score >= ``T_H`` are exactly
   the high pass's points (OpenCV's FAST score does not depend on the threshold and a
   pixel is a corner at ``t`` iff its score >= ``t``; checked in the tests), the others
@@ -59,11 +60,9 @@ pyramid it really extracts with, and the SLAM core sizes its per-level tables fr
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -72,6 +71,7 @@ from semslam.core.types import FeatureSpec, Keypoints, orb_spec
 from semslam.features.inputs import check_extractor_inputs
 from semslam.features.orb import (
     BORDER,
+    MaskSampler,
     Scratch,
     SplitRule,
     SteeredBrief,
@@ -83,10 +83,12 @@ from semslam.features.orb import (
     fast_points,
     features_per_level,
     level0_xy,
-    level_masks,
+    level_mask_samplers,
     region_sizes,
     scale_factors,
+    warm_up,
 )
+from semslam.features.orb.timing import StageClock
 
 __all__ = [
     "Detection", "QtreeOrbCounts", "QtreeOrbExtractor", "detect_two_thresholds", "distribute_improved_quadtree",
@@ -192,13 +194,15 @@ class Detection:
 
 
 def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.integer],
-                          fast_hi: cv2.FastFeatureDetector, fast_lo: cv2.FastFeatureDetector,
-                          masks: list[NDArray[np.uint8] | None] | None = None) -> Detection:
-    """Algorithm 2 on every level: ``P^H`` = FAST at ``T_H`` (``fast_hi``) on all cells;
-    if ``|P^H| < N_i``, insert the cells' low points (FAST at ``T_L``, score < ``T_H``)
-    cell by cell in raster order until ``|P^H| + |P^L| >= N_i``. Levels must all have a
-    detection region. See the module doc for the choices."""
-    t_high = np.float32(fast_hi.getThreshold())
+                          fast_threshold: int, fast_min_threshold: int,
+                          masks: list[MaskSampler] | None = None, scratch: Scratch | None = None) -> Detection:
+    """Algorithm 2 on every level: ``P^H`` = FAST at ``T_H`` (``fast_threshold``) on all
+    cells; if ``|P^H| < N_i``, insert the cells' low points (FAST at ``T_L``, score <
+    ``T_H``) cell by cell in raster order until ``|P^H| + |P^L| >= N_i``. Levels must all
+    have a detection region; ``masks``: one per level (``level_mask_samplers``). See the
+    module doc for the choices."""
+    scratch = scratch or Scratch()
+    t_high = np.float32(fast_threshold)
     xs, ys, ss, hs, cells = [], [], [], [], []
     n_high = np.zeros(len(images), np.int64)
     n_low = np.zeros(len(images), np.int64)
@@ -209,10 +213,9 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
         assert region is not None, "levels without a detection region must be left out"
         width, height = region
         crop = image[BORDER:BORDER + height, BORDER:BORDER + width]
-        mask = None if masks is None else masks[level]
-        cmask = None if mask is None else mask[BORDER:BORDER + height, BORDER:BORDER + width]
+        cmask = None if masks is None else masks[level].crop(BORDER, BORDER, width, height)
         grid = cell_grid(width, height)
-        x, y, s = fast_points(fast_hi, crop, cmask)
+        x, y, s = fast_points(crop, fast_threshold, cmask, scratch)
         n_high[level] = len(x)
         xs.append(x)
         ys.append(y)
@@ -221,7 +224,7 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
         cells.append(grid.cell_of(x, y) + cell_base)
         deficit = int(n_wanted[level]) - len(x)
         if deficit > 0:
-            lx, ly, ls = fast_points(fast_lo, crop, cmask)
+            lx, ly, ls = fast_points(crop, fast_min_threshold, cmask, scratch)
             low = ls < t_high  # the others are exactly P^H again
             lx, ly, ls = lx[low], ly[low], ls[low]
             lcell = grid.cell_of(lx, ly)
@@ -251,8 +254,8 @@ def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.
 
 def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                  high: NDArray[np.bool_], level: NDArray[np.integer], widths: NDArray[np.integer],
-                                 heights: NDArray[np.integer], n_wanted: NDArray[np.integer]
-                                 ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
+                                 heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
+                                 scratch: Scratch | None = None) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
     """Algorithm 3 for all levels at once: the indices (sorted) of the kept points and
     every point's final leaf (-1 for levels with ``n_wanted <= 0``, which keep nothing).
 
@@ -263,7 +266,7 @@ def distribute_improved_quadtree(x: NDArray[np.integer], y: NDArray[np.integer],
     larger than 1x1 px; the level stops at ``n_wanted`` nodes or when no node can split
     (instead of ORB-SLAM's "a pass changed nothing"); ``response`` is Harris."""
     return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high,
-                                      SplitRule.HIGH_QUALITY)
+                                      SplitRule.HIGH_QUALITY, scratch)
 
 
 # --------------------------------------------------------------------------- metrics
@@ -344,7 +347,7 @@ class QtreeOrbExtractor:
 
     After each call: ``last_quality`` (bool per returned keypoint, True = high quality,
     i.e. FAST score >= ``T_H``), ``last_fast_score`` (float32 per keypoint),
-    ``last_counts`` (``QtreeOrbCounts``), ``last_stage_ms``.
+    ``last_counts`` (``QtreeOrbCounts``), ``last_stage_ms`` and ``last_stage_cpu_ms``.
 
     ``levels_from_image_size=False`` uses ``n_levels`` instead of eq. 2;
     ``budget="orb_slam"`` uses ORB-SLAM's per-level budgets instead of eq. 5.
@@ -369,15 +372,14 @@ class QtreeOrbExtractor:
         self.levels_from_image_size = bool(levels_from_image_size)
         self.budget = budget
         self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
-        self._fast_hi = cv2.FastFeatureDetector_create(self.fast_threshold, True, cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
-        self._fast_lo = cv2.FastFeatureDetector_create(self.fast_min_threshold, True,
-                                                       cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
+        warm_up()  # compile the kernels now, not in the first frame
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
         self.last_quality: NDArray[np.bool_] = np.zeros(0, bool)
         self.last_fast_score: NDArray[np.float32] = np.zeros(0, np.float32)
         self.last_counts = QtreeOrbCounts()
         self.last_stage_ms: dict[str, float] = {}
+        self.last_stage_cpu_ms: dict[str, float] = {}
 
     @property
     def spec(self) -> FeatureSpec:
@@ -416,29 +418,31 @@ class QtreeOrbExtractor:
         if gray.size == 0 or self.n_features == 0:
             return self._reset()
 
-        clock = [time.perf_counter()]
+        clock = StageClock()
         n_levels = self.levels_for(gray.shape[1], gray.shape[0])
         wanted_all = self.features_per_level(gray.shape[1], gray.shape[0])
         pyr = build_pyramid(gray, n_levels, self.scale_factor, pad=3, buffer=self._pyramid_buffer)
         self._pyramid_buffer = pyr.buffer
         scales = scale_factors(n_levels, self.scale_factor)
-        clock.append(time.perf_counter())
+        clock.lap()
         images = detection_levels(pyr.levels)
         if not images:
             return self._reset()
         n_used = len(images)
         wanted = wanted_all[:n_used]
-        masks = level_masks(mask, images, scales)
-        det = detect_two_thresholds(images, wanted, self._fast_hi, self._fast_lo, masks)
-        clock.append(time.perf_counter())
+        masks = level_mask_samplers(mask, images, scales)
+        det = detect_two_thresholds(images, wanted, self.fast_threshold, self.fast_min_threshold, masks,
+                                    self._brief.scratch)
+        clock.lap()
         # Harris on the level images in the stacked buffer (the points are >= 19 px inside
         # their level, so the 9x9 windows never reach the padding or another level).
         sx_all, sy_all = det.x + BORDER + pyr.pad, det.y + BORDER + pyr.rows[det.level]
         harris = harris_responses(pyr.buffer, sx_all, sy_all, scratch=self._brief.scratch)
-        clock.append(time.perf_counter())
+        clock.lap()
         widths, heights = region_sizes(images)
-        keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted)
-        clock.append(time.perf_counter())
+        keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted,
+                                               self._brief.scratch)
+        clock.lap()
         klv = det.level[keep]
         quality = det.high[keep]
         kept_high = np.bincount(klv[quality], minlength=n_used)
@@ -452,8 +456,8 @@ class QtreeOrbExtractor:
         kx, ky = det.x[keep] + BORDER, det.y[keep] + BORDER
         angle, desc = self._brief.compute(pyr, sx_all[keep], sy_all[keep], clock)
         xy = level0_xy(kx, ky, klv, scales)
-        clock.append(time.perf_counter())
-        self.last_stage_ms = dict(zip(_STAGES, (1e3 * np.diff(clock)).tolist()))
+        clock.lap()
+        self.last_stage_ms, self.last_stage_cpu_ms = clock.stage_ms(_STAGES)
         self.last_quality = quality
         self.last_fast_score = det.score[keep].astype(np.float32)
         return Keypoints(xy=xy, octave=klv.astype(np.int32), response=harris[keep].astype(np.float32),

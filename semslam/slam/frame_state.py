@@ -9,9 +9,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.core.types import Keypoints
+from semslam.features.keypoint_grid import KeypointGrid
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.frame_to_keyframe import sample_depth
-from semslam.slam.map import KeyFrame, MapPoint
+from semslam.slam.map import KeyFrame, PointSlots, PointStore
 
 
 @dataclass(eq=False)
@@ -22,13 +23,13 @@ class FrameState:
     xy: NDArray[np.float64]
     depth: NDArray[np.float32]
     ur: NDArray[np.float64]
-    points: list[MapPoint | None]
+    points: PointSlots  # MapPoint | None per keypoint, with their store rows
     outlier: NDArray[np.bool_]
     T_cw: NDArray[np.float64] | None = None
     ref_kf: KeyFrame | None = None
     bow: Any = None
     featvec: dict[int, Any] | None = None
-    _tree: Any = field(default=None, repr=False)
+    _grid: KeypointGrid | None = field(default=None, repr=False)
 
     @classmethod
     def create(cls, index: int, timestamp: float, kps: Keypoints, depth_img: NDArray[np.float32] | None,
@@ -40,7 +41,7 @@ class FrameState:
             z = np.zeros(len(kps), np.float32)
         ur = np.where(z > 0, xy[:, 0] - bf / np.maximum(z, 1e-6), -1.0)
         n = len(kps)
-        return cls(index, timestamp, kps, xy, z, ur, [None] * n, np.zeros(n, bool))
+        return cls(index, timestamp, kps, xy, z, ur, PointSlots([None] * n), np.zeros(n, bool))
 
     def __len__(self) -> int:
         return len(self.keypoints)
@@ -50,24 +51,34 @@ class FrameState:
         idx = np.nonzero(keep)[0]
         self.keypoints = self.keypoints.subset(idx)
         self.xy, self.depth, self.ur = self.xy[idx], self.depth[idx], self.ur[idx]
-        self.points = [self.points[i] for i in idx]
+        self.points = PointSlots([self.points[i] for i in idx.tolist()])
         self.outlier = self.outlier[idx]
         self.bow = self.featvec = None
-        self._tree = None
+        self._grid = None
 
-    def tree(self) -> Any:
-        if self._tree is None:
-            from scipy.spatial import cKDTree
+    def grid(self, width: float, height: float) -> KeypointGrid:
+        """The keypoints in ORB-SLAM's 64 x 48 grid over the image (built once)."""
+        if self._grid is None:
+            self._grid = KeypointGrid(self.xy, self.keypoints.octave, width, height)
+        return self._grid
 
-            self._tree = cKDTree(self.xy)
-        return self._tree
+    def clear_points(self) -> None:
+        self.points = PointSlots([None] * len(self))
 
-    def matched_indices(self) -> NDArray[np.intp]:
-        return np.array([i for i, p in enumerate(self.points) if p is not None and not p.bad], np.intp)
+    def matched_indices(self, store: PointStore) -> NDArray[np.intp]:
+        """Keypoints with a good map point."""
+        rows = self.points.rows
+        has = rows >= 0
+        has[has] = ~store.bad[rows[has]]
+        return np.flatnonzero(has)
 
-    def free_mask(self) -> NDArray[np.bool_]:
+    def free_mask(self, store: PointStore) -> NDArray[np.bool_]:
         """Keypoints without a (good, observed) map point."""
-        return np.array([p is None or p.bad or len(p.observations) == 0 for p in self.points], bool)
+        rows = self.points.rows
+        free = rows < 0
+        r = rows[~free]
+        free[~free] = store.bad[r] | (store.n_kf_obs[r] == 0)
+        return free
 
     def world_points(self, idx: NDArray[np.intp], camera: PinholeCamera) -> NDArray[np.float64]:
         """World positions of keypoints ``idx`` from their depth and the frame pose."""

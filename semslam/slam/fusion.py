@@ -1,14 +1,50 @@
 """ORB-SLAM's Fuse: project map points into a keyframe and merge them with the points
 already at the matched keypoints. Used by local mapping (new keyframe vs. its neighbours)
-and by loop closing (the loop's points into the corrected keyframes)."""
+and by loop closing (the loop's points into the corrected keyframes).
+
+Split in two so the search can run without the map lock: :meth:`PointFusion.plan` only reads
+(the points' arrays are gathered once by :class:`PointArrays` and reused for every target
+keyframe) and returns the matches; :meth:`PointFusion.apply` changes the map (the caller holds
+``map.lock``) and checks each match again against the map as it is then.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
+from numpy.typing import NDArray
 
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.search import project
+
+
+@dataclass
+class PointArrays:
+    """Positions, depth ranges, normals, descriptors and ids of a list of good points."""
+
+    points: list[MapPoint]
+    ids: NDArray[np.int64]
+    pos: NDArray[np.float64]
+    min_dist: NDArray[np.float64]
+    max_dist: NDArray[np.float64]
+    normal: NDArray[np.float64]
+    descriptors: NDArray[Any]
+
+    @classmethod
+    def of(cls, points: list[MapPoint]) -> "PointArrays":
+        pts = [p for p in points if not p.bad]
+        n = len(pts)
+        if n == 0:
+            return cls([], np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
+                       np.zeros((0, 3)), np.zeros((0, 0), np.uint8))
+        return cls(pts, np.fromiter((p.id for p in pts), np.int64, n),
+                   np.array([p.pos for p in pts]),
+                   np.fromiter((p.min_dist for p in pts), np.float64, n),
+                   np.fromiter((p.max_dist for p in pts), np.float64, n),
+                   np.array([p.normal for p in pts]), np.stack([p.descriptor for p in pts]))
 
 
 class PointFusion:
@@ -21,30 +57,42 @@ class PointFusion:
         self.bf = bf
         self.n_fused = 0
 
-    def fuse(self, kf: KeyFrame, points: list[MapPoint], th: float = 3.0, touched: dict[int, MapPoint] | None = None) -> int:
+    def fuse(self, kf: KeyFrame, points: list[MapPoint], th: float = 3.0,
+             touched: dict[int, MapPoint] | None = None) -> int:
         """Project points into ``kf``; merge with the point already at the matched keypoint
-        (keep the one with more observations) or add the observation (ORB-SLAM Fuse)."""
-        cand = [p for p in points if not p.bad and kf not in p.observations]
-        if not cand:
-            return 0
+        (keep the one with more observations) or add the observation (ORB-SLAM Fuse).
+        The caller holds ``map.lock``."""
+        return self.apply(kf, self.plan(kf, PointArrays.of(points), th), touched)
+
+    def plan(self, kf: KeyFrame, src: PointArrays, th: float = 3.0) -> list[tuple[MapPoint, int]]:
+        """The (point, keypoint index) pairs Fuse would merge in ``kf``; reads only.
+
+        Points ``kf`` already observes (its own map points) are skipped."""
+        if not src.points or kf.bad:
+            return []
+        own = np.fromiter((p.id for p in kf.points if p is not None and not p.bad), np.int64)
+        keep = ~np.isin(src.ids, own) if own.size else np.ones(len(src.points), bool)
+        cand = np.flatnonzero(keep)
+        if cand.size == 0:
+            return []
         fx, fy, cx, cy = self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy
-        pos = np.array([p.pos for p in cand])
+        pos = src.pos[cand]
         uv, z = project(kf.T_cw, pos, fx, fy, cx, cy)
-        dist = np.linalg.norm(pos - kf.center, axis=1)
-        max_d = np.array([p.max_dist for p in cand])
-        min_d = np.array([p.min_dist for p in cand])
-        normals = np.array([p.normal for p in cand])
-        view_cos = np.einsum("ij,ij->i", pos - kf.center, normals) / np.maximum(dist, 1e-9)
+        center = kf.center
+        dist = np.linalg.norm(pos - center, axis=1)
+        max_d = src.max_dist[cand]
+        min_d = src.min_dist[cand]
+        view_cos = np.einsum("ij,ij->i", pos - center, src.normal[cand]) / np.maximum(dist, 1e-9)
         ok = (z > 0) & (dist >= 0.8 * min_d) & (dist <= 1.2 * max_d) & (view_cos >= 0.5)
         ok &= self.camera.in_image(uv)
         sel = np.nonzero(ok)[0]
         if len(sel) == 0:
-            return 0
+            return []
         level = self.pyr.predict_level(max_d[sel], dist[sel])
         lists = kf.tree().query_ball_point(uv[sel], r=th * self.pyr.scales[level])
         counts = np.fromiter((len(x) for x in lists), np.intp, len(lists))
         if counts.sum() == 0:
-            return 0
+            return []
         cq = np.repeat(np.arange(len(lists)), counts)
         ct = np.fromiter((j for x in lists for j in x), np.intp, int(counts.sum()))
         lvl = kf.keypoints.octave[ct]
@@ -57,20 +105,27 @@ class PointFusion:
         e = e * self.pyr.inv_sigma2[lvl]
         good &= np.where(has_r, e < 7.8, e < 5.99)
         cq, ct = cq[good], ct[good]
-        desc = np.stack([cand[s].descriptor for s in sel])
+        desc = src.descriptors[cand[sel]]
         qi, ti, _ = self.map.matcher.match_candidates(desc, kf.keypoints.descriptors, cq, ct,
                                                       self.map.spec.th_low, 1.0)
+        return [(src.points[cand[sel[q]]], int(t)) for q, t in zip(qi.tolist(), ti.tolist())]
+
+    def apply(self, kf: KeyFrame, matches: list[tuple[MapPoint, int]],
+              touched: dict[int, MapPoint] | None = None) -> int:
+        """Merge planned matches into ``kf`` (the caller holds ``map.lock``).  A match whose
+        point went bad, or that ``kf`` observes by now, is dropped."""
+        if kf.bad:
+            return 0
         n = 0
-        for q, t in zip(qi, ti):
-            p = cand[sel[q]]
-            if p.bad:
+        for p, t in matches:
+            if p.bad or kf in p.observations:
                 continue
             existing = kf.points[t]
             if existing is not None and not existing.bad:
                 keep, drop = (existing, p) if len(existing.observations) > len(p.observations) else (p, existing)
                 self.map.replace_point(drop, keep)
             else:
-                p.add_observation(kf, int(t))
+                p.add_observation(kf, t)
                 kf.points[t] = p
                 keep = p
             if touched is not None:

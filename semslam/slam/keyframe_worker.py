@@ -3,7 +3,9 @@
 thread, or processes each keyframe inline when it was never started (``--sequential``).
 
 Waiting is on a condition variable, never polling: ``wait_idle`` wakes when the worker has
-nothing queued and nothing in hand, or when its thread has ended.
+nothing queued and nothing in hand, or when its thread has ended.  ``paused`` is ORB-SLAM's
+RequestStop / Release: the worker finishes the keyframe in hand and takes no other until the
+block ends (loop closing pauses local mapping while it changes the map).
 """
 
 from __future__ import annotations
@@ -11,8 +13,11 @@ from __future__ import annotations
 import logging
 import threading
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Protocol
 
+from semslam.runtime import lower_thread_priority
 from semslam.slam.map import KeyFrame
 
 log = logging.getLogger(__name__)
@@ -40,6 +45,8 @@ class KeyframeInbox:
         self._cond = threading.Condition()
         self._busy = False
         self._closed = False
+        self._in_hand = False  # the worker took a keyframe and has not called done()
+        self._pauses = 0
 
     def put(self, kf: KeyFrame) -> None:
         with self._cond:
@@ -48,18 +55,38 @@ class KeyframeInbox:
             self._cond.notify_all()
 
     def take(self) -> KeyFrame | None:
-        """The next keyframe; None once closed and drained."""
+        """The next keyframe (not while paused); None once closed and drained."""
         with self._cond:
-            self._cond.wait_for(lambda: self._items or self._closed)
+            self._cond.wait_for(lambda: not self._pauses and (self._items or self._closed))
             if not self._items:
                 return None
+            self._in_hand = True
             return self._items.popleft()
 
     def done(self) -> None:
         """The worker finished a keyframe; idle if nothing else is queued."""
         with self._cond:
+            self._in_hand = False
             if not self._items:
                 self._busy = False
+            self._cond.notify_all()
+
+    @contextmanager
+    def paused(self, timeout: float | None = 60.0) -> Iterator[bool]:
+        """Within the block the worker holds no keyframe and takes none (it finishes the one
+        in hand first); yields False if that did not happen within ``timeout``."""
+        with self._cond:
+            self._pauses += 1
+            try:
+                ok = self._cond.wait_for(lambda: not self._in_hand, timeout)
+            except BaseException:
+                self._pauses -= 1
+                raise
+        try:
+            yield ok
+        finally:
+            with self._cond:
+                self._pauses -= 1
                 self._cond.notify_all()
 
     def close(self, discard: bool = False) -> None:
@@ -107,6 +134,7 @@ class KeyframeWorker:
         self._thread.start()
 
     def _run(self) -> None:
+        lower_thread_priority()  # tracking's frame comes first on a busy machine
         while (kf := self.inbox.take()) is not None:
             try:
                 self.process(kf)

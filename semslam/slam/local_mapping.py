@@ -1,13 +1,28 @@
 """ORB-SLAM2 local mapping: new keyframe processing, recent point culling, new points by
-triangulation, duplicate fusion with neighbours, local bundle adjustment (GTSAM) and
-redundant keyframe culling. Runs as a thread, or inline when ``slam.sequential`` is set.
+triangulation, duplicate fusion with neighbours, local bundle adjustment and redundant
+keyframe culling. Runs as a thread, or inline when ``slam.sequential`` is set.
+
+Locking (see docs/architecture.md): tracking holds ``map.lock`` for a whole frame, so every
+step here reads the map and does its work without the lock, then writes what it found under
+the lock in short critical sections (``apply_in_slices`` lets go of the lock every ~1 ms
+when there are many small changes) that check again what may have changed meanwhile.
+Reading without the lock is safe because the map's structure (observations, keyframes'
+point slots, covisibility) has only two writers, this thread and loop closing, and loop
+closing pauses this thread (``KeyframeInbox.paused``) around everything it writes; tracking
+only adds new keyframes and points (unreachable from here until published), counts
+(``n_visible``, ``n_found``) and marks points bad, which every write here checks.  Every
+write, to the structure and to the point store (positions, descriptors, normals, depth
+ranges), happens under the lock: values are computed first, then stored by rows.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from functools import partial
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,9 +32,11 @@ from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.fusion import PointFusion
+from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
-from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
+from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map_batch import distinctive_descriptors, normals_and_depths
+from semslam.slam.map_batch import warm_up as warm_up_kernels
 from semslam.slam.search import project
 
 if TYPE_CHECKING:
@@ -28,38 +45,98 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
+def observation_table(points: list[MapPoint], kf_index: dict[KeyFrame, int] | None = None
+                      ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[KeyFrame]]:
+    """Every observation of ``points`` as flat arrays (point row, keyframe row, keypoint
+    index), point-major in observation order, and the keyframes the rows refer to.
+
+    With ``kf_index`` only the observations by those keyframes are listed (rows from it);
+    without, every observing keyframe gets a row in first-seen order."""
+    if kf_index is None:
+        rows: dict[KeyFrame, int] = {}
+        trip = [(j, rows.setdefault(kf, len(rows)), i)
+                for j, p in enumerate(points) for kf, i in p.observations.items()]
+        kfs = list(rows)
+    else:
+        get = kf_index.get
+        trip = [(j, k, i) for j, p in enumerate(points) for kf, i in p.observations.items()
+                if (k := get(kf)) is not None]
+        kfs = list(kf_index)
+    obs = np.array(trip, np.intp).reshape(-1, 3)
+    return obs[:, 0], obs[:, 1], obs[:, 2], kfs
+
+
+def gather_keypoints(kfs: list[KeyFrame], kf_row: NDArray[np.intp], kp: NDArray[np.intp]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
+    """(uv, ur, octave) of keypoint ``kp[m]`` of keyframe ``kfs[kf_row[m]]``, one fancy index
+    per keyframe."""
+    m = kp.size
+    uv = np.empty((m, 2))
+    ur = np.empty(m)
+    octave = np.empty(m, np.intp)
+    order = np.argsort(kf_row, kind="stable")
+    bounds = np.searchsorted(kf_row[order], np.arange(len(kfs) + 1))
+    for k, kf in enumerate(kfs):
+        sel = order[bounds[k]:bounds[k + 1]]
+        if sel.size:
+            i = kp[sel]
+            uv[sel] = kf.xy[i]
+            ur[sel] = kf.ur[i]
+            octave[sel] = kf.keypoints.octave[i]
+    return uv, ur, octave
+
+
 def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points: list[MapPoint],
-                     camera: PinholeCamera, pyr: ScalePyramid, bf: float
-                     ) -> tuple[BAProblem, list[tuple[MapPoint, KeyFrame]]]:
+                     camera: PinholeCamera, pyr: ScalePyramid, bf: float,
+                     table: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[KeyFrame]] | None = None
+                     ) -> BAProblem:
     """Arrays of a bundle adjustment over the given keyframes and points (observations of
-    the points by keyframes outside both lists are left out)."""
+    the points by keyframes outside both lists are left out); observation ``m`` is point
+    ``points[obs_point[m]]`` in keyframe ``(kfs_free + kfs_fixed)[obs_pose[m]]``.
+    ``table`` is ``observation_table(points)`` when the caller has it already."""
     kfs = kfs_free + kfs_fixed
-    kf_index = {kf: i for i, kf in enumerate(kfs)}
-    obs_pose, obs_point, uv, ur, inv_s2 = [], [], [], [], []
-    obs_ref: list[tuple[MapPoint, KeyFrame]] = []
-    for j, p in enumerate(points):
-        for kf, idx in p.observations.items():
-            k = kf_index.get(kf)
-            if k is None:
-                continue
-            obs_pose.append(k)
-            obs_point.append(j)
-            uv.append(kf.xy[idx])
-            ur.append(kf.ur[idx])
-            inv_s2.append(pyr.inv_sigma2[kf.keypoints.octave[idx]])
-            obs_ref.append((p, kf))
-    problem = BAProblem(
+    if table is None:
+        obs_point, obs_pose, kp, _ = observation_table(points, {kf: i for i, kf in enumerate(kfs)})
+    else:
+        pt_row, kf_row, kp_all, observers = table
+        where = {kf: i for i, kf in enumerate(kfs)}
+        pose_of = np.array([where.get(kf, -1) for kf in observers], np.intp)
+        sel = pose_of[kf_row] >= 0
+        obs_point, obs_pose, kp = pt_row[sel], pose_of[kf_row[sel]], kp_all[sel]
+    uv, ur, octave = gather_keypoints(kfs, obs_pose, kp)
+    return BAProblem(
         poses_cw=np.stack([kf.T_cw for kf in kfs]),
         pose_fixed=np.array([False] * len(kfs_free) + [True] * len(kfs_fixed)),
         points_w=np.array([p.pos for p in points]).reshape(-1, 3),
-        obs_pose=np.asarray(obs_pose, np.intp),
-        obs_point=np.asarray(obs_point, np.intp),
-        uv=np.asarray(uv, np.float64).reshape(-1, 2),
-        ur=np.asarray(ur, np.float64),
-        inv_sigma2=np.asarray(inv_s2, np.float64),
+        obs_pose=obs_pose,
+        obs_point=obs_point,
+        uv=uv,
+        ur=ur,
+        inv_sigma2=pyr.inv_sigma2[octave],
         fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, bf=bf,
     )
-    return problem, obs_ref
+
+
+def _chunks(items: list[Any], n: int) -> list[list[Any]]:
+    return [items[i:i + n] for i in range(0, len(items), n)]
+
+
+def apply_in_slices(lock: Any, jobs: list[Callable[[], object]], budget_s: float = 1e-3) -> None:
+    """Run ``jobs`` in order under ``lock``, letting go of it between jobs once a slice has
+    held it for ``budget_s`` (and sleeping a moment, so a thread waiting for it gets it
+    before this one takes it again): many small changes that are each consistent on their
+    own, without holding tracking up for all of them at once."""
+    i = 0
+    while i < len(jobs):
+        with lock:
+            t_end = time.perf_counter() + budget_s
+            while i < len(jobs):
+                jobs[i]()
+                i += 1
+                if time.perf_counter() > t_end:
+                    break
+        if i < len(jobs):
+            time.sleep(1e-4)
 
 
 class LocalMapping(KeyframeWorker):
@@ -80,47 +157,88 @@ class LocalMapping(KeyframeWorker):
         self.fusion = fusion
         self.next_stage = next_stage
         self.recent_points: list[MapPoint] = []
-        self.stats = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0, "triangulated": 0}
+        warm_up_kernels()  # never compiled inside a critical section
+        self.stats: dict[str, Any] = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0,
+                                      "triangulated": 0, "local_ba_split": [], "steps": {}}
 
     # ---------------------------------------------------------------- one keyframe
     def process(self, kf: KeyFrame) -> None:
-        with self.map.lock:
-            if kf.bad:
-                return
+        if kf.bad:
+            return
+        with self._step("new_keyframe"):
             self._process_new_keyframe(kf)
+        with self._step("cull_points"):
             self._cull_points(kf)
-            if self.cfg.triangulation:
+        if self.cfg.triangulation:
+            with self._step("triangulate"):
                 self._create_new_points(kf)
         if not self.inbox.has_pending():
-            with self.map.lock:
+            with self._step("fuse"):
                 self._search_in_neighbours(kf)
             if self.cfg.local_ba and len(self.map.keyframes) > 2:
-                self._local_bundle_adjustment(kf)
+                with self._step("local_ba"):
+                    self._local_bundle_adjustment(kf)
             if self.cfg.keyframe_culling:
-                with self.map.lock:
+                with self._step("cull_keyframes"):
                     self._cull_keyframes(kf)
         self.next_stage.insert(kf)
 
+    def _write_statistics(self, points: list[MapPoint], descriptors: bool = True) -> None:
+        """Distinctive descriptors (optionally) and normals / depth ranges of ``points``:
+        computed without the lock, written to the point store under it."""
+        desc = distinctive_descriptors(points, self.map.matcher) if descriptors else None
+        normals = normals_and_depths(points, self.pyr.scales)
+        if not normals.points and (desc is None or not desc.points):
+            return
+        with self.map.lock:
+            if desc is not None:
+                desc.write(self.map.store)
+            normals.write(self.map.store)
+
+    @contextmanager
+    def _step(self, name: str) -> Iterator[None]:
+        """Wall and CPU (this thread) milliseconds of one step, in ``stats["steps"]``."""
+        w0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            yield
+        finally:
+            rec = self.stats["steps"].setdefault(name, {"wall_ms": [], "cpu_ms": []})
+            rec["wall_ms"].append((time.perf_counter() - w0) * 1e3)
+            rec["cpu_ms"].append((time.thread_time() - c0) * 1e3)
+
     def _process_new_keyframe(self, kf: KeyFrame) -> None:
-        if kf.bow is None:
-            kf.bow, kf.featvec = self.voc.transform(kf.keypoints.descriptors)
-        matched = []
-        for i, p in enumerate(kf.points):
-            if p is None or p.bad:
-                continue
-            if kf not in p.observations:
-                p.add_observation(kf, i)
-                p.compute_distinctive_descriptor(self.map.matcher)
-                matched.append(p)
-            else:  # created by tracking for this keyframe
-                self.recent_points.append(p)
-        update_normals_and_depths(matched, self.pyr.scales)
-        kf.update_connections()
+        """ORB-SLAM ProcessNewKeyFrame: bag of words (without the lock), the keyframe's
+        observations added to its points and its connections (under the lock, in slices),
+        the points' descriptors and normals (computed without the lock)."""
+        bow = featvec = None
+        if kf.bow is None:  # reads only the keyframe's own descriptors: no lock
+            bow, featvec = self.voc.transform(kf.keypoints.descriptors)
+        matched: list[MapPoint] = []
+
+        def set_bow() -> None:
+            if bow is not None and kf.bow is None:
+                kf.featvec = featvec
+                kf.bow = bow
+
+        def observe(slots: list[tuple[int, MapPoint]]) -> None:
+            for i, p in slots:
+                if p.bad or kf.points[i] is not p:
+                    continue
+                if kf not in p.observations:
+                    p.add_observation(kf, i)
+                    matched.append(p)
+                else:  # created by tracking for this keyframe
+                    self.recent_points.append(p)
+
+        slots = [(i, p) for i, p in enumerate(kf.points) if p is not None]
+        apply_in_slices(self.map.lock, [set_bow, *(partial(observe, c) for c in _chunks(slots, 64)),
+                                        kf.update_connections])
+        self._write_statistics(matched)
 
     def _cull_points(self, kf: KeyFrame) -> None:
         """Recent points seen in < 25 % of the frames that should see them, or by < 3
         keyframes two keyframes after creation, are removed (ORB-SLAM MapPointCulling)."""
-        keep = []
+        keep, cull = [], []
         for p in self.recent_points:
             if p.bad:
                 continue
@@ -128,18 +246,23 @@ class LocalMapping(KeyframeWorker):
             # Observations count twice where the keyframe has depth (ORB-SLAM's stereo rule),
             # so "<= 3" means: seen by fewer than two RGB-D keyframes.
             if p.found_ratio < 0.25 or (age >= 2 and p.n_obs <= 3):
-                self.map.set_bad_point(p)
+                cull.append(p)
                 continue
             if age >= 3:
                 continue
             keep.append(p)
         self.recent_points = keep
+        apply_in_slices(self.map.lock, [partial(self.map.set_bad_point, p) for p in cull])
 
     # ---------------------------------------------------------------- triangulation
     def _create_new_points(self, kf: KeyFrame) -> None:
-        """Triangulate unmatched keypoints with the best covisible keyframes (epipolar-guided)."""
+        """Triangulate unmatched keypoints with the best covisible keyframes (epipolar-guided);
+        the matching and triangulation run without the lock, the new points are added under
+        it (in slices, ``apply_in_slices``)."""
         baseline = self.cfg.bf / self.camera.fx
         free1 = np.array([p is None or p.bad for p in kf.points], bool)
+        new: list[tuple[KeyFrame, int, int]] = []
+        new_pos = []
         for nb in kf.best_covisibles(10):
             if not free1.any():
                 break
@@ -150,19 +273,47 @@ class LocalMapping(KeyframeWorker):
             if len(i1) == 0:
                 continue
             pts, ok = self._triangulate(kf, nb, i1, i2)
-            for a, b, pw in zip(i1[ok], i2[ok], pts[ok]):
-                if not free1[a] or not (nb.points[b] is None or nb.points[b].bad):
+            # Each keypoint of nb is matched at most once (and each of kf once per neighbour).
+            for a, b, pw in zip(i1[ok].tolist(), i2[ok].tolist(), pts[ok]):
+                if not free1[a] or not free2[b]:
                     continue
-                p = self.map.new_point(pw, kf.keypoints.descriptors[a].copy(), kf)
-                p.add_observation(kf, int(a))
-                p.add_observation(nb, int(b))
-                kf.points[a] = p
-                nb.points[b] = p
-                p.compute_distinctive_descriptor(self.map.matcher)
-                p.update_normal_and_depth(self.pyr.scales)
-                self.recent_points.append(p)
+                new.append((nb, a, b))
+                new_pos.append(pw)
                 free1[a] = False
-                self.stats["triangulated"] += 1
+        if not new:
+            return
+        # The new points' normals and depth ranges (observed by kf, their reference, and nb)
+        # and descriptors (of two observations the first, kf's, has the least median).
+        pos = np.array(new_pos)
+        centers = np.array([nb.center for nb, _, _ in new])
+        a_idx = np.array([a for _, a, _ in new], np.intp)
+        d1 = pos - kf.center
+        dist1 = np.linalg.norm(d1, axis=1)
+        d2 = pos - centers
+        normal = d1 / np.maximum(dist1, 1e-9)[:, None] + d2 / np.maximum(np.linalg.norm(d2, axis=1), 1e-9)[:, None]
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-9)
+        max_d = dist1 * self.pyr.scales[kf.keypoints.octave[a_idx]]
+        min_d = max_d / self.pyr.scales[-1]
+        desc = kf.keypoints.descriptors[a_idx]  # a copy: one row per new point
+        apply_in_slices(self.map.lock, [partial(self._add_triangulated, kf, nb, a, b, pw, n, mx, mn, d)
+                                        for (nb, a, b), pw, n, mx, mn, d
+                                        in zip(new, pos, normal, max_d.tolist(), min_d.tolist(), desc)])
+
+    def _add_triangulated(self, kf: KeyFrame, nb: KeyFrame, a: int, b: int, pw: NDArray[np.float64],
+                          normal: NDArray[np.float64], max_dist: float, min_dist: float,
+                          descriptor: NDArray[Any]) -> None:
+        """One new point seen by keypoint a of kf and b of nb, if both are still free."""
+        old_a, old_b = kf.points[a], nb.points[b]
+        if kf.bad or nb.bad or (old_a is not None and not old_a.bad) or (old_b is not None and not old_b.bad):
+            return
+        p = self.map.new_point(pw, descriptor, kf)
+        p.add_observation(kf, a)
+        p.add_observation(nb, b)
+        p.normal, p.max_dist, p.min_dist = normal, max_dist, min_dist
+        kf.points[a] = p
+        nb.points[b] = p
+        self.recent_points.append(p)
+        self.stats["triangulated"] += 1
 
     def _epipolar_matches(self, kf1: KeyFrame, kf2: KeyFrame, free1: NDArray[np.bool_], free2: NDArray[np.bool_]
                           ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -233,97 +384,179 @@ class LocalMapping(KeyframeWorker):
 
     # ---------------------------------------------------------------- fusion
     def _search_in_neighbours(self, kf: KeyFrame) -> None:
+        """ORB-SLAM SearchInNeighbors: kf's points fused into its neighbours (two levels of
+        covisibility), then the neighbours' points into kf.  Each direction is searched
+        without the lock for all keyframes at once and applied under it in slices."""
         targets: dict[KeyFrame, None] = {}
         for nb in kf.best_covisibles(10):
             targets.setdefault(nb)
             for nb2 in nb.best_covisibles(5):
                 if nb2 is not kf:
                     targets.setdefault(nb2)
-        pts = kf.valid_points()
         touched: dict[int, MapPoint] = {}
-        for t in targets:
-            self.fusion.fuse(t, pts, touched=touched)
+        src = PointArrays.of(kf.valid_points())
+        plans = [(t, self.fusion.plan(t, src)) for t in targets]
+        apply_in_slices(self.map.lock, [partial(self.fusion.apply, t, matches, touched)
+                                        for t, matches in plans if matches])
         cand: dict[int, MapPoint] = {}
         for t in targets:
             for p in t.valid_points():
                 cand.setdefault(p.id, p)
-        self.fusion.fuse(kf, list(cand.values()), touched=touched)
-        changed = [p for p in touched.values() if not p.bad]
-        for p in changed:
-            p.compute_distinctive_descriptor(self.map.matcher)
-        update_normals_and_depths(changed, self.pyr.scales)
-        kf.update_connections()
+        matches = self.fusion.plan(kf, PointArrays.of(list(cand.values())))
+        apply_in_slices(self.map.lock, [*(partial(self.fusion.apply, kf, c, touched) for c in _chunks(matches, 32)),
+                                        kf.update_connections])
+        self._write_statistics([p for p in touched.values() if not p.bad])
 
     # ---------------------------------------------------------------- local BA
     def _local_bundle_adjustment(self, kf: KeyFrame) -> None:
+        """ORB-SLAM LocalBundleAdjustment: kf and its covisible keyframes free, the other
+        keyframes that see their points fixed.  The problem is gathered and the normals of
+        the result are computed without the lock; poses, outlier observations, positions
+        and normals are applied in one critical section, unless a loop correction or global
+        BA moved the map meanwhile (``Map.generation``)."""
         t0 = time.perf_counter()
-        with self.map.lock:
-            local = [kf] + [k for k in kf.ordered_covis if not k.bad][: self.cfg.local_ba_max_keyframes - 1]
-            local_set = set(local)
-            pts: dict[int, MapPoint] = {}
-            for k in local:
-                for p in k.valid_points():
-                    pts.setdefault(p.id, p)
-            points = list(pts.values())
-            fixed: dict[KeyFrame, int] = {}
-            for p in points:
-                for k in p.observations:
-                    if k not in local_set and not k.bad:
-                        fixed[k] = fixed.get(k, 0) + 1
-            free = [k for k in local if k.id != 0]
-            fixed_list = sorted(fixed, key=lambda k: -fixed[k])[: self.cfg.local_ba_max_fixed] + [k for k in local if k.id == 0]
-            if not points or not free:
-                return
-            problem, obs_ref = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf)
-            gen = self.map.generation
+        gen = self.map.generation
+        local = [kf] + [k for k in kf.ordered_covis if not k.bad][: self.cfg.local_ba_max_keyframes - 1]
+        local_set = set(local)
+        pts: dict[int, MapPoint] = {}
+        for k in local:
+            for p in k.valid_points():
+                pts.setdefault(p.id, p)
+        points = list(pts.values())
+        free = [k for k in local if k.id != 0]
+        if not points or not free:
+            return
+        # Fixed: the other keyframes that see the local points, the most observations first
+        # (ties in first-seen order), from one pass over the observations.
+        table = observation_table(points)
+        observers = table[3]
+        n_seen = np.bincount(table[1], minlength=len(observers))
+        outside = [i for i, k in enumerate(observers) if k not in local_set and not k.bad]
+        order = sorted(outside, key=lambda i: -n_seen[i])[: self.cfg.local_ba_max_fixed]
+        fixed_list = [observers[i] for i in order] + [k for k in local if k.id == 0]
+        problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf, table)
+        t1 = time.perf_counter()
         result: BAResult = self.ba.run(problem)
+        t2 = time.perf_counter()
         if not result.converged:
             self.stats["local_ba_failed"] += 1
+        kfs = free + fixed_list
+        outliers = np.flatnonzero(~result.inlier_obs)
+        erased: dict[int, set[KeyFrame]] = {}
+        for m in outliers.tolist():
+            p, k = points[problem.obs_point[m]], kfs[problem.obs_pose[m]]
+            if k in p.observations:
+                erased.setdefault(p.id, set()).add(k)
+        # Normals and depth ranges of the map as the result will leave it, computed now
+        # without the lock, written with the result.
+        poses = result.poses_cw[: len(free)]
+        centers = dict(zip(free, -np.einsum("kji,kj->ki", poses[:, :3, :3], poses[:, :3, 3])))
+        normals = normals_and_depths(points, self.pyr.scales, result.points_w, centers, erased)
+        rows = np.fromiter((p.row for p in points), np.intp, len(points))
+        store = self.map.store
+        t3 = time.perf_counter()
         with self.map.lock:
             if self.map.generation != gen:
                 return
-            for k, T in zip(free, result.poses_cw[: len(free)]):
+            for k, T in zip(free, poses):
                 if not k.bad:
                     k.set_pose(T)
-            for (p, k), inlier in zip(obs_ref, result.inlier_obs):
-                if not inlier and not p.bad and k in p.observations:
+            for m in outliers.tolist():
+                p, k = points[problem.obs_point[m]], kfs[problem.obs_pose[m]]
+                if not p.bad and k in p.observations:
                     idx = p.observations[k]
                     if k.points[idx] is p:
                         k.points[idx] = None
                     p.erase_observation(k)
-            for p, pos in zip(points, result.points_w):
-                if not p.bad:
-                    p.pos = pos
-            update_normals_and_depths([p for p in points if not p.bad], self.pyr.scales)
+            alive = ~store.bad[rows]
+            store.pos[rows[alive]] = result.points_w[alive]
+            normals.write(store)
+        t4 = time.perf_counter()
         self.stats["local_ba"] += int(result.converged)
-        self.stats["local_ba_ms"].append((time.perf_counter() - t0) * 1e3)
+        self.stats["local_ba_ms"].append((t4 - t0) * 1e3)
+        self._record_ba_split(problem, result, t0, t1, t2, t3, t4)
+
+    def _record_ba_split(self, problem: BAProblem, result: BAResult, t0: float, t1: float,
+                         t2: float, t3: float, t4: float) -> None:
+        """Where one local BA's time went (ms), for ``benchmarks/backend_timing.py``: gathering
+        the problem from the map, the solver's own phases, the hand-over to and from the
+        runner (IPC when it runs in the worker process: the runner's wall time minus the
+        solver's), the normals of the result (without the lock) and applying it (waiting for
+        the lock and holding it)."""
+        solve = (t2 - t1) * 1e3
+        self.stats["local_ba_split"].append({
+            "gather": (t1 - t0) * 1e3, "ipc": max(solve - result.time_ms, 0.0), "solve": solve,
+            **{k: v for k, v in result.timings.items()}, "normals": (t3 - t2) * 1e3,
+            "apply": (t4 - t3) * 1e3, "total": (t4 - t0) * 1e3,
+            "keyframes": int(problem.poses_cw.shape[0]),
+            "free": int((~np.asarray(problem.pose_fixed)).sum()),
+            "points": int(problem.points_w.shape[0]), "observations": int(problem.obs_pose.size)})
 
     # ---------------------------------------------------------------- keyframe culling
     def _cull_keyframes(self, kf: KeyFrame) -> None:
         """A keyframe whose close points are 90 % seen by >= 3 other keyframes at the same
-        or a finer scale is redundant (ORB-SLAM KeyFrameCulling)."""
-        for cand in kf.ordered_covis:
-            if cand.id == 0 or cand.bad or cand is kf:
-                continue
-            n_points = redundant = 0
-            for i, p in enumerate(cand.points):
+        or a finer scale is redundant (ORB-SLAM KeyFrameCulling).
+
+        Decided without the lock on one observation table of the candidates' points (a
+        per-point histogram of observation levels), updated as each culled keyframe's
+        observations go, exactly as the sequential per-point loops decided; the culled
+        keyframes are removed under the lock, one per slice."""
+        cands = [c for c in kf.ordered_covis if c.id != 0 and not c.bad and c is not kf]
+        if not cands:
+            return
+        row: dict[int, int] = {}
+        points: list[MapPoint] = []
+        slots: list[tuple[NDArray[np.intp], NDArray[np.intp]]] = []
+        for c in cands:
+            idx, rows = [], []
+            for i, p in enumerate(c.points):
                 if p is None or p.bad:
                     continue
-                if cand.depth[i] > self.th_depth_m or cand.depth[i] <= 0:
-                    continue
-                n_points += 1
-                if p.n_obs > 3:
-                    level = cand.keypoints.octave[i]
-                    n_obs = 0
-                    for other, j in p.observations.items():
-                        if other is cand:
-                            continue
-                        if other.keypoints.octave[j] <= level + 1:
-                            n_obs += 1
-                            if n_obs >= 3:
-                                break
-                    if n_obs >= 3:
-                        redundant += 1
-            if n_points and redundant > 0.9 * n_points:
-                self.map.set_bad_keyframe(cand)
-                self.stats["culled_keyframes"] += 1
+                r = row.get(p.id)
+                if r is None:
+                    r = row[p.id] = len(points)
+                    points.append(p)
+                idx.append(i)
+                rows.append(r)
+            slots.append((np.asarray(idx, np.intp), np.asarray(rows, np.intp)))
+        if not points:
+            return
+        n_lv = self.pyr.n_levels
+        ob_row, ob_kf, ob_kp, ob_kfs = observation_table(points)
+        _, ob_ur, ob_oct = gather_keypoints(ob_kfs, ob_kf, ob_kp)
+        n_pts = len(points)
+        # at_most[r, l]: observations of point r at level <= l; n_obs: ORB-SLAM's nObs
+        # (observations with depth count twice); n_left: observations (bad when <= 1).
+        at_most = np.zeros((n_pts, n_lv), np.intp)
+        np.add.at(at_most, (ob_row, np.minimum(ob_oct, n_lv - 1)), 1)
+        np.cumsum(at_most, axis=1, out=at_most)
+        n_obs = np.bincount(ob_row, weights=np.where(ob_ur >= 0, 2, 1), minlength=n_pts)
+        n_left = np.bincount(ob_row, minlength=n_pts)
+        gone = np.zeros(n_pts, bool)
+        levels = np.arange(n_lv)
+        culled = []
+        for c, (idx, rows) in zip(cands, slots):
+            alive = ~gone[rows]
+            depth = c.depth[idx]
+            close = alive & (depth > 0) & (depth <= self.th_depth_m)
+            n_points = int(close.sum())
+            if not n_points:
+                continue
+            r = rows[close]
+            level = c.keypoints.octave[idx[close]]
+            # observations by other keyframes at level <= level + 1 (its own is one of them)
+            others = at_most[r, np.minimum(level + 1, n_lv - 1)] - 1
+            redundant = int(((n_obs[r] > 3) & (others >= 3)).sum())
+            if redundant <= 0.9 * n_points:
+                continue
+            culled.append(c)
+            if c.not_erase:  # set_bad_keyframe only marks it: its observations stay
+                continue
+            r = rows[alive]
+            own = c.keypoints.octave[idx[alive]]
+            at_most[r] -= levels[None, :] >= own[:, None]
+            n_obs[r] -= np.where(c.ur[idx[alive]] >= 0, 2, 1)
+            n_left[r] -= 1
+            gone[r[n_left[r] <= 1]] = True
+        apply_in_slices(self.map.lock, [partial(self.map.set_bad_keyframe, c) for c in culled])
+        self.stats["culled_keyframes"] += len(culled)

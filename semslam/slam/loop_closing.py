@@ -9,22 +9,24 @@ from __future__ import annotations
 
 import logging
 import time
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_graph import PoseGraphFailed, optimize_pose_graph
+from semslam.backend.pose_graph import PoseGraphFailed
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.geometry.alignment import AlignmentError, umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
-from semslam.slam.fusion import PointFusion
+from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
-from semslam.slam.local_mapping import build_ba_problem
+from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
-from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
+from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map_batch import normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
@@ -114,6 +116,14 @@ class LoopClosing(KeyframeWorker):
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
                       "global_ba_ms": [], "pose_graph_ms": []}
+
+    def _write_normals(self, points: list[MapPoint]) -> None:
+        """Normals and depth ranges of ``points``: computed without the lock, written to the
+        point store under it."""
+        update = normals_and_depths(points, self.pyr.scales)
+        if update.points:
+            with self.map.lock:
+                update.write(self.map.store)
 
     # ---------------------------------------------------------------- per keyframe
     def process(self, kf: KeyFrame) -> None:
@@ -215,32 +225,62 @@ class LoopClosing(KeyframeWorker):
 
     # ---------------------------------------------------------------- correction
     def _correct_loop(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]) -> None:
+        """ORB-SLAM CorrectLoop with local mapping paused (RequestStop): the map's structure
+        then has no other writer, so everything is read and computed without the lock and
+        written in short critical sections; the essential graph is solved in the BA worker
+        process (GTSAM holds the GIL)."""
         t0 = time.perf_counter()
         if not self.mapping.wait_idle(timeout=60.0):
             log.warning("local mapping still busy after 60 s; correcting the loop anyway")
+        with self.mapping.paused() as stopped:
+            if not stopped:
+                log.warning("local mapping did not pause within 60 s; correcting the loop anyway")
+            self._correct_loop_paused(kf, cand, T12, matched)
+        self.loops.append((kf.id, cand.id))
+        self.stats["loops"] += 1
+        self.stats["pose_graph_ms"].append((time.perf_counter() - t0) * 1e3)
+        log.info("loop closed: keyframe %d <-> %d", kf.id, cand.id)
+        if self.cfg.global_ba:
+            self.global_bundle_adjustment()
+
+    def _correct_loop_paused(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64],
+                             matched: dict[int, MapPoint]) -> None:
         with self.map.lock:
             self.map.generation += 1
             kf.update_connections()
-            connected = [kf, *kf.covisibles_with_weight(0)]
-            T_wc_old = kf.T_wc
-            T_cw_corr = T12 @ cand.T_cw
-            old = {k: k.T_cw.copy() for k in self.map.all_keyframes()}
-            corrected = {kf: T_cw_corr}
-            for k in connected[1:]:
-                corrected[k] = (k.T_cw @ T_wc_old) @ T_cw_corr
-            moved: set[int] = set()
+            all_kfs = self.map.all_keyframes()
+        connected = [kf, *kf.covisibles_with_weight(0)]
+        T_wc_old = kf.T_wc
+        T_cw_corr = T12 @ cand.T_cw
+        old = {k: k.T_cw.copy() for k in all_kfs}
+        corrected = {kf: T_cw_corr}
+        for k in connected[1:]:
+            corrected[k] = (k.T_cw @ T_wc_old) @ T_cw_corr
+        # Points of the connected keyframes move with the first of them that sees them.
+        moved: dict[int, MapPoint] = {}
+        new_pos, new_ref = [], []
+        for k in connected:
+            pts = [p for p in k.valid_points() if p.id not in moved]
+            if not pts:
+                continue
+            delta = invert(corrected[k]) @ old[k]
+            new_pos.append(np.array([p.pos for p in pts]) @ delta[:3, :3].T + delta[:3, 3])
+            for p in pts:
+                moved[p.id] = p
+                new_ref.append(k if p.ref_kf not in corrected else p.ref_kf)
+        points = list(moved.values())
+        positions = np.concatenate(new_pos) if new_pos else np.zeros((0, 3))
+        rows = np.fromiter((p.row for p in points), np.intp, len(points))
+        with self.map.lock:
+            self.map.store.pos[rows] = positions
+            for p, r in zip(points, new_ref):
+                p.ref_kf = r
             for k in connected:
-                T_corr = corrected[k]
-                delta = invert(T_corr) @ old[k]
-                for p in k.valid_points():
-                    if p.id in moved:
-                        continue
-                    p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
-                    p.ref_kf = k if p.ref_kf not in corrected else p.ref_kf
-                    moved.add(p.id)
-                k.set_pose(T_corr)
-            update_normals_and_depths(list({q.id: q for k in connected for q in k.valid_points()}.values()), self.pyr.scales)
-            # Fuse: the loop's points replace the current keyframe's duplicates.
+                k.set_pose(corrected[k])
+        self._write_normals(points)
+        # Fuse: the loop's points replace the current keyframe's duplicates, then are
+        # searched in every connected keyframe (planned without the lock).
+        with self.map.lock:
             for idx, lp in matched.items():
                 if lp.bad:
                     continue
@@ -250,33 +290,33 @@ class LoopClosing(KeyframeWorker):
                 elif kf not in lp.observations:
                     lp.add_observation(kf, idx)
                     kf.points[idx] = lp
-            loop_pts = list({p.id: p for k in [cand, *cand.covisibles_with_weight(0)] for p in k.valid_points()}.values())
-            for k in connected:
-                self.fusion.fuse(k, loop_pts, th=4.0)
-            before = {k: set(k.covis) for k in connected}
-            for k in connected:
-                k.update_connections()
-            new_links = {k: set(k.covis) - before[k] - set(connected) for k in connected}
+        loop_pts = list({p.id: p for k in [cand, *cand.covisibles_with_weight(0)] for p in k.valid_points()}.values())
+        src = PointArrays.of(loop_pts)
+        plans = [(k, self.fusion.plan(k, src, th=4.0)) for k in connected]
+        apply_in_slices(self.map.lock, [partial(self.fusion.apply, k, m) for k, m in plans if m])
+        before = {k: set(k.covis) for k in connected}
+        apply_in_slices(self.map.lock, [k.update_connections for k in connected])
+        new_links = {k: set(k.covis) - before[k] - set(connected) for k in connected}
+        with self.map.lock:
             kf.loop_edges.add(cand)
             cand.loop_edges.add(kf)
             cand.not_erase = True
             kf.not_erase = True
-            self._optimize_essential_graph(cand, old, corrected, new_links)
+        self._optimize_essential_graph(cand, old, corrected, new_links)
+        with self.map.lock:
             self.map.n_loops += 1
-            self.last_loop_kf_id = kf.id
-        self.loops.append((kf.id, cand.id))
-        self.stats["loops"] += 1
-        self.stats["pose_graph_ms"].append((time.perf_counter() - t0) * 1e3)
-        log.info("loop closed: keyframe %d <-> %d", kf.id, cand.id)
-        if self.cfg.global_ba:
-            self.global_bundle_adjustment()
+        self.last_loop_kf_id = kf.id
 
     def _optimize_essential_graph(self, loop_kf: KeyFrame, old: dict[KeyFrame, NDArray[np.float64]],
                                   corrected: dict[KeyFrame, NDArray[np.float64]],
                                   new_links: dict[KeyFrame, set[KeyFrame]]) -> None:
         """Pose graph over spanning tree, loop and strong covisibility edges (weight >= 100),
-        with measurements from the poses before correction, new loop links from after it."""
-        kfs = self.map.all_keyframes()
+        with measurements from the poses before correction, new loop links from after it.
+        Built without the lock (local mapping is paused), solved in the BA worker process;
+        the poses and the points moved with their reference keyframes are written in one
+        critical section."""
+        with self.map.lock:
+            kfs = self.map.all_keyframes()
         index = {k: i for i, k in enumerate(kfs)}
         # Reference (measurement) poses: non-corrected ones where a correction happened.
         ref_wc = {k: invert(old.get(k, k.T_cw)) for k in kfs}
@@ -314,64 +354,80 @@ class LoopClosing(KeyframeWorker):
         weights = np.ones(len(edges))
         fixed = [index[loop_kf]] + ([index[kfs[0]]] if kfs[0] is not loop_kf else [])
         try:
-            poses_wc = optimize_pose_graph(init_wc, np.asarray(edges, np.intp), np.stack(meas), weights, fixed)
+            poses_wc = self.ba.run_pose_graph(init_wc, np.asarray(edges, np.intp), np.stack(meas), weights, fixed)
         except PoseGraphFailed as exc:  # keep the loop-corrected poses rather than stop loop closing
             log.warning("essential graph optimisation failed (%s); loop-corrected poses kept", exc)
             self.stats["pose_graph_failed"] += 1
             poses_wc = init_wc
         # Move each point with its reference keyframe (from its pre-graph pose).
+        pts: list[MapPoint] = []
+        new_pos = []
         for k, T_wc_new in zip(kfs, poses_wc):
-            delta = T_wc_new @ invert(init_wc[index[k]])
-            for p in k.valid_points():
-                if p.ref_kf is k:
-                    p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
-            k.set_pose(invert(T_wc_new))
-        update_normals_and_depths(list(self.map.points.values()), self.pyr.scales)
+            own = [p for p in k.valid_points() if p.ref_kf is k]
+            if own:
+                delta = T_wc_new @ invert(init_wc[index[k]])
+                new_pos.append(np.array([p.pos for p in own]) @ delta[:3, :3].T + delta[:3, 3])
+                pts.extend(own)
+        positions = np.concatenate(new_pos) if new_pos else np.zeros((0, 3))
+        rows = np.fromiter((p.row for p in pts), np.intp, len(pts))
+        with self.map.lock:
+            self.map.store.pos[rows] = positions
+            for k, T_wc_new in zip(kfs, poses_wc):
+                k.set_pose(invert(T_wc_new))
+            all_points = list(self.map.points.values())
+        self._write_normals(all_points)
 
     def global_bundle_adjustment(self) -> None:
-        """Full BA over all keyframes and points (first keyframe fixed); keyframes and points
-        added while it ran are moved with their parent / reference keyframe."""
+        """Full BA over all keyframes and points (first keyframe fixed), solved without the
+        lock while local mapping goes on (the Schur solver releases the GIL); the problem is
+        gathered and the result applied with local mapping paused, the result written in
+        one critical section.  Keyframes and points added while it ran are moved with their
+        parent / reference keyframe."""
         t0 = time.perf_counter()
-        with self.map.lock:
-            gen = self.map.generation
-            kfs = self.map.all_keyframes()
+        with self.mapping.paused():
+            with self.map.lock:
+                gen = self.map.generation
+                kfs = self.map.all_keyframes()
+                candidates = list(self.map.points.values())
             if len(kfs) < 2:
                 return
-            points = [p for p in self.map.points.values() if not p.bad and p.observations]
+            points = [p for p in candidates if not p.bad and p.observations]
+            rows = np.fromiter((p.row for p in points), np.intp, len(points))
             free, fixed = kfs[1:], kfs[:1]
-            problem, _ = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)
+            problem = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)
             before = {k: k.T_cw.copy() for k in kfs}
         result = self.ba.run(problem, iterations=(10, 0), remove_outliers=False)  # ORB-SLAM GBA: 10 iterations
         if not result.converged:
             self.stats["global_ba_failed"] += 1
-        with self.map.lock:
-            if self.map.generation != gen:
-                log.info("global BA discarded: map corrected meanwhile")
-                return
-            self.map.generation += 1
-            after = {k: T for k, T in zip(free, result.poses_cw[: len(free)])}
-            after[kfs[0]] = kfs[0].T_cw
-            for p, pos in zip(points, result.points_w):
-                if not p.bad:
-                    p.pos = pos
-            # Keyframes created during BA: follow their parent's correction.
-            for k in self.map.all_keyframes():
-                if k in after:
-                    k.set_pose(after[k])
-                    continue
-                par = k.parent
-                chain = []
-                while par is not None and par not in after:
-                    chain.append(par)
-                    par = par.parent
-                if par is not None:
-                    delta = invert(after[par]) @ before[par]  # T_w_new <- T_w_old for the parent
-                    k.set_pose(k.T_cw @ invert(delta))
-            new_pts = {p.id for p in points}
-            for p in list(self.map.points.values()):
-                if p.id not in new_pts and not p.bad and p.ref_kf in before and p.ref_kf in after:
-                    delta = invert(after[p.ref_kf]) @ before[p.ref_kf]
-                    p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
-            update_normals_and_depths(list(self.map.points.values()), self.pyr.scales)
+        with self.mapping.paused():
+            with self.map.lock:
+                if self.map.generation != gen:
+                    log.info("global BA discarded: map corrected meanwhile")
+                    return
+                self.map.generation += 1
+                after = {k: T for k, T in zip(free, result.poses_cw[: len(free)])}
+                after[kfs[0]] = kfs[0].T_cw
+                store = self.map.store
+                alive = ~store.bad[rows]
+                store.pos[rows[alive]] = result.points_w[alive]
+                # Keyframes created during BA: follow their parent's correction.
+                for k in self.map.all_keyframes():
+                    if k in after:
+                        k.set_pose(after[k])
+                        continue
+                    par = k.parent
+                    while par is not None and par not in after:
+                        par = par.parent
+                    if par is not None:
+                        delta = invert(after[par]) @ before[par]  # T_w_new <- T_w_old for the parent
+                        k.set_pose(k.T_cw @ invert(delta))
+                # Points created during BA: follow their reference keyframe.
+                in_ba = {p.id for p in points}
+                for p in list(self.map.points.values()):
+                    if p.id not in in_ba and not p.bad and p.ref_kf in before and p.ref_kf in after:
+                        delta = invert(after[p.ref_kf]) @ before[p.ref_kf]
+                        p.pos = delta[:3, :3] @ p.pos + delta[:3, 3]
+                all_points = list(self.map.points.values())
+            self._write_normals(all_points)
         self.stats["global_ba"] += int(result.converged)
         self.stats["global_ba_ms"].append((time.perf_counter() - t0) * 1e3)

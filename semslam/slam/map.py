@@ -15,33 +15,119 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.core.protocols import Matcher
-from semslam.core.types import FeatureSpec, Keypoints
+from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
 from semslam.features.matching import matcher_for
 from semslam.geometry.se3 import invert
 
 Array = NDArray[np.float64]
 
 
+class PointStore:
+    """Map point attributes in contiguous arrays, one row per point ever created (rows are
+    never reused, so a row stays the point's for the whole run).
+
+    Why: tracking projects, gathers and counts the whole local map every frame; with the
+    attributes in arrays that is a few fancy-indexing calls instead of Python loops over
+    objects. ``MapPoint`` objects remain the handles for structure (observations,
+    reference keyframe); their numeric attributes are properties on these rows.
+
+    Writers: every write happens under the map's lock (tracking: ``n_visible``,
+    ``n_found``, new rows; local mapping, loop closing, BA results: positions, normals,
+    distance ranges, descriptors, flags). Growth replaces the arrays, so nobody keeps a
+    view of them across a lock release."""
+
+    def __init__(self, descriptor_dim: int, descriptor_dtype: Any, capacity: int = 4096) -> None:
+        self.size = 0
+        self.objects: list[MapPoint] = []
+        self._capacity = 0
+        self._dim, self._dtype = int(descriptor_dim), np.dtype(descriptor_dtype)
+        self.pos = np.zeros((0, 3))
+        self.normal = np.zeros((0, 3))
+        self.descriptor = np.zeros((0, self._dim), self._dtype)
+        self.min_dist = np.zeros(0)
+        self.max_dist = np.zeros(0)
+        self.n_visible = np.zeros(0, np.int64)
+        self.n_found = np.zeros(0, np.int64)
+        self.n_kf_obs = np.zeros(0, np.int32)  # keyframes observing the point
+        self.n_obs = np.zeros(0, np.int32)  # ORB-SLAM's nObs: RGB-D/stereo observations count twice
+        self.bad = np.zeros(0, bool)
+        self._grow(capacity)
+
+    _FIELDS = ("pos", "normal", "descriptor", "min_dist", "max_dist", "n_visible", "n_found", "n_kf_obs", "n_obs",
+               "bad")
+
+    def _grow(self, capacity: int) -> None:
+        for name in self._FIELDS:
+            old = getattr(self, name)
+            new = np.zeros((capacity, *old.shape[1:]), old.dtype)
+            new[:self.size] = old[:self.size]
+            setattr(self, name, new)
+        self._capacity = capacity
+
+    def allocate(self, point: "MapPoint") -> int:
+        """A new row for ``point`` (amortised O(1))."""
+        if self.size == self._capacity:
+            self._grow(2 * self._capacity)
+        row = self.size
+        self.size += 1
+        self.objects.append(point)
+        return row
+
+    def points(self, rows: NDArray[np.intp]) -> list["MapPoint"]:
+        objs = self.objects
+        return [objs[r] for r in rows.tolist()]
+
+
+def _row_property(field_name: str, kind: type, copy: bool = False) -> property:
+    """A MapPoint attribute stored in ``PointStore.<field_name>[row]``."""
+    if copy:
+        def get(self: "MapPoint") -> Any:
+            return getattr(self._store, field_name)[self._row].copy()
+    else:
+        def get(self: "MapPoint") -> Any:
+            return kind(getattr(self._store, field_name)[self._row])
+
+    def set_(self: "MapPoint", value: Any) -> None:
+        getattr(self._store, field_name)[self._row] = value
+
+    return property(get, set_)
+
+
 class MapPoint:
-    """A 3D point with the keyframes that observe it (ORB-SLAM2 MapPoint)."""
+    """A 3D point with the keyframes that observe it (ORB-SLAM2 MapPoint). Numeric
+    attributes live in the map's ``PointStore`` (row ``_row``); array attributes are
+    returned as copies (assign to change them)."""
 
-    __slots__ = ("id", "pos", "descriptor", "observations", "normal", "min_dist", "max_dist", "n_visible",
-                 "n_found", "ref_kf", "first_kf_id", "bad", "replaced_by", "__weakref__")
+    __slots__ = ("id", "_row", "_store", "observations", "ref_kf", "first_kf_id", "replaced_by", "__weakref__")
 
-    def __init__(self, pid: int, pos: Array, descriptor: NDArray[Any], ref_kf: "KeyFrame") -> None:
+    def __init__(self, pid: int, pos: Array, descriptor: NDArray[Any], ref_kf: "KeyFrame",
+                 store: PointStore | None = None) -> None:
+        if store is None:  # a point outside any map (tests): a store of its own
+            store = PointStore(np.asarray(descriptor).size, np.asarray(descriptor).dtype, capacity=1)
+        self._store = store
+        self._row = store.allocate(self)
         self.id = pid
         self.pos = np.asarray(pos, dtype=np.float64)
         self.descriptor = descriptor
         self.observations: dict[KeyFrame, int] = {}
-        self.normal = np.zeros(3)
-        self.min_dist = 0.0
-        self.max_dist = 0.0
         self.n_visible = 1
         self.n_found = 1
         self.ref_kf = ref_kf
         self.first_kf_id = ref_kf.id
-        self.bad = False
         self.replaced_by: MapPoint | None = None
+
+    pos = _row_property("pos", float, copy=True)
+    normal = _row_property("normal", float, copy=True)
+    descriptor = _row_property("descriptor", float, copy=True)
+    min_dist = _row_property("min_dist", float)
+    max_dist = _row_property("max_dist", float)
+    n_visible = _row_property("n_visible", int)
+    n_found = _row_property("n_found", int)
+    bad = _row_property("bad", bool)
+
+    @property
+    def row(self) -> int:
+        return self._row
 
     def __repr__(self) -> str:
         return f"MapPoint({self.id}, obs={len(self.observations)})"
@@ -49,18 +135,30 @@ class MapPoint:
     @property
     def n_obs(self) -> int:
         """Observation count with RGB-D/stereo observations counted twice (ORB-SLAM's nObs)."""
-        return sum(2 if kf.ur[i] >= 0 else 1 for kf, i in self.observations.items())
+        return int(self._store.n_obs[self._row])
 
     @property
     def found_ratio(self) -> float:
         return self.n_found / max(self.n_visible, 1)
 
     def add_observation(self, kf: "KeyFrame", idx: int) -> None:
+        if kf not in self.observations:
+            self._store.n_kf_obs[self._row] += 1
+            self._store.n_obs[self._row] += 2 if kf.ur[idx] >= 0 else 1
+        else:
+            self._store.n_obs[self._row] += (2 if kf.ur[idx] >= 0 else 1) - (2 if kf.ur[self.observations[kf]] >= 0 else 1)
         self.observations[kf] = idx
+
+    def clear_observations(self) -> None:
+        self.observations = {}
+        self._store.n_kf_obs[self._row] = 0
+        self._store.n_obs[self._row] = 0
 
     def erase_observation(self, kf: "KeyFrame") -> None:
         if kf in self.observations:
-            del self.observations[kf]
+            idx = self.observations.pop(kf)
+            self._store.n_kf_obs[self._row] -= 1
+            self._store.n_obs[self._row] -= 2 if kf.ur[idx] >= 0 else 1
             if self.ref_kf is kf and self.observations:
                 self.ref_kf = next(iter(self.observations))
             if len(self.observations) <= 1 and kf.map is not None:
@@ -71,59 +169,47 @@ class MapPoint:
 
     def compute_distinctive_descriptor(self, matcher: Matcher) -> None:
         """The observation descriptor with the least median distance to the others
-        (distances by the matcher of the map's descriptor kind)."""
-        descs = [kf.keypoints.descriptors[i] for kf, i in self.observations.items() if not kf.bad]
-        if len(descs) < 2:
-            if descs:
-                self.descriptor = descs[0]
-            return
-        d = np.stack(descs)
-        n = len(d)
-        ii, jj = np.triu_indices(n, 1)
-        pair = matcher.distances(d[ii], d[jj])
-        dist = np.zeros((n, n), pair.dtype)
-        dist[ii, jj] = dist[jj, ii] = pair
-        self.descriptor = d[int(np.argmin(np.median(dist, axis=1)))].copy()
+        (distances by the matcher of the map's descriptor kind); many points at once:
+        ``slam.map_batch.compute_distinctive_descriptors``, which this calls."""
+        from semslam.slam.map_batch import compute_distinctive_descriptors
+
+        compute_distinctive_descriptors([self], matcher)
 
 
 def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> None:
     """Mean viewing direction of each point and the distance range it can be matched at
-    (ORB-SLAM UpdateNormalAndDepth), for many points at once."""
-    rows: list[int] = []
-    centers: list[Array] = []
-    ref_rows: list[int] = []
-    ref_centers: list[Array] = []
-    ref_levels: list[int] = []
-    for j, p in enumerate(points):
-        if p.bad or not p.observations:
-            continue
-        for kf in p.observations:
-            rows.append(j)
-            centers.append(kf.center)
-        idx = p.observations.get(p.ref_kf)
-        if idx is not None:
-            ref_rows.append(j)
-            ref_centers.append(p.ref_kf.center)
-            ref_levels.append(int(p.ref_kf.keypoints.octave[idx]))
-    if not rows:
-        return
-    pos = np.array([p.pos for p in points])
-    r = np.asarray(rows)
-    d = pos[r] - np.asarray(centers)
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
-    normals = np.zeros_like(pos)
-    np.add.at(normals, r, d)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
-    for j in set(rows):
-        points[j].normal = normals[j]
-    if ref_rows:
-        rr = np.asarray(ref_rows)
-        dist = np.linalg.norm(pos[rr] - np.asarray(ref_centers), axis=1)
-        max_d = dist * scale_factors[np.asarray(ref_levels)]
-        min_d = max_d / scale_factors[-1]
-        for j, mx, mn in zip(rr, max_d, min_d):
-            points[j].max_dist = float(mx)
-            points[j].min_dist = float(mn)
+    (ORB-SLAM UpdateNormalAndDepth), for many points at once; computed by
+    ``slam.map_batch.normals_and_depths`` and written here (the caller holds the map lock).
+    Bad points and points without observations are skipped; the depth range needs the
+    reference keyframe among the observations."""
+    from semslam.slam.map_batch import normals_and_depths
+
+    update = normals_and_depths(points, scale_factors)
+    if update.points:
+        store = update.points[0]._store
+        shared = all(p._store is store for p in update.points)
+        update.write(store if shared else None)
+
+
+class PointSlots(list):  # type: ignore[type-arg]
+    """A keyframe's map point per keypoint (``MapPoint | None``), a list that also keeps
+    the points' store rows in ``rows`` (-1 = none), so the local map is gathered with
+    array operations. Only item assignment is supported as a change."""
+
+    def __init__(self, points: Any = ()) -> None:
+        super().__init__(points)
+        self.rows = np.fromiter((-1 if p is None else p._row for p in self), np.intp, len(self))
+
+    def __setitem__(self, i: Any, p: Any) -> None:
+        if not isinstance(i, (int, np.integer)):
+            raise TypeError("PointSlots supports item assignment by index only")
+        super().__setitem__(i, p)
+        self.rows[i] = -1 if p is None else p._row
+
+    def _unsupported(self, *args: Any, **kwargs: Any) -> None:
+        raise TypeError("a keyframe's point slots have a fixed length")
+
+    append = extend = insert = pop = remove = clear = __delitem__ = __iadd__ = _unsupported  # type: ignore[assignment]
 
 
 @dataclass(eq=False)
@@ -167,6 +253,8 @@ class KeyFrame:
 
     def __post_init__(self) -> None:
         self.set_pose(self.T_cw)
+        if not isinstance(self.points, PointSlots):
+            self.points = PointSlots(self.points)
 
     @property
     def center(self) -> Array:
@@ -177,7 +265,13 @@ class KeyFrame:
         self._center = -self.T_cw[:3, :3].T @ self.T_cw[:3, 3]
 
     def tracked_points(self, min_obs: int = 1) -> int:
-        return sum(1 for p in self.points if p is not None and not p.bad and p.n_obs >= min_obs)
+        """Points with at least ``min_obs`` observations (ORB-SLAM TrackedMapPoints)."""
+        rows = self.points.rows
+        rows = rows[rows >= 0]
+        if len(rows) == 0:
+            return 0
+        store = self.map.store if self.map is not None else next(p for p in self.points if p is not None)._store
+        return int((~store.bad[rows] & (store.n_obs[rows] >= min_obs)).sum())
 
     def valid_points(self) -> list[MapPoint]:
         return [p for p in self.points if p is not None and not p.bad]
@@ -238,6 +332,7 @@ class Map:
         self.matcher: Matcher = matcher_for(spec)
         self.keyframes: dict[int, KeyFrame] = {}
         self.points: dict[int, MapPoint] = {}
+        self.store = PointStore(spec.dim, np.uint8 if spec.kind is DescriptorKind.BINARY else np.float32)
         self.lock = threading.RLock()
         self._next_kf = 0
         self._next_pt = 0
@@ -251,7 +346,7 @@ class Map:
         return self._next_kf - 1
 
     def new_point(self, pos: Array, descriptor: NDArray[Any], ref_kf: KeyFrame) -> MapPoint:
-        p = MapPoint(self._next_pt, pos, descriptor, ref_kf)
+        p = MapPoint(self._next_pt, pos, descriptor, ref_kf, self.store)
         self._next_pt += 1
         self.points[p.id] = p
         return p
@@ -270,7 +365,7 @@ class Map:
         for kf, idx in list(p.observations.items()):
             if idx < len(kf.points) and kf.points[idx] is p:
                 kf.points[idx] = None
-        p.observations = {}
+        p.clear_observations()
         self.points.pop(p.id, None)
 
     def replace_point(self, old: MapPoint, new: MapPoint) -> None:
@@ -286,7 +381,7 @@ class Map:
                 new.add_observation(kf, idx)
         new.n_found += old.n_found
         new.n_visible += old.n_visible
-        old.observations = {}
+        old.clear_observations()
         old.bad = True
         old.replaced_by = new
         self.points.pop(old.id, None)

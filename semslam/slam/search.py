@@ -12,9 +12,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
-
 from semslam.core.protocols import Matcher
+from semslam.features.keypoint_grid import KeypointGrid
 
 HISTO_LENGTH = 30
 
@@ -57,26 +56,24 @@ def search_by_projection(
     kp_octave: NDArray[np.int32],
     kp_desc: NDArray[Any],
     kp_free: NDArray[np.bool_],
-    tree: cKDTree | None,
+    grid: KeypointGrid | Any | None,
     matcher: Matcher,
     max_distance: float,
     ratio: float = 0.8,
 ) -> tuple[IntArray, IntArray]:
     """Match projected points (each with its own search radius and pyramid-level window)
-    to free keypoints. Returns (point indices, keypoint indices); each keypoint used once."""
+    to free keypoints. Returns (point indices, keypoint indices); each keypoint used once.
+
+    ``grid`` is the keypoints' ``KeypointGrid`` (built here when another index or None
+    is given)."""
     if len(uv) == 0 or len(kp_xy) == 0:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    tree = tree if tree is not None else cKDTree(kp_xy)
-    lists = tree.query_ball_point(uv, r=radius)
-    counts = np.fromiter((len(x) for x in lists), np.intp, len(lists))
-    total = int(counts.sum())
-    if total == 0:
+    if not isinstance(grid, KeypointGrid):
+        hi = np.asarray(kp_xy).max(axis=0)
+        grid = KeypointGrid(kp_xy, kp_octave, int(hi[0]) + 1, int(hi[1]) + 1)
+    cq, ct = grid.pairs_in_radius(uv, radius, level_lo, level_hi, kp_free)
+    if len(cq) == 0:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    cq = np.repeat(np.arange(len(lists)), counts)
-    ct = np.fromiter((j for x in lists for j in x), np.intp, total)
-    lvl = kp_octave[ct]
-    ok = kp_free[ct] & (lvl >= level_lo[cq]) & (lvl <= level_hi[cq])
-    cq, ct = cq[ok], ct[ok]
     qi, ti, _ = matcher.match_candidates(point_desc, kp_desc, cq, ct, max_distance, ratio)
     return qi, ti
 

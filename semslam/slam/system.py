@@ -16,6 +16,7 @@ from semslam.core.protocols import DepthSource, FramePacket, MapBuilder, Tracker
 from semslam.core.types import Frame, TrackingState, TrackResult
 from semslam.dynamics.stage import create_dynamic_stage
 from semslam.errors import ConfigError
+from semslam.features.jit import warm_up as warm_up_kernels
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.trajectory import Trajectory
 
@@ -25,6 +26,8 @@ class System:
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None) -> None:
         create_tracker = registry.load("tracker", config.tracking.method)
+        # Compiled kernels are built (or loaded from disk) now, not inside the first frames.
+        self.jit_warmup_s = warm_up_kernels()
         self.config = config
         self.camera = camera
         depth: DepthSource = registry.create("depth_source", config.depth.source)
@@ -78,7 +81,8 @@ class System:
         }
 
     def stats(self) -> dict[str, Any]:
-        return {**self.tracker.stats(), **(self.dynamics.stats() if self.dynamics is not None else {})}
+        return {**self.tracker.stats(), **(self.dynamics.stats() if self.dynamics is not None else {}),
+                "jit_warmup_s": self.jit_warmup_s}
 
     def save_map(self, path: Path) -> None:
         if not self.has_map:

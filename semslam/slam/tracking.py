@@ -22,7 +22,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.frame_state import FrameState
 from semslam.slam.keyframe_worker import KeyframeSink
-from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
 from semslam.slam.search import project, rotation_consistent, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
@@ -63,7 +63,7 @@ class Tracking:
         self.last_kf_frame = -1
         self.last_reloc_frame = -(10**9)
         self.local_kfs: list[KeyFrame] = []
-        self.local_points: list[MapPoint] = []
+        self.local_rows = np.zeros(0, np.intp)  # store rows of the local map's points
         self.n_relocalisations = 0
         self.n_matches_inliers = 0
         self.n_culled_dynamic_points = 0
@@ -93,8 +93,10 @@ class Tracking:
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
         is_kf = False
+        t_wait = time.perf_counter()
         with self.map.lock:
             t0 = time.perf_counter()
+            timings["lock_wait"] = (t0 - t_wait) * 1e3
             if self.state is TrackingState.NOT_INITIALIZED:
                 ok = self._initialize(cur)
                 is_kf = ok
@@ -133,7 +135,7 @@ class Tracking:
             if self.state is TrackingState.OK:
                 self._record(cur)
             self.last = cur
-            n_inl = sum(1 for i, p in enumerate(cur.points) if p is not None and not cur.outlier[i])
+            n_inl = int(((cur.points.rows >= 0) & ~cur.outlier).sum())
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
         if dynamic is not None:
@@ -185,26 +187,28 @@ class Tracking:
         cur.T_cw = np.eye(4)
         kf = self._make_keyframe(cur)
         idx = np.nonzero(cur.depth > 0)[0]
-        pts = cur.world_points(idx, self.camera)
-        for i, pw in zip(idx, pts):
-            self._new_point_from_keyframe(kf, cur, int(i), pw)
+        self._new_points_from_keyframe(kf, cur, idx, cur.world_points(idx, self.camera))
         self.map.add_keyframe(kf)
         self.keyframes.insert(kf)
         self.ref_kf = kf
         cur.ref_kf = kf
         self.last_kf_frame = cur.index
         self.local_kfs = [kf]
-        self.local_points = kf.valid_points()
+        self.local_rows = kf.points.rows[kf.points.rows >= 0]
         self.state = TrackingState.OK
         return True
 
-    def _new_point_from_keyframe(self, kf: KeyFrame, cur: FrameState, i: int, pos: NDArray[np.float64]) -> MapPoint:
-        p = self.map.new_point(pos, kf.keypoints.descriptors[i].copy(), kf)
-        p.add_observation(kf, i)
-        kf.points[i] = p
-        cur.points[i] = p
-        p.update_normal_and_depth(self.pyr.scales)
-        return p
+    def _new_points_from_keyframe(self, kf: KeyFrame, cur: FrameState, idx: NDArray[np.intp],
+                                  pos: NDArray[np.float64]) -> None:
+        """Map points for keypoints ``idx`` of a new keyframe at world positions ``pos``."""
+        made = []
+        for i, pw in zip(idx.tolist(), pos):
+            p = self.map.new_point(pw, kf.keypoints.descriptors[i], kf)
+            p.add_observation(kf, i)
+            kf.points[i] = p
+            cur.points[i] = p
+            made.append(p)
+        update_normals_and_depths(made, self.pyr.scales)
 
     def _make_keyframe(self, cur: FrameState) -> KeyFrame:
         assert cur.T_cw is not None
@@ -233,11 +237,11 @@ class Tracking:
 
     def _optimize(self, cur: FrameState) -> int:
         """Pose-only optimisation over the frame's matched points; marks outliers."""
-        idx = cur.matched_indices()
+        idx = cur.matched_indices(self.map.store)
         if len(idx) < 3:
             return 0
         assert cur.T_cw is not None
-        pts = np.array([cur.points[i].pos for i in idx])  # type: ignore[union-attr]
+        pts = self.map.store.pos[cur.points.rows[idx]]
         oct_ = cur.keypoints.octave[idx]
         res = optimize_pose(cur.T_cw, pts, cur.xy[idx], cur.ur[idx], self.pyr.inv_sigma2[oct_],
                             self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy, self.cfg.bf)
@@ -247,26 +251,25 @@ class Tracking:
         return int(res.inliers.sum())
 
     def _discard_outliers(self, cur: FrameState) -> int:
-        n = 0
-        for i in range(len(cur)):
-            if cur.points[i] is None:
-                continue
-            if cur.outlier[i]:
-                cur.points[i] = None
-                cur.outlier[i] = False
-            elif len(cur.points[i].observations) > 0:  # type: ignore[union-attr]
-                n += 1
-        return n
+        """Unmatch the outliers; the number of matches left whose point is in a keyframe."""
+        for i in np.flatnonzero(cur.outlier & (cur.points.rows >= 0)).tolist():
+            cur.points[i] = None
+        cur.outlier[:] = False
+        rows = cur.points.rows
+        rows = rows[rows >= 0]
+        return int((self.map.store.n_kf_obs[rows] > 0).sum())
 
     def _track_with_motion_model(self, cur: FrameState) -> bool:
         last = self.last
         assert last is not None and last.T_cw is not None and self.velocity is not None
         cur.T_cw = self.velocity @ last.T_cw
-        idx = np.array([i for i, p in enumerate(last.points) if p is not None and not p.bad and not last.outlier[i]], np.intp)
+        store = self.map.store
+        idx = last.matched_indices(store)
+        idx = idx[~last.outlier[idx]]
         if len(idx) == 0:
             return False
-        pts = [last.points[i] for i in idx]
-        pos = np.array([p.pos for p in pts])  # type: ignore[union-attr]
+        rows = last.points.rows[idx]
+        pos = store.pos[rows]
         uv, z = project(cur.T_cw, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
         # Forward motion makes points appear at finer levels, backward at coarser (ORB-SLAM).
         t_lc = (cur.T_cw @ invert(last.T_cw))[:3, 3]
@@ -279,17 +282,17 @@ class Tracking:
             inside = self._inside(uv, z)
             radius = th * self.pyr.scales[octv]
             qi, ti = self._search(cur, uv[inside], radius[inside], lo[inside], hi[inside],
-                                  np.stack([p.descriptor for p in pts])[inside])  # type: ignore[union-attr]
+                                  store.descriptor[rows[inside]])
             sel = np.nonzero(inside)[0][qi]
             keep = rotation_consistent(cur.keypoints.angle[ti], last.keypoints.angle[idx[sel]])
             sel, ti = sel[keep], ti[keep]
             if len(ti) >= 20:
                 break
-            cur.points = [None] * len(cur)
+            cur.clear_points()
         if len(ti) < 20:
             return False
-        for s, t in zip(sel, ti):
-            cur.points[t] = pts[s]
+        for obj, t in zip(store.points(rows[sel]), ti.tolist()):
+            cur.points[t] = obj
         self._optimize(cur)
         return self._discard_outliers(cur) >= 10
 
@@ -302,7 +305,7 @@ class Tracking:
         if len(uv) == 0:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
         return search_by_projection(uv, radius, lo, hi, desc, cur.xy, cur.keypoints.octave, cur.keypoints.descriptors,
-                                    cur.free_mask(), cur.tree(), self.map.matcher,
+                                    cur.free_mask(self.map.store), cur.grid(*self.camera.image_size), self.map.matcher,
                                     self.spec.th_high)
 
     def _compute_bow(self, cur: FrameState) -> None:
@@ -323,7 +326,7 @@ class Tracking:
         ia, ib = ia[keep], ib[keep]
         if len(ia) < 15:
             return False
-        cur.points = [None] * len(cur)
+        cur.clear_points()
         for a, b in zip(ia, ib):
             cur.points[b] = kf.points[a]
         cur.T_cw = self.last.T_cw.copy()
@@ -332,9 +335,13 @@ class Tracking:
 
     # ------------------------------------------------------------------ local map
     def _update_local_map(self, cur: FrameState) -> None:
+        """Local keyframes (those sharing points with the frame, their best covisibles,
+        children and parents; ORB-SLAM UpdateLocalKeyFrames) and their points, as store
+        rows in first-seen order (UpdateLocalPoints)."""
         counts: dict[KeyFrame, int] = {}
-        for i, p in enumerate(cur.points):
-            if p is None or p.bad or cur.outlier[i]:
+        for i in np.flatnonzero((cur.points.rows >= 0) & ~cur.outlier).tolist():
+            p = cur.points[i]
+            if p.bad:
                 continue
             for kf in p.observations:
                 counts[kf] = counts.get(kf, 0) + 1
@@ -354,55 +361,46 @@ class Tracking:
         if not best.bad:
             self.ref_kf = best
             cur.ref_kf = best
-        seen: set[int] = set()
-        pts: list[MapPoint] = []
-        for kf in self.local_kfs:
-            for p in kf.points:
-                if p is not None and not p.bad and p.id not in seen:
-                    seen.add(p.id)
-                    pts.append(p)
-        self.local_points = pts
+        rows = np.concatenate([kf.points.rows for kf in self.local_kfs]) if self.local_kfs else np.zeros(0, np.intp)
+        rows = rows[rows >= 0]
+        _, first = np.unique(rows, return_index=True)
+        rows = rows[np.sort(first)]
+        self.local_rows = rows[~self.map.store.bad[rows]]
 
     def _track_local_map(self, cur: FrameState) -> bool:
+        """Project the local map's points into the frame, match them (SearchLocalPoints),
+        optimise the pose and count the inliers (TrackLocalMap)."""
         self._update_local_map(cur)
-        in_frame = {p.id for p in cur.points if p is not None}
-        for p in cur.points:
-            if p is not None and not p.bad:
-                p.n_visible += 1
-        cand = [p for p in self.local_points if p.id not in in_frame and not p.bad]
-        if cand:
+        store = self.map.store
+        frame_rows = cur.points.rows[cur.points.rows >= 0]
+        frame_rows = frame_rows[~store.bad[frame_rows]]
+        np.add.at(store.n_visible, frame_rows, 1)
+        cand = self.local_rows[~np.isin(self.local_rows, cur.points.rows) & ~store.bad[self.local_rows]]
+        if len(cand):
             assert cur.T_cw is not None
-            pos = np.array([p.pos for p in cand])
+            pos = store.pos[cand]
             uv, z = project(cur.T_cw, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
             center = invert(cur.T_cw)[:3, 3]
             ray = pos - center
             dist = np.linalg.norm(ray, axis=1)
-            normals = np.array([p.normal for p in cand])
-            max_d = np.array([p.max_dist for p in cand])
-            min_d = np.array([p.min_dist for p in cand])
-            view_cos = np.einsum("ij,ij->i", ray, normals) / np.maximum(dist, 1e-9)
+            max_d, min_d = store.max_dist[cand], store.min_dist[cand]
+            view_cos = np.einsum("ij,ij->i", ray, store.normal[cand]) / np.maximum(dist, 1e-9)
             ok = self._inside(uv, z) & (dist >= 0.8 * min_d) & (dist <= 1.2 * max_d) & (view_cos >= 0.5)
             sel = np.nonzero(ok)[0]
-            for s in sel:
-                cand[s].n_visible += 1
+            store.n_visible[cand[sel]] += 1
             if len(sel):
                 level = self.pyr.predict_level(max_d[sel], dist[sel])
                 th = 5.0 if cur.index < self.last_reloc_frame + 2 else 3.0  # RGB-D: 3 (ORB-SLAM2)
                 # ORB-SLAM also widens the radius for points seen at a grazing angle (cos < 0.998).
                 radius = th * np.where(view_cos[sel] > 0.998, 2.5, 4.0) * self.pyr.scales[level]
-                desc = np.stack([cand[s].descriptor for s in sel])
-                qi, ti = self._search(cur, uv[sel], radius, level - 1, level, desc)
-                for q, t in zip(qi, ti):
-                    cur.points[t] = cand[sel[q]]
+                qi, ti = self._search(cur, uv[sel], radius, level - 1, level, store.descriptor[cand[sel]])
+                for obj, t in zip(store.points(cand[sel[qi]]), ti.tolist()):
+                    cur.points[t] = obj
         self._optimize(cur)
-        n_found = 0
-        for i, p in enumerate(cur.points):
-            if p is None:
-                continue
-            if not cur.outlier[i]:
-                p.n_found += 1
-                if len(p.observations) > 0:
-                    n_found += 1
+        rows = cur.points.rows
+        inlier_rows = rows[(rows >= 0) & ~cur.outlier]
+        np.add.at(store.n_found, inlier_rows, 1)
+        n_found = int((store.n_kf_obs[inlier_rows] > 0).sum())
         self.n_matches_inliers = n_found
         if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_found < 50:
             return False
@@ -420,7 +418,7 @@ class Tracking:
         ref_matches = self.ref_kf.tracked_points(min_obs)
         idle = self.keyframes.idle()
         close = (cur.depth > 0) & (cur.depth < self.th_depth_m)
-        tracked = np.array([p is not None and not cur.outlier[i] for i, p in enumerate(cur.points)], bool)
+        tracked = (cur.points.rows >= 0) & ~cur.outlier
         n_tracked_close = int((close & tracked).sum())
         n_untracked_close = int((close & ~tracked).sum())
         need_close = n_tracked_close < 100 and n_untracked_close > 70
@@ -439,21 +437,16 @@ class Tracking:
         kf = self._make_keyframe(cur)
         idx = np.nonzero(cur.depth > 0)[0]
         idx = idx[np.argsort(cur.depth[idx], kind="stable")]
-        n_points = 0
-        new_idx = []
-        for i in idx:
-            p = cur.points[i]
-            if p is None or p.bad or len(p.observations) == 0:
-                new_idx.append(i)
-            n_points += 1
-            if cur.depth[i] > self.th_depth_m and n_points > 100:
-                break
-        if new_idx:
+        # Closest first; stop after the first far keypoint once 100 were considered (ORB-SLAM2).
+        far = np.flatnonzero((cur.depth[idx] > self.th_depth_m) & (np.arange(len(idx)) >= 100))
+        if len(far):
+            idx = idx[:far[0] + 1]
+        new_idx = idx[cur.free_mask(self.map.store)[idx]]
+        if len(new_idx):
             arr = np.asarray(new_idx, np.intp)
-            pos = cur.world_points(arr, self.camera)
-            for i, pw in zip(arr, pos):
+            for i in arr.tolist():
                 kf.points[i] = None
-                self._new_point_from_keyframe(kf, cur, int(i), pw)
+            self._new_points_from_keyframe(kf, cur, arr, cur.world_points(arr, self.camera))
         self.map.add_keyframe(kf)
         self.ref_kf = kf
         cur.ref_kf = kf
@@ -496,7 +489,7 @@ class Tracking:
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = rot, tvec.reshape(3)
             cur.T_cw = T
-            cur.points = [None] * len(cur)
+            cur.clear_points()
             for k in inl.reshape(-1):
                 cur.points[ib[k]] = kf.points[ia[k]]
             n_good = self._optimize(cur)
@@ -512,7 +505,7 @@ class Tracking:
                 self.ref_kf = kf
                 cur.ref_kf = kf
                 return True
-        cur.points = [None] * len(cur)
+        cur.clear_points()
         cur.T_cw = None
         return False
 

@@ -1,6 +1,10 @@
 """ORB's orientation and descriptor: ORB-SLAM's ``IC_Angle`` (intensity centroid of a
 circular 31 px patch) and ``computeOrbDescriptor`` (steered rBRIEF, OpenCV's learned
-test pattern), vectorised over all keypoints of all levels of a stacked pyramid.
+test pattern), over all keypoints of all levels of a stacked pyramid at once.
+
+``ic_angles`` / ``orb_descriptors`` run the compiled kernels of ``orb.brief_kernels``;
+``ic_angles_numpy`` / ``orb_descriptors_numpy`` are the vectorised numpy versions they
+replaced, kept as references (identical results, tests).
 
 Shared by ORB-SLAM2's extractor and STDC-SLAM's Qtree-ORB, which differ only in
 detection and distribution.
@@ -9,15 +13,18 @@ detection and distribution.
 from __future__ import annotations
 
 import math
-import time
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.features.orb.brief_kernels import ic_moments, steered_brief
 from semslam.features.orb.pyramid import HALF_PATCH_SIZE, StackedPyramid
+from semslam.features.orb.scratch import Scratch, kernel_array
+from semslam.features.orb.timing import StageClock
 
-__all__ = ["BIT_PATTERN_31", "PATCH", "Scratch", "SteeredBrief", "ic_angles", "orb_descriptors",
+__all__ = ["BIT_PATTERN_31", "PATCH", "Scratch", "SteeredBrief", "ic_angles", "ic_angles_numpy",
+           "orb_descriptors", "orb_descriptors_numpy",
            "umax"]
 
 # ORB's learned 256 test pairs for a 31x31 patch (OpenCV orb.cpp ``bit_pattern_31_``,
@@ -123,6 +130,15 @@ def _moment_weights() -> NDArray[np.float32]:
 
 PATCH = 2 * HALF_PATCH_SIZE + 1
 _MOMENT_WEIGHTS = _moment_weights()
+# The same weights as int32 (31, 32) images of u and v (a last column of zeros: 32-wide
+# rows vectorise), for the compiled moments.
+_WEIGHTS_U = np.zeros((PATCH, PATCH + 1), np.int32)
+_WEIGHTS_V = np.zeros((PATCH, PATCH + 1), np.int32)
+_WEIGHTS_U[:, :PATCH] = _MOMENT_WEIGHTS[:, 0].reshape(PATCH, PATCH)
+_WEIGHTS_V[:, :PATCH] = _MOMENT_WEIGHTS[:, 1].reshape(PATCH, PATCH)
+_PATTERN_X = np.ascontiguousarray(BIT_PATTERN_31[:, 0].astype(np.float32))
+_PATTERN_Y = np.ascontiguousarray(BIT_PATTERN_31[:, 1].astype(np.float32))
+_PATTERN_REACH = 18  # round(13 sqrt(2)): farthest a rotated test pixel can be
 # Rotated pattern x' = x a - y b, y' = x b + y a as one (N,2) @ (2,512) product each.
 _PAT_X_ROT = np.stack([BIT_PATTERN_31[:, 0], -BIT_PATTERN_31[:, 1]]).astype(np.float32)
 _PAT_Y_ROT = np.stack([BIT_PATTERN_31[:, 1], BIT_PATTERN_31[:, 0]]).astype(np.float32)
@@ -139,30 +155,51 @@ def _rint_i32(v: NDArray[np.float32]) -> NDArray[np.int32]:
     return out
 
 
-class Scratch:
-    """Work buffers reused from call to call (grown as needed). Why: on this machine a
-    fresh multi-MB numpy array costs more in page faults than the arithmetic on it."""
-
-    def __init__(self) -> None:
-        self._bufs: dict[str, NDArray] = {}
-
-    def get(self, name: str, shape: tuple[int, ...], dtype: type) -> NDArray:
-        size = int(np.prod(shape))
-        buf = self._bufs.get(name)
-        if buf is None or buf.size < size or buf.dtype != dtype:
-            buf = np.empty(max(size, 2 * buf.size if buf is not None else size), dtype)
-            self._bufs[name] = buf
-        return buf[:size].reshape(shape)
-
-
 _IC_CHUNK = 128  # keypoints per window copy (keeps the temporaries small and in cache)
+
+
+def _flat(image: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], int]:
+    """A C-contiguous, writeable image as a flat array and its row stride (one compiled
+    signature for the kernels)."""
+    if not (image.flags.c_contiguous and image.flags.writeable and image.dtype == np.uint8):
+        image = np.array(image, np.uint8, order="C")
+    return image.reshape(-1), image.shape[1]
+
+
+def _coords(image: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.integer], left: int, right: int
+            ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """x, y as int64, checked to be ``left`` px from the left / top border and ``right``
+    px from the right / bottom one (the compiled kernels do not check their reads)."""
+    x, y = kernel_array(x, np.int64), kernel_array(y, np.int64)
+    h, w = image.shape
+    if x.min() < left or y.min() < left or x.max() >= w - right or y.max() >= h - right:
+        raise ValueError(f"keypoints must be >= {left} px from the image's left / top and > {right} px "
+                         "from its right / bottom border")
+    return x, y
 
 
 def ic_angles(image: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.integer],
               scratch: Scratch | None = None) -> NDArray[np.float32]:
     """ORB-SLAM's ``IC_Angle`` for keypoints at integer pixels (at least 15 px from the
     border): the direction in degrees [0, 360) of the intensity centroid of the circular
-    patch, ``fastAtan2(m01, m10)``. Why: it makes BRIEF rotation-invariant.
+    patch, ``fastAtan2(m01, m10)`` (``cv2.phase``, which is OpenCV's ``fastAtan2``).
+    Why: it makes BRIEF rotation-invariant. The moments come from the compiled
+    ``ic_moments``; ``scratch`` is unused (kept for the signature of the numpy version)."""
+    n = len(x)
+    if n == 0:
+        return np.zeros(0, np.float32)
+    if np.max(x) == image.shape[1] - 1 - HALF_PATCH_SIZE:
+        image = np.pad(image, ((0, 0), (0, 1)))  # the kernel's 32-wide rows read one more column
+    xi, yi = _coords(image, x, y, HALF_PATCH_SIZE, HALF_PATCH_SIZE)
+    flat, stride = _flat(image)
+    m10, m01 = np.empty(n, np.float32), np.empty(n, np.float32)
+    ic_moments(flat, stride, xi, yi, _WEIGHTS_U, _WEIGHTS_V, m10, m01)
+    return cv2.phase(m10, m01, angleInDegrees=True).reshape(-1)
+
+
+def ic_angles_numpy(image: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.integer],
+                    scratch: Scratch | None = None) -> NDArray[np.float32]:
+    """``ic_angles`` in numpy (the reference the compiled version is tested against).
 
     Vectorised: the 31x31 windows are copied in chunks and reduced with one float32
     matmul each (the moments are integers < 2^24, so exact)."""
@@ -184,11 +221,38 @@ def ic_angles(image: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.in
                      angleInDegrees=True).reshape(-1)
 
 
+def _cos_sin(angle_deg: NDArray[np.floating]) -> NDArray[np.float32]:
+    """(n, 2) float32 cos and sin of the angles (numpy's float32 functions, so both
+    descriptor versions steer with the very same numbers)."""
+    rad = np.asarray(angle_deg, np.float32) * np.float32(math.pi / 180.0)
+    ab = np.empty((len(rad), 2), np.float32)
+    np.cos(rad, out=ab[:, 0])  # a
+    np.sin(rad, out=ab[:, 1])  # b
+    return ab
+
+
 def orb_descriptors(blurred: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.integer],
                     angle_deg: NDArray[np.floating], scratch: Scratch | None = None) -> NDArray[np.uint8]:
     """ORB-SLAM's ``computeOrbDescriptor``: 256 intensity tests of the pattern rotated by
     the keypoint angle on the blurred image, packed 8 per byte, least significant bit
-    first. Keypoints must be at least 19 px (EDGE_THRESHOLD) from the border.
+    first. Keypoints must be at least 19 px (EDGE_THRESHOLD) from the border. Runs the
+    compiled ``steered_brief`` (same bytes as ``orb_descriptors_numpy``); ``scratch`` is
+    unused."""
+    n = len(x)
+    if n == 0:
+        return np.zeros((0, 32), np.uint8)
+    xi, yi = _coords(blurred, x, y, _PATTERN_REACH, _PATTERN_REACH)
+    flat, stride = _flat(blurred)
+    ab = _cos_sin(angle_deg)
+    out = np.empty((n, 32), np.uint8)
+    steered_brief(flat, stride, xi, yi, np.ascontiguousarray(ab[:, 0]),
+                  np.ascontiguousarray(ab[:, 1]), _PATTERN_X, _PATTERN_Y, out)
+    return out
+
+
+def orb_descriptors_numpy(blurred: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.integer],
+                          angle_deg: NDArray[np.floating], scratch: Scratch | None = None) -> NDArray[np.uint8]:
+    """``orb_descriptors`` in numpy (the reference the compiled version is tested against).
 
     Vectorised: rotated offsets as two (N,2) @ (2,512) products, rounded half-to-even
     like ``cvRound``, one flat gather; all temporaries in reused buffers."""
@@ -198,10 +262,7 @@ def orb_descriptors(blurred: NDArray[np.uint8], x: NDArray[np.integer], y: NDArr
     scratch = scratch or Scratch()
     img = np.ascontiguousarray(blurred)
     stride = img.shape[1]
-    rad = np.asarray(angle_deg, np.float32) * np.float32(math.pi / 180.0)
-    ab = np.empty((n, 2), np.float32)
-    np.cos(rad, out=ab[:, 0])  # a
-    np.sin(rad, out=ab[:, 1])  # b
+    ab = _cos_sin(angle_deg)
     col = _rint_i32(np.matmul(ab, _PAT_X_ROT, out=scratch.get("d_col", (n, 512), np.float32)))
     row = _rint_i32(np.matmul(ab, _PAT_Y_ROT, out=scratch.get("d_row", (n, 512), np.float32)))
     row *= np.int32(stride)
@@ -222,19 +283,19 @@ class SteeredBrief:
         self._blur_buffer: NDArray[np.uint8] | None = None
 
     def compute(self, pyr: StackedPyramid, sx: NDArray[np.integer], sy: NDArray[np.integer],
-                clock: list[float] | None = None) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+                clock: StageClock | None = None) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
         """(angles in degrees, 32-byte descriptors) of keypoints at buffer pixels (sx, sy);
-        appends the time after the orientation and after the blur to ``clock``."""
+        laps ``clock`` after the orientation and after the blur."""
         # All levels live in one buffer: one gather for the orientations, one blur (pad 3
         # = the 7x7 kernel's radius, BORDER_REFLECT_101 like ORB-SLAM's per-level blur)
         # and one gather for the descriptors.
         angle = ic_angles(pyr.buffer, sx, sy, self.scratch)
         if clock is not None:
-            clock.append(time.perf_counter())
+            clock.lap()
         if self._blur_buffer is None or self._blur_buffer.shape != pyr.buffer.shape:
             self._blur_buffer = np.empty_like(pyr.buffer)
         blurred = cv2.GaussianBlur(pyr.buffer, (7, 7), 2, dst=self._blur_buffer, sigmaY=2,
                                    borderType=cv2.BORDER_REFLECT_101)
         if clock is not None:
-            clock.append(time.perf_counter())
+            clock.lap()
         return angle, orb_descriptors(blurred, sx, sy, angle, self.scratch)

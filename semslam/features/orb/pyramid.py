@@ -5,11 +5,16 @@ Follows ORB-SLAM2 ``ORBextractor`` (constructor and ``ComputePyramid``)."""
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from semslam.features.orb.pyramid_kernels import reflect_pad_levels
+from semslam.features.orb.scratch import kernel_array
 
 # ORB-SLAM's constants: FAST keypoints are kept EDGE_THRESHOLD px away from the level
 # border so that the 31x31 orientation patch and the rotated BRIEF pattern (reach
@@ -62,10 +67,16 @@ def features_per_level(n_features: int, n_levels: int, scale_factor: float) -> N
     return counts
 
 
-def level_sizes(width: int, height: int, n_levels: int, scale_factor: float) -> list[tuple[int, int]]:
-    """(width, height) of every level: cvRound(size / s^level) as in ORB-SLAM."""
+@functools.lru_cache(maxsize=64)
+def _level_sizes(width: int, height: int, n_levels: int, scale_factor: float) -> tuple[tuple[int, int], ...]:
     inv = np.float32(1.0) / np.float32(scale_factors(n_levels, scale_factor)).astype(np.float32)
-    return [(int(np.rint(np.float32(width) * s)), int(np.rint(np.float32(height) * s))) for s in inv]
+    return tuple((int(np.rint(np.float32(width) * s)), int(np.rint(np.float32(height) * s))) for s in inv)
+
+
+def level_sizes(width: int, height: int, n_levels: int, scale_factor: float) -> list[tuple[int, int]]:
+    """(width, height) of every level: cvRound(size / s^level) as in ORB-SLAM (cached:
+    the same few image sizes come back every frame)."""
+    return list(_level_sizes(int(width), int(height), int(n_levels), float(scale_factor)))
 
 
 class StackedPyramid:
@@ -109,20 +120,53 @@ def build_pyramid(gray: NDArray[np.uint8], n_levels: int, scale_factor: float, p
             view[...] = gray
         else:
             cv2.resize(levels[-1], (w, h), dst=view, interpolation=cv2.INTER_LINEAR)
-        if pad:
-            # BORDER_REFLECT_101 around the level, rows first then columns (corners too).
-            buffer[r - pad:r, pad:pad + w] = buffer[r + 1:r + pad + 1, pad:pad + w][::-1]
-            buffer[r + h:r + h + pad, pad:pad + w] = buffer[r + h - pad - 1:r + h - 1, pad:pad + w][::-1]
-            block = buffer[r - pad:r + h + pad]
-            block[:, :pad] = block[:, pad + 1:2 * pad + 1][:, ::-1]
-            block[:, pad + w:2 * pad + w] = block[:, w - 1:pad + w - 1][:, ::-1]
         levels.append(view)
+    if pad and sizes:
+        # BORDER_REFLECT_101 around every level, rows first then columns (corners too).
+        reflect_pad_levels(buffer, rows, np.array([w for w, _ in sizes], np.int64),
+                           np.array([h for _, h in sizes], np.int64), pad)
     return StackedPyramid(buffer, rows, pad, levels)
 
 
 def pyramid_buffer_shape(sizes: list[tuple[int, int]], pad: int) -> tuple[int, int]:
     """(rows, cols) of the stacked buffer for level sizes (width, height)."""
     return (sum(h + 2 * pad for _, h in sizes), max(w for w, _ in sizes) + 2 * pad)
+
+
+class MaskSampler(NamedTuple):
+    """A detect mask as seen from one image: pixel (x, y) is allowed iff
+    ``mask[rows[y], cols[x]] != 0``. Why: the FAST kernels read the mask only at the few
+    keypoints that survive non-max suppression, so a level's mask is never materialised
+    (``image()`` does, for references and tests)."""
+
+    mask: NDArray[np.uint8]  # 2-D, C-contiguous
+    rows: NDArray[np.int64]
+    cols: NDArray[np.int64]
+
+    @classmethod
+    def same_size(cls, mask: NDArray) -> MaskSampler:
+        """A mask of the image's own size (FAST's ``mask`` argument)."""
+        m = kernel_array(mask, np.uint8)
+        return cls(m, np.arange(m.shape[0], dtype=np.int64), np.arange(m.shape[1], dtype=np.int64))
+
+    def crop(self, x0: int, y0: int, width: int, height: int) -> MaskSampler:
+        """The sampler of the sub-image ``[x0, x0 + width) x [y0, y0 + height)``."""
+        return MaskSampler(self.mask, self.rows[y0:y0 + height], self.cols[x0:x0 + width])
+
+    def image(self) -> NDArray[np.uint8]:
+        """The mask as an image of the sampled size."""
+        return np.ascontiguousarray(self.mask[self.rows][:, self.cols])
+
+
+def level_mask_indices(mask_shape: tuple[int, int], level_shape: tuple[int, int], scale: float
+                       ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Level-0 row of every level row and column of every level column: the nearest
+    level-0 pixel to the level pixel's reported position ``(x, y) * s`` (float32)."""
+    h, w = level_shape
+    s = np.float32(scale)
+    rows = np.minimum(np.rint(np.arange(h, dtype=np.float32) * s).astype(np.int64), mask_shape[0] - 1)
+    cols = np.minimum(np.rint(np.arange(w, dtype=np.float32) * s).astype(np.int64), mask_shape[1] - 1)
+    return rows, cols
 
 
 def level_mask(mask: NDArray[np.uint8], level_shape: tuple[int, int], scale: float) -> NDArray[np.uint8]:
@@ -132,12 +176,8 @@ def level_mask(mask: NDArray[np.uint8], level_shape: tuple[int, int], scale: flo
     keypoints); it is allowed iff the level-0 pixel nearest to that position is allowed,
     so filtering at the level is exactly filtering the output keypoints by
     ``mask[rint(y), rint(x)]``."""
-    h, w = level_shape
-    s = np.float32(scale)
-    rows = np.minimum(np.rint(np.arange(h, dtype=np.float32) * s).astype(np.intp), mask.shape[0] - 1)
-    cols = np.minimum(np.rint(np.arange(w, dtype=np.float32) * s).astype(np.intp), mask.shape[1] - 1)
+    rows, cols = level_mask_indices(mask.shape, level_shape, scale)
     return np.ascontiguousarray(mask[rows][:, cols])
-
 
 
 def level_masks(mask: NDArray[np.uint8] | None, images: list[NDArray[np.uint8]],
@@ -146,6 +186,17 @@ def level_masks(mask: NDArray[np.uint8] | None, images: list[NDArray[np.uint8]],
     if mask is None:
         return None
     return [mask if level == 0 else level_mask(mask, image.shape, scales[level])
+            for level, image in enumerate(images)]
+
+
+def level_mask_samplers(mask: NDArray[np.uint8] | None, images: list[NDArray[np.uint8]],
+                        scales: NDArray[np.float64]) -> list[MaskSampler] | None:
+    """``level_masks`` without materialising them: one ``MaskSampler`` per level image
+    (same pixels allowed as ``level_masks``); None without a mask."""
+    if mask is None:
+        return None
+    m = kernel_array(mask, np.uint8)
+    return [MaskSampler(m, *level_mask_indices(m.shape, image.shape, 1.0 if level == 0 else scales[level]))
             for level, image in enumerate(images)]
 
 

@@ -1,8 +1,12 @@
 """ORB-SLAM's quadtree keypoint distribution (``ORBextractor::DistributeOctTree``) and
-STDC-SLAM's improved one (Algorithm 3), vectorised: one numpy round splits the leaves of
-the trees of *all* pyramid levels at once (a main-phase pass or a last-phase round per
-level), so a frame costs about as many numpy rounds as the deepest tree instead of one
-Python step per node. The two differ only in their ``SplitRule``.
+STDC-SLAM's improved one (Algorithm 3). The two differ only in their ``SplitRule``.
+
+``distribute_quadtree_leaves`` runs the compiled node-by-node version
+(``orb.quadtree_kernels``); ``distribute_quadtree_leaves_numpy`` is the vectorised numpy
+one it replaced, kept as the reference (same selection, tests): one numpy round splits
+the leaves of the trees of *all* pyramid levels at once (a main-phase pass or a
+last-phase round per level), so a frame costs about as many numpy rounds as the
+deepest tree instead of one Python step per node.
 
 The semantics per level are ORB-SLAM's (``SplitRule.ORB_SLAM``):
 - ``round(W/H)`` initial nodes side by side (at least 1), empty ones dropped;
@@ -33,6 +37,9 @@ from enum import Enum
 
 import numpy as np
 from numpy.typing import NDArray
+
+from semslam.features.orb.quadtree_kernels import HIGH_QUALITY, ORB_SLAM, quadtree_levels, work_size
+from semslam.features.orb.scratch import Scratch, kernel_array
 
 _MAIN, _FINE, _DONE = 0, 1, 2  # per-level phase
 
@@ -67,19 +74,51 @@ def distribute_quadtree_levels(x: NDArray[np.integer], y: NDArray[np.integer], r
                                level: NDArray[np.integer], widths: NDArray[np.integer],
                                heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
                                high: NDArray[np.bool_] | None = None,
-                               rule: SplitRule = SplitRule.ORB_SLAM) -> NDArray[np.intp]:
+                               rule: SplitRule = SplitRule.ORB_SLAM, scratch: Scratch | None = None
+                               ) -> NDArray[np.intp]:
     """See ``distribute_quadtree_leaves``; returns the kept indices only."""
     return distribute_quadtree_leaves(x, y, response, level, widths, heights, n_wanted, high,
-                                      rule)[0]
+                                      rule, scratch)[0]
 
 
 def distribute_quadtree_leaves(x: NDArray[np.integer], y: NDArray[np.integer], response: NDArray[np.floating],
                                level: NDArray[np.integer], widths: NDArray[np.integer],
                                heights: NDArray[np.integer], n_wanted: NDArray[np.integer],
                                high: NDArray[np.bool_] | None = None,
-                               rule: SplitRule = SplitRule.ORB_SLAM
+                               rule: SplitRule = SplitRule.ORB_SLAM, scratch: Scratch | None = None
                                ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
-    """Indices (sorted) of the points the quadtree keeps, for all levels at once.
+    """Indices (sorted) of the points the quadtree keeps, for all levels at once, and
+    every point's final leaf (-1 for points of levels with ``n_wanted <= 0``, which keep
+    nothing); the arguments are ``distribute_quadtree_leaves_numpy``'s, whose selection
+    this compiled version reproduces (leaves may be numbered differently). ``scratch``
+    keeps the work buffer from call to call."""
+    n = len(x)
+    if rule is SplitRule.HIGH_QUALITY and high is None:
+        raise ValueError("SplitRule.HIGH_QUALITY needs every point's quality (high)")
+    quality = np.zeros(n, np.uint8) if high is None else kernel_array(np.asarray(high, bool).view(np.uint8), np.uint8)
+    level = kernel_array(level, np.int64)
+    xf, yf = kernel_array(x, np.float64), kernel_array(y, np.float64)
+    if n and (level.min() < 0 or level.max() >= len(n_wanted)):
+        raise ValueError("every point's level must index n_wanted")
+    if n and (min(xf.min(), yf.min()) < 0 or max(xf.max(), yf.max()) >= 2**16):
+        raise ValueError("positions must be in [0, 65536) (the compiled quadtree packs them in 16 bits)")
+    keep, leaf = quadtree_levels(
+        xf, yf,
+        kernel_array(response, np.float64), level, kernel_array(widths, np.int64), kernel_array(heights, np.int64),
+        kernel_array(n_wanted, np.int64), quality,
+        HIGH_QUALITY if rule is SplitRule.HIGH_QUALITY else ORB_SLAM,
+        (scratch or Scratch()).get("quadtree", (work_size(n),), np.int64))
+    return keep.astype(np.intp), leaf
+
+
+def distribute_quadtree_leaves_numpy(x: NDArray[np.integer], y: NDArray[np.integer],
+                                     response: NDArray[np.floating], level: NDArray[np.integer],
+                                     widths: NDArray[np.integer], heights: NDArray[np.integer],
+                                     n_wanted: NDArray[np.integer], high: NDArray[np.bool_] | None = None,
+                                     rule: SplitRule = SplitRule.ORB_SLAM
+                                     ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
+    """Indices (sorted) of the points the quadtree keeps, for all levels at once
+    (vectorised numpy; the reference of ``distribute_quadtree_leaves``).
 
     ``x``, ``y``: positions (FAST's are integers) in each level's distribution frame
     (ORB-SLAM: level pixels minus the EDGE_THRESHOLD-3 border), within ``[0, widths[l])

@@ -1,0 +1,141 @@
+#!/usr/bin/env python
+"""Benchmark: issue 10's real-time targets, measured as ``semslam run`` is used (threaded).
+
+    python benchmarks/realtime_targets.py [--frames 300] [--long-frames 900] [--json out.json]
+                                          [--skip-long] [--skip-one-core]
+
+1. ``orb``, ``default``, ``stdc``, ``ddl`` on the static and walking renders: per-frame
+   median / p95, the per-stage medians, the tracking thread's wait for the map lock
+   (median / p95 / max), local BA median, ATE. Targets: ``orb`` <= 15 ms median and <= 30
+   ms p95, ``default`` <= 17 / <= 35 (the median over the two renders is the mean of the
+   two runs' medians; the p95 likewise).
+2. ``default`` on a ``--long-frames`` render of walking_xyz: wall-clock fps including PNG
+   decoding (target >= 30).
+3. ``default`` pinned to one core (``taskset -c 0``, a 2x slower machine): every frame
+   processed and none lost.
+
+Prints a JSON document, then markdown tables with each target and whether it is met.
+Numbers come from this run on this machine; the load average is reported with them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semslam.experiments.bench import Variant, machine, run_benchmark
+from semslam.synth import SEQUENCES, ensure_rendered
+
+PRESETS = ["orb", "default", "stdc", "ddl"]
+RENDERS = ["static_xyz", "walking_xyz"]
+TARGETS = {"orb": (15.0, 30.0), "default": (17.0, 35.0)}
+
+
+def _row(r: Any) -> dict[str, Any]:
+    return {
+        "frames": r.frames, "tracked": r.tracked_frames, "lost": r.lost_frames, "keyframes": r.keyframes,
+        "ate_cm": None if r.ate_rmse is None else 100 * r.ate_rmse,
+        "ms_median": r.ms_per_frame["median"], "ms_p95": r.ms_per_frame["p95"], "ms_max": r.ms_per_frame["max"],
+        "fps_wall": r.fps, "stages_ms_median": r.stages_ms_median,
+        "lock_wait_ms": {"median": r.stages_ms_median.get("lock_wait"), "p95": r.stages_ms_p95.get("lock_wait"),
+                         "max": r.stages_ms_max.get("lock_wait")},
+        "local_ba_ms_median": r.get("local_ba_ms_median"), "jit_warmup_s": r.get("jit_warmup_s"),
+    }
+
+
+def _cli_run(seq: Path, out: Path, preset: str, prefix: list[str]) -> dict[str, Any]:
+    semslam = shutil.which("semslam") or str(Path(sys.executable).with_name("semslam"))
+    cmd = [*prefix, semslam, "run", str(seq), "--out", str(out), "--preset", preset, "--quiet", "--no-report"]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    return json.loads((out / "stats.json").read_text())
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--long-frames", type=int, default=900)
+    ap.add_argument("--data", type=Path, default=Path("out/bench/data"))
+    ap.add_argument("--out", type=Path, default=Path("out/bench/realtime"))
+    ap.add_argument("--presets", default=",".join(PRESETS))
+    ap.add_argument("--skip-long", action="store_true")
+    ap.add_argument("--skip-one-core", action="store_true")
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args(argv)
+
+    doc: dict[str, Any] = {"machine": {**machine(), "loadavg_before": os.getloadavg()}, "runs": {}, "targets": []}
+    rows = run_benchmark([Variant.parse(p) for p in args.presets.split(",")], RENDERS, args.data, args.out / "runs",
+                         frames=args.frames)
+    for row in rows:
+        doc["runs"].setdefault(row.variant, {})[row.sequence] = _row(row.result)
+    for preset, (t_med, t_p95) in TARGETS.items():
+        runs = doc["runs"].get(preset)
+        if not runs:
+            continue
+        med = float(np.mean([r["ms_median"] for r in runs.values()]))
+        p95 = float(np.mean([r["ms_p95"] for r in runs.values()]))
+        doc["targets"].append({"target": f"{preset} median <= {t_med} ms", "value": med, "met": med <= t_med})
+        doc["targets"].append({"target": f"{preset} p95 <= {t_p95} ms", "value": p95, "met": p95 <= t_p95})
+    waits = [r["lock_wait_ms"]["p95"] for runs in doc["runs"].values() for r in runs.values()
+             if r["lock_wait_ms"]["p95"] is not None]
+    if waits:
+        doc["targets"].append({"target": "tracking's lock wait p95 <= 2 ms (worst run)", "value": max(waits),
+                               "met": max(waits) <= 2.0})
+    ba = [r["local_ba_ms_median"] for runs in doc["runs"].values() for r in runs.values() if r["local_ba_ms_median"]]
+    if ba:
+        doc["targets"].append({"target": "local BA median <= 150 ms (worst run)", "value": max(ba),
+                               "met": max(ba) <= 150.0})
+
+    if not args.skip_long:
+        cfg = replace(SEQUENCES["walking_xyz"], frames=args.long_frames)
+        seq = args.data / f"walking_xyz_{args.long_frames}"
+        ensure_rendered(cfg, seq)
+        stats = _cli_run(seq, args.out / "long", "default", [])
+        doc["long"] = {"sequence": seq.name, **{k: stats.get(k) for k in ("frames", "tracked_frames", "fps", "wall_s")},
+                       "ms_per_frame": stats["ms_per_frame"]}
+        doc["targets"].append({"target": f"default >= 30 fps wall on {args.long_frames} frames",
+                               "value": stats["fps"], "met": stats["fps"] >= 30.0})
+    if not args.skip_one_core and shutil.which("taskset"):
+        seq = args.data / "walking_xyz"
+        stats = _cli_run(seq, args.out / "one_core", "default", ["taskset", "-c", "0"])
+        doc["one_core"] = {k: stats.get(k) for k in ("frames", "tracked_frames", "lost_frames", "fps")}
+        doc["one_core"]["ate_cm"] = 100 * stats["ate"]["rmse"] if stats.get("ate") else None
+        doc["one_core"]["ms_per_frame"] = stats["ms_per_frame"]
+        ok = stats["frames"] == stats["tracked_frames"] and stats["lost_frames"] == 0
+        doc["targets"].append({"target": "default on one core: every frame tracked", "value":
+                               f"{stats['tracked_frames']}/{stats['frames']}", "met": ok})
+    doc["machine"]["loadavg_after"] = os.getloadavg()
+
+    print(json.dumps(doc, indent=2))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(doc, indent=2))
+    print("\n| preset | sequence | ms/frame median / p95 | extract | track | local map | lock wait median / p95 / max "
+          "| local BA ms | ATE cm |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for preset, runs in doc["runs"].items():
+        for name, r in runs.items():
+            s, w = r["stages_ms_median"], r["lock_wait_ms"]
+            print(f"| {preset} | {name} | {r['ms_median']:.1f} / {r['ms_p95']:.1f} | {s.get('extract', 0):.1f} | "
+                  f"{s.get('track', 0):.1f} | {s.get('local_map', 0):.1f} | {w['median'] or 0:.2f} / {w['p95'] or 0:.1f}"
+                  f" / {w['max'] or 0:.1f} | {r['local_ba_ms_median'] or 0:.0f} | "
+                  f"{'n/a' if r['ate_cm'] is None else format(r['ate_cm'], '.2f')} |")
+    print("\n| target | measured | met |\n|---|---|---|")
+    for t in doc["targets"]:
+        v = t["value"]
+        print(f"| {t['target']} | {v:.1f} | {'yes' if t['met'] else 'no'} |" if isinstance(v, float)
+              else f"| {t['target']} | {v} | {'yes' if t['met'] else 'no'} |")
+    print(f"\nload average before / after: {doc['machine']['loadavg_before']} / {doc['machine']['loadavg_after']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

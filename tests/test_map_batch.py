@@ -1,0 +1,283 @@
+"""Batched map point statistics equal the per-point originals (ORB-SLAM's
+ComputeDistinctiveDescriptors and UpdateNormalAndDepth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints, orb_spec
+from semslam.features.matching import matcher_for
+from semslam.geometry.se3 import invert
+from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
+from semslam.slam.map_batch import compute_distinctive_descriptors
+
+
+def _reference_descriptor(p: MapPoint, matcher) -> np.ndarray | None:
+    """MapPoint.compute_distinctive_descriptor as it was, one point at a time."""
+    descs = [kf.keypoints.descriptors[i] for kf, i in p.observations.items() if not kf.bad]
+    if len(descs) < 2:
+        return descs[0] if descs else None
+    d = np.stack(descs)
+    n = len(d)
+    ii, jj = np.triu_indices(n, 1)
+    pair = matcher.distances(d[ii], d[jj])
+    dist = np.zeros((n, n), pair.dtype)
+    dist[ii, jj] = dist[jj, ii] = pair
+    return d[int(np.argmin(np.median(dist, axis=1)))].copy()
+
+
+def _reference_normals(points: list[MapPoint], scales: np.ndarray) -> dict[int, tuple]:
+    """update_normals_and_depths as it was, returning (normal, min, max) per point id."""
+    out = {}
+    for p in points:
+        if p.bad or not p.observations:
+            continue
+        d = np.array([p.pos - kf.center for kf in p.observations])
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+        n = d.sum(0)
+        n /= max(np.linalg.norm(n), 1e-9)
+        mn = mx = None
+        idx = p.observations.get(p.ref_kf)
+        if idx is not None:
+            mx = np.linalg.norm(p.pos - p.ref_kf.center) * scales[p.ref_kf.keypoints.octave[idx]]
+            mn = mx / scales[-1]
+        out[p.id] = (n, mn, mx)
+    return out
+
+
+def _world(rng: np.random.Generator, spec: FeatureSpec, n_kf: int = 12, n_kp: int = 60,
+           n_pts: int = 150, max_obs: int = 9) -> tuple[Map, list[MapPoint]]:
+    """Keyframes with random descriptors; points observed by 0..max_obs of them."""
+    m = Map(spec)
+    kfs = []
+    for k in range(n_kf):
+        T = np.eye(4)
+        T[:3, 3] = rng.normal(0, 1.0, 3)
+        if spec.kind is DescriptorKind.BINARY:
+            desc = rng.integers(0, 256, (n_kp, 32), dtype=np.uint8)
+        else:
+            desc = rng.normal(size=(n_kp, 128)).astype(np.float32)
+        kps = Keypoints(rng.uniform(0, 640, (n_kp, 2)).astype(np.float32),
+                        rng.integers(0, 8, n_kp).astype(np.int32), np.ones(n_kp, np.float32),
+                        np.zeros(n_kp, np.float32), desc)
+        kf = KeyFrame(m.new_kf_id(), k, float(k), invert(T), kps, kps.xy.astype(np.float64),
+                      np.ones(n_kp, np.float32), -np.ones(n_kp), [None] * n_kp)
+        m.add_keyframe(kf)
+        kfs.append(kf)
+    points = []
+    for _ in range(n_pts):
+        ref = kfs[int(rng.integers(n_kf))]
+        p = m.new_point(rng.normal(0, 3.0, 3), ref.keypoints.descriptors[0].copy(), ref)
+        n_obs = int(rng.integers(0, max_obs + 1))
+        for kf in rng.choice(kfs, n_obs, replace=False):
+            p.add_observation(kf, int(rng.integers(n_kp)))
+        points.append(p)
+    kfs[3].bad = True  # observations by bad keyframes are ignored
+    return m, points
+
+
+@pytest.mark.parametrize("spec", [orb_spec(1.2, 8),
+                                  FeatureSpec(DescriptorKind.FLOAT, 128, 2 ** (1 / 3), 12,
+                                              th_low=0.3, th_high=0.5)],
+                         ids=["hamming", "l2"])
+def test_distinctive_descriptors_equal_per_point(spec: FeatureSpec) -> None:
+    rng = np.random.default_rng(1)
+    _, points = _world(rng, spec)
+    matcher = matcher_for(spec)
+    before = {p.id: p.descriptor.copy() for p in points}
+    want = {p.id: _reference_descriptor(p, matcher) for p in points}
+    compute_distinctive_descriptors(points, matcher)
+    n_multi = 0
+    for p in points:
+        expected = want[p.id] if want[p.id] is not None else before[p.id]
+        np.testing.assert_array_equal(p.descriptor, expected)
+        n_multi += sum(1 for kf in p.observations if not kf.bad) >= 3
+    assert n_multi > 50  # the test exercised real medians
+    # the single-point method gives the same
+    q = points[7]
+    q.descriptor = before[q.id]
+    q.compute_distinctive_descriptor(matcher)
+    np.testing.assert_array_equal(q.descriptor, want[q.id] if want[q.id] is not None else before[q.id])
+
+
+def test_distinctive_descriptor_ties_take_the_first_observation() -> None:
+    rng = np.random.default_rng(2)
+    m, points = _world(rng, orb_spec(1.2, 8), n_pts=1, max_obs=0)
+    kfs = m.all_keyframes()
+    p = points[0]
+    for kf in (kfs[0], kfs[1], kfs[2]):  # three identical descriptors: all medians 0
+        kf.keypoints.descriptors[5] = 7
+        p.add_observation(kf, 5)
+    kfs[0].keypoints.descriptors[5, 0] = 6  # now 0 and 1 differ by a bit, 1 and 2 equal
+    compute_distinctive_descriptors([p], m.matcher)
+    np.testing.assert_array_equal(p.descriptor, kfs[1].keypoints.descriptors[5])
+
+
+def test_update_normals_and_depths_equals_per_point() -> None:
+    rng = np.random.default_rng(3)
+    m, points = _world(rng, orb_spec(1.2, 8))
+    for p in points[::5]:  # some points lose their reference keyframe's observation
+        p.observations.pop(p.ref_kf, None)
+    points[1].bad = True
+    scales = m.spec.pyramid.scales
+    want = _reference_normals(points, scales)
+    untouched = {p.id: (p.normal.copy(), p.min_dist, p.max_dist) for p in points}
+    update_normals_and_depths(points, scales)
+    assert len(want) > 100
+    for p in points:
+        if p.id not in want:
+            np.testing.assert_array_equal(p.normal, untouched[p.id][0])
+            continue
+        n, mn, mx = want[p.id]
+        np.testing.assert_allclose(p.normal, n, atol=1e-12)
+        if mx is None:
+            assert (p.min_dist, p.max_dist) == untouched[p.id][1:]
+        else:
+            assert p.max_dist == pytest.approx(mx, rel=1e-12)
+            assert p.min_dist == pytest.approx(mn, rel=1e-12)
+
+
+def test_hamming_kernel_equals_generic_path() -> None:
+    """The compiled Hamming choice and the matcher-based one agree (odd and even counts,
+    ties included: descriptors drawn from few distinct values)."""
+    from semslam.slam.map_batch import _POPCOUNT, _generic_choice, _hamming_choice
+
+    rng = np.random.default_rng(4)
+    cnt = rng.integers(1, 12, 400).astype(np.intp)
+    start = np.zeros(cnt.size, np.intp)
+    np.cumsum(cnt[:-1], out=start[1:])
+    for values in (256, 3):
+        desc = rng.integers(0, values, (int(cnt.sum()), 32), dtype=np.uint8)
+        fast = _hamming_choice(desc, start, cnt, _POPCOUNT)
+        slow = _generic_choice(desc, start, cnt, matcher_for(orb_spec(1.2, 8)))
+        np.testing.assert_array_equal(fast, slow)
+
+
+def test_ba_problem_from_an_observation_table_equals_the_direct_one() -> None:
+    """build_ba_problem gives the same arrays whether it walks the observations itself or
+    gets local mapping's one-pass table of every observer."""
+    from semslam.geometry.camera import PinholeCamera
+    from semslam.slam.local_mapping import build_ba_problem, observation_table
+
+    rng = np.random.default_rng(5)
+    m, points = _world(rng, orb_spec(1.2, 8))
+    for kf in m.all_keyframes():
+        kf.ur[::3] = 100.0  # some observations with depth
+    points = [p for p in points if p.observations]
+    kfs = m.all_keyframes()
+    free, fixed = kfs[2:7], kfs[8:10]  # the others observe too and are left out
+    cam = PinholeCamera(525.0, 525.0, 319.5, 239.5)
+    a = build_ba_problem(free, fixed, points, cam, m.spec.pyramid, 40.0)
+    b = build_ba_problem(free, fixed, points, cam, m.spec.pyramid, 40.0, observation_table(points))
+    assert a.obs_pose.size > 100
+    for field in ("poses_cw", "pose_fixed", "points_w", "obs_pose", "obs_point", "uv", "ur", "inv_sigma2"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+    # and they are the observations themselves
+    for m_ in range(0, a.obs_pose.size, 7):
+        kf, p = (free + fixed)[a.obs_pose[m_]], points[a.obs_point[m_]]
+        i = p.observations[kf]
+        np.testing.assert_array_equal(a.uv[m_], kf.xy[i])
+        assert a.inv_sigma2[m_] == m.spec.pyramid.inv_sigma2[kf.keypoints.octave[i]]
+
+
+def _fusion_world() -> tuple[Map, list[KeyFrame], list[MapPoint], list[MapPoint]]:
+    """Three keyframes looking at 30 points; keyframes 0 and 1 share points ``a`` (also seen
+    by keyframe 2), keyframe 2 has its own duplicates ``b`` of the same 3D points at the same
+    keypoints."""
+    from semslam.slam.map import update_normals_and_depths
+
+    rng = np.random.default_rng(6)
+    m = Map(orb_spec(1.2, 8))
+    n = 30
+    X = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-0.7, 0.7, n), rng.uniform(2.5, 4.0, n)])
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    kfs = []
+    for k in range(3):
+        T = np.eye(4)
+        T[0, 3] = -0.1 * k  # camera k at x = 0.1 k
+        pc = X + T[:3, 3]
+        xy = np.column_stack([525 * pc[:, 0] / pc[:, 2] + 319.5, 525 * pc[:, 1] / pc[:, 2] + 239.5])
+        kps = Keypoints(xy.astype(np.float32), np.zeros(n, np.int32), np.ones(n, np.float32),
+                        np.zeros(n, np.float32), desc.copy())
+        kf = KeyFrame(m.new_kf_id(), k, float(k), T, kps, xy, pc[:, 2].astype(np.float32),
+                      xy[:, 0] - 40.0 / pc[:, 2], [None] * n)
+        m.add_keyframe(kf)
+        kfs.append(kf)
+    a, b = [], []
+    for i in range(n):
+        p = m.new_point(X[i], desc[i].copy(), kfs[0])
+        for kf in kfs[:2]:
+            p.add_observation(kf, i)
+            kf.points[i] = p
+        a.append(p)
+        q = m.new_point(X[i] + 1e-4, desc[i].copy(), kfs[2])
+        q.add_observation(kfs[2], i)
+        kfs[2].points[i] = q
+        b.append(q)
+    update_normals_and_depths(a + b, m.spec.pyramid.scales)
+    return m, kfs, a, b
+
+
+def test_fusion_plan_reads_only_and_apply_merges_duplicates() -> None:
+    """Fuse split in plan (no change to the map) and apply: a's points projected into
+    keyframe 2 find b's duplicates and replace them (a has more observations); points
+    keyframe 2 already observes are not planned; matches gone stale are dropped."""
+    from semslam.geometry.camera import PinholeCamera
+    from semslam.slam.fusion import PointArrays, PointFusion
+
+    m, kfs, a, b = _fusion_world()
+    fusion = PointFusion(m, PinholeCamera(525.0, 525.0, 319.5, 239.5, width=640, height=480), 40.0)
+    before = {p.id: dict(p.observations) for p in a + b}
+    plan = fusion.plan(kfs[2], PointArrays.of(a))
+    assert len(plan) == len(a) and {(p.id, t) for p, t in plan} == {(p.id, i) for i, p in enumerate(a)}
+    assert {p.id: dict(p.observations) for p in a + b} == before  # planning changed nothing
+    assert fusion.plan(kfs[0], PointArrays.of(a)) == []  # keyframe 0 observes them already
+    b[0].bad = True  # gone bad meanwhile: a[0] is added to the free keypoint instead
+    kfs[2].points[0] = None
+    a[1].bad = True  # a planned point gone bad: dropped
+    touched: dict[int, MapPoint] = {}
+    n = fusion.apply(kfs[2], plan, touched)
+    assert n == len(a) - 1 and a[1].id not in touched
+    assert kfs[2].points[0] is a[0] and a[0].observations[kfs[2]] == 0
+    for i in range(2, len(a)):
+        assert b[i].bad and b[i].replaced_by is a[i] and kfs[2].points[i] is a[i]
+        assert set(a[i].observations) == set(kfs)
+
+
+def test_normals_of_a_pending_change_equal_those_after_it() -> None:
+    """normals_and_depths with new positions, camera centres and observations to erase
+    (local BA computes them before taking the lock) equals it computed after the change:
+    reference keyframes that go take the first remaining one, points left with <= 1
+    observation go bad and are left out."""
+    from semslam.slam.map_batch import normals_and_depths
+
+    rng = np.random.default_rng(7)
+    m, points = _world(rng, orb_spec(1.2, 8), max_obs=6)
+    points = [p for p in points if p.observations]
+    kfs = m.all_keyframes()
+    scales = m.spec.pyramid.scales
+    new_pos = np.array([p.pos for p in points]) + rng.normal(0, 0.05, (len(points), 3))
+    new_T = {kf: kf.T_cw @ np.r_[np.c_[np.eye(3), rng.normal(0, 0.1, 3)], [[0, 0, 0, 1]]] for kf in kfs[:4]}
+    centers = {kf: -T[:3, :3].T @ T[:3, 3] for kf, T in new_T.items()}
+    erased: dict[int, set] = {}
+    for p in points[::3]:
+        obs = list(p.observations)
+        gone = {p.ref_kf} if p.ref_kf in p.observations else set()
+        gone |= set(obs[1:2]) if len(obs) > 3 else set(obs[:1])
+        erased[p.id] = gone
+    pending = normals_and_depths(points, scales, new_pos, centers, erased)
+    for p, x in zip(points, new_pos):
+        p.pos = x
+    for kf, T in new_T.items():
+        kf.set_pose(T)
+    for p in points:
+        for kf in erased.get(p.id, ()):
+            p.erase_observation(kf)
+    assert any(p.bad for p in points) and any(not p.bad for p in points if p.id in erased)
+    after = normals_and_depths(points, scales)
+    assert [p.id for p in pending.points] == [p.id for p in after.points]
+    np.testing.assert_allclose(pending.normal, after.normal, atol=1e-12)
+    np.testing.assert_array_equal(pending.ranged, after.ranged)
+    np.testing.assert_allclose(pending.max_dist, after.max_dist, rtol=1e-12)
+    np.testing.assert_allclose(pending.min_dist, after.min_dist, rtol=1e-12)
