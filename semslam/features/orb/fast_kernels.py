@@ -56,28 +56,6 @@ def _below(a, lo):
     return np.uint8(lo - min(a, lo))
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _run9(b0, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, b11, b12, b13, b14, b15):
-    """Non-zero iff 9 circularly contiguous ``b`` are non-zero (min = and, max = or):
-    runs of 2, 4, 8, then 8 + 1."""
-    p0 = min(b0, b1); p1 = min(b1, b2); p2 = min(b2, b3); p3 = min(b3, b4)  # noqa: E702
-    p4 = min(b4, b5); p5 = min(b5, b6); p6 = min(b6, b7); p7 = min(b7, b8)  # noqa: E702
-    p8 = min(b8, b9); p9 = min(b9, b10); p10 = min(b10, b11); p11 = min(b11, b12)  # noqa: E702
-    p12 = min(b12, b13); p13 = min(b13, b14); p14 = min(b14, b15); p15 = min(b15, b0)  # noqa: E702
-    q0 = min(p0, p2); q1 = min(p1, p3); q2 = min(p2, p4); q3 = min(p3, p5)  # noqa: E702
-    q4 = min(p4, p6); q5 = min(p5, p7); q6 = min(p6, p8); q7 = min(p7, p9)  # noqa: E702
-    q8 = min(p8, p10); q9 = min(p9, p11); q10 = min(p10, p12); q11 = min(p11, p13)  # noqa: E702
-    q12 = min(p12, p14); q13 = min(p13, p15); q14 = min(p14, p0); q15 = min(p15, p1)  # noqa: E702
-    o0 = min(q0, q4); o1 = min(q1, q5); o2 = min(q2, q6); o3 = min(q3, q7)  # noqa: E702
-    o4 = min(q4, q8); o5 = min(q5, q9); o6 = min(q6, q10); o7 = min(q7, q11)  # noqa: E702
-    o8 = min(q8, q12); o9 = min(q9, q13); o10 = min(q10, q14); o11 = min(q11, q15)  # noqa: E702
-    o12 = min(q12, q0); o13 = min(q13, q1); o14 = min(q14, q2); o15 = min(q15, q3)  # noqa: E702
-    return max(max(max(min(o0, b8), min(o1, b9)), max(min(o2, b10), min(o3, b11))),
-               max(max(min(o4, b12), min(o5, b13)), max(min(o6, b14), min(o7, b15))),
-               max(max(min(o8, b0), min(o9, b1)), max(min(o10, b2), min(o11, b3))),
-               max(max(min(o12, b4), min(o13, b5)), max(min(o14, b6), min(o15, b7))))
-
-
 @njit(cache=True, nogil=True)
 def _corner_flags(img, start, n, stride, t, out):
     """``out[p] != 0`` iff pixel ``p`` (flat index, ``start <= p < start + n``) is a FAST
@@ -102,11 +80,11 @@ def _corner_flags(img, start, n, stride, t, out):
         a4 = img[o4 + i]; a5 = img[o5 + i]; a6 = img[o6 + i]; a7 = img[o7 + i]  # noqa: E702
         a8 = img[o8 + i]; a9 = img[o9 + i]; a10 = img[o10 + i]; a11 = img[o11 + i]  # noqa: E702
         a12 = img[o12 + i]; a13 = img[o13 + i]; a14 = img[o14 + i]; a15 = img[o15 + i]  # noqa: E702
-        bright = _run9(_above(a0, h), _above(a1, h), _above(a2, h), _above(a3, h), _above(a4, h),
+        bright = _min9(_above(a0, h), _above(a1, h), _above(a2, h), _above(a3, h), _above(a4, h),
                        _above(a5, h), _above(a6, h), _above(a7, h), _above(a8, h), _above(a9, h),
                        _above(a10, h), _above(a11, h), _above(a12, h), _above(a13, h), _above(a14, h),
-                       _above(a15, h))
-        dark = _run9(_below(a0, lo), _below(a1, lo), _below(a2, lo), _below(a3, lo), _below(a4, lo),
+                       _above(a15, h))  # non-zero iff 9 contiguous are
+        dark = _min9(_below(a0, lo), _below(a1, lo), _below(a2, lo), _below(a3, lo), _below(a4, lo),
                      _below(a5, lo), _below(a6, lo), _below(a7, lo), _below(a8, lo), _below(a9, lo),
                      _below(a10, lo), _below(a11, lo), _below(a12, lo), _below(a13, lo), _below(a14, lo),
                      _below(a15, lo))
