@@ -92,6 +92,22 @@ def _total_cost(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp], opoint:
     return total
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_normal_block(J: Array, nr: int, e: Array, w: float, H: Array, g: Array) -> None:
+    """``H += w J^T J`` (upper triangle) and ``g += w J^T e`` over the first ``nr`` rows of ``J``."""
+    n = J.shape[1]
+    for a in range(n):
+        for b in range(a, n):
+            s = 0.0
+            for q in range(nr):
+                s += J[q, a] * J[q, b]
+            H[a, b] += w * s
+        s = 0.0
+        for q in range(nr):
+            s += J[q, a] * e[q]
+        g[a] += w * s
+
+
 @numba.njit(cache=True, nogil=True)
 def _linearize(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp], opoint: NDArray[np.intp],
                uv: Array, ur: Array, is2: Array, fx: float, fy: float, cx: float, cy: float,
@@ -143,16 +159,7 @@ def _linearize(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp], opoint: 
         for a in range(nr):
             for b in range(3):
                 Jl[a, b] = Jh[a, 0] * R[0, b] + Jh[a, 1] * R[1, b] + Jh[a, 2] * R[2, b]
-        for a in range(3):
-            for b in range(a, 3):
-                s = 0.0
-                for q in range(nr):
-                    s += Jl[q, a] * Jl[q, b]
-                Hll[j, a, b] += w * s
-            s = 0.0
-            for q in range(nr):
-                s += Jl[q, a] * e[q]
-            bl[j, a] += w * s
+        _add_normal_block(Jl, nr, e, w, Hll[j], bl[j])
         if f < 0:
             continue
         # pose (left perturbation): d pc / d omega = -[pc]x, d pc / d v = I
@@ -163,30 +170,26 @@ def _linearize(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp], opoint: 
             Jp[a, 3] = Jh[a, 0]
             Jp[a, 4] = Jh[a, 1]
             Jp[a, 5] = Jh[a, 2]
+        _add_normal_block(Jp, nr, e, w, Hpp[f], bp[f])
         for a in range(6):
-            for b in range(a, 6):
-                s = 0.0
-                for q in range(nr):
-                    s += Jp[q, a] * Jp[q, b]
-                Hpp[f, a, b] += w * s
-            s = 0.0
-            for q in range(nr):
-                s += Jp[q, a] * e[q]
-            bp[f, a] += w * s
             for b in range(3):
                 s = 0.0
                 for q in range(nr):
                     s += Jp[q, a] * Jl[q, b]
                 Hpl[m, a, b] = w * s
-    for f in range(Hpp.shape[0]):  # mirror the upper triangles
-        for a in range(6):
-            for b in range(a):
-                Hpp[f, a, b] = Hpp[f, b, a]
-    for j in range(Hll.shape[0]):
-        for a in range(3):
-            for b in range(a):
-                Hll[j, a, b] = Hll[j, b, a]
+    _mirror_upper(Hpp)
+    _mirror_upper(Hll)
     return total
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _mirror_upper(H: Array) -> None:
+    """Copy the upper triangle of each square block ``H[i]`` onto its lower triangle."""
+    n = H.shape[1]
+    for i in range(H.shape[0]):
+        for a in range(n):
+            for b in range(a):
+                H[i, a, b] = H[i, b, a]
 
 
 @numba.njit(cache=True, nogil=True)

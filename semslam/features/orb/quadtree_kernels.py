@@ -112,6 +112,18 @@ def _sort_by_key(items, key, n):
 
 
 @njit(cache=True, nogil=True)
+def _bucket_starts(bucket, n, n_buckets):
+    """Counting sort's offsets for ``bucket[:n]``: (start of each bucket plus the end,
+    a copy of the starts to fill from)."""
+    first = np.zeros(n_buckets + 1, np.int64)
+    for k in range(n):
+        first[bucket[k] + 1] += 1
+    for b in range(n_buckets):
+        first[b + 1] += first[b]
+    return first, first[:n_buckets].copy()
+
+
+@njit(cache=True, nogil=True)
 def _advance(state, nodes, alive, n_alive, prev, n_wanted, rule):
     """The level's phase after a round: done at ``n_wanted`` nodes or when stuck
     (ORB-SLAM: the round changed nothing; Algorithm 3: no new node can split); to the
@@ -151,16 +163,9 @@ def _level(points, lo, hi, xf, px, py, high, width, height, n_wanted, rule, resp
     alive, free, next_alive = work[o:o + cap], work[o + cap:o + 2 * cap], work[o + 2 * cap:o + 3 * cap]
     o += 3 * cap
     cand, key, born = work[o:o + cap], work[o + cap:o + 2 * cap], work[o + 2 * cap:o + 3 * cap]
-    first = np.zeros(n_ini + 1, np.int64)
     for k in range(n):
-        st = min(int(np.float32(xf[points[lo + k]]) / hx), n_ini - 1)
-        strip[k] = st
-        first[st + 1] += 1
-    for st in range(n_ini):
-        first[st + 1] += first[st]
-    fill = np.empty(n_ini, np.int64)
-    for st in range(n_ini):
-        fill[st] = first[st]
+        strip[k] = min(int(np.float32(xf[points[lo + k]]) / hx), n_ini - 1)
+    first, fill = _bucket_starts(strip, n, n_ini)
     for k in range(n):
         p = points[lo + k]
         perm[fill[strip[k]]] = _pack(p, px[p], py[p], high[p])
@@ -296,14 +301,7 @@ def quadtree_levels(x, y, response, level, widths, heights, n_wanted, high, rule
         px[i] = int(np.floor(x[i]))
         py[i] = int(np.floor(y[i]))
     # Points of each level, in input order.
-    first = np.zeros(n_levels + 1, np.int64)
-    for i in range(n):
-        first[level[i] + 1] += 1
-    for lv in range(n_levels):
-        first[lv + 1] += first[lv]
-    fill = np.empty(n_levels, np.int64)
-    for lv in range(n_levels):
-        fill[lv] = first[lv]
+    first, fill = _bucket_starts(level, n, n_levels)
     for i in range(n):
         by_level[fill[level[i]]] = i
         fill[level[i]] += 1
