@@ -19,7 +19,7 @@ import numpy as np
 
 from semslam.config import SystemConfig, config_to_dict
 from semslam.core.protocols import FramePacket, SequenceSource as Sequence
-from semslam.core.types import RunResult, TrackResult
+from semslam.core.types import Frame, RunResult, TrackResult
 from semslam.errors import ConfigError, DataError, EvalError
 from semslam.io.trajectory import Trajectory, read_trajectory, write_tum
 from semslam.slam.system import System
@@ -40,6 +40,22 @@ def prefetch(items: Iterator[T], depth: int = 2) -> Generator[T, None, None]:
                 return
             queue.append(pool.submit(next, it, sentinel))
             yield item  # type: ignore[misc]
+
+
+def at_camera_rate(frames: Iterator[Frame], realtime: bool) -> Generator[tuple[Frame, float], None, None]:
+    """Each frame with the time it arrives: with ``realtime``, not before its timestamp
+    (relative to the first frame's) comes due, as a live camera delivers it; otherwise
+    as soon as it is decoded."""
+    t_first = start = None
+    for frame in frames:
+        if realtime:
+            now = time.perf_counter()
+            if t_first is None:
+                t_first, start = frame.timestamp, now
+            due = start + (frame.timestamp - t_first)
+            if due > now:
+                time.sleep(due - now)
+        yield frame, time.perf_counter()
 
 
 def _timing_stats(values: list[float]) -> dict[str, float]:
@@ -101,6 +117,8 @@ class _RunTiming:
         self.frame_ms: list[float] = []
         self.dynamic_ratio: list[float] = []
         self.stage_ms: dict[str, list[float]] = {}
+        self.latency_ms: list[float] = []
+        self.late_frames = 0
         self.t_start = time.perf_counter()
         self.wall_s = 0.0
 
@@ -113,18 +131,27 @@ class _RunTiming:
 
 def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total: int, timing: _RunTiming,
                progress: bool) -> None:
-    # The reader thread hands each decoded frame to the system at once (segmentation starts).
-    packets = prefetch(system.prepare(FramePacket(f)) for f in sequence.frames(0, n_total))
+    # The reader thread hands each decoded frame to the system at once (segmentation starts),
+    # at the camera's rate with slam.realtime.
+    realtime = config.slam.realtime
+    packets = prefetch((system.prepare(FramePacket(f)), t) for f, t in
+                       at_camera_rate(sequence.frames(0, n_total), realtime))
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=n_total, unit="frame", desc=f"semslam {config.preset}", dynamic_ncols=True, leave=True)
     try:
-        for packet in packets:
+        done = -np.inf
+        for packet, t_arrived in packets:
+            if realtime:  # the previous frame was still being tracked when this one arrived
+                timing.late_frames += int(done > t_arrived)
             t0 = time.perf_counter()
             result = system.track(packet)
-            timing.add((time.perf_counter() - t0) * 1e3, result)
+            done = time.perf_counter()
+            timing.add((done - t0) * 1e3, result)
+            if realtime:
+                timing.latency_ms.append((done - t_arrived) * 1e3)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(state=result.state.value, inl=result.n_inliers, kf=system.n_keyframes, refresh=False)
@@ -155,6 +182,8 @@ def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out
         stages_ms_median={k: float(np.median(v)) for k, v in timing.stage_ms.items()},
         stages_ms_p95={k: float(np.percentile(v, 95)) for k, v in timing.stage_ms.items()},
         stages_ms_max={k: float(np.max(v)) for k, v in timing.stage_ms.items()},
+        realtime=config.slam.realtime, late_frames=timing.late_frames,
+        latency_ms=_timing_stats(timing.latency_ms) if timing.latency_ms else {},
         dynamic_ratio_mean=float(np.mean(timing.dynamic_ratio)) if timing.dynamic_ratio else 0.0,
         wall_s=timing.wall_s, fps=n / timing.wall_s if timing.wall_s > 0 else 0.0,
         tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,

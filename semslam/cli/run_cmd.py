@@ -46,9 +46,12 @@ def print_summary(result: RunResult) -> None:
     console.print(f"wrote {', '.join(outputs)} to {r.out_dir}")
 
 
-def run_overrides(set_: list[str], depth_scale: float | None, sequential: bool, localization_only: bool) -> list[str]:
+def run_overrides(set_: list[str], depth_scale: float | None, sequential: bool, localization_only: bool,
+                  realtime: bool = False) -> list[str]:
     """Command-line flags as ``--set`` overrides, so the config is built once, one way."""
     flags = list(set_)
+    if realtime:
+        flags.append("slam.realtime=true")
     if depth_scale is not None:
         flags.append(f"depth_scale={depth_scale}")
     if sequential:
@@ -73,12 +76,14 @@ def register(app: typer.Typer) -> None:
         load_map: Optional[Path] = typer.Option(None, "--load-map", help="start from a saved map (relocalise in it)"),
         localization_only: bool = typer.Option(False, "--localization-only", help="track against the map without extending it"),
         sequential: bool = typer.Option(False, "--sequential", help="run local mapping and loop closing inline (deterministic)"),
+        realtime: bool = typer.Option(False, "--realtime", help="feed frames at their timestamps' rate, as a live camera "
+                                                                 "does; reports each frame's latency"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
         verbose: bool = typer.Option(False, "--verbose", "-v"),
     ) -> None:
         """Run SLAM on a sequence; write trajectory.txt, stats.json and report.html."""
         _setup_logging(verbose)
-        cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only))
+        cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only, realtime))
         seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
         print_summary(run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
                                save_map=save_map, load_map=load_map))

@@ -93,6 +93,11 @@ class SlamConfig:
     vocabulary: str = "default"
     # Run local mapping and loop closing as threads (ORB-SLAM) or inline (deterministic).
     sequential: bool = False
+    # Feed frames at the rate of their timestamps, as a live camera does (and ORB-SLAM3's
+    # TUM examples, which sleep until the next frame is due): frames are not segmented or
+    # tracked before their time, and each frame's latency is reported. Off: as fast as
+    # frames decode.
+    realtime: bool = False
     localization_only: bool = False
 
 

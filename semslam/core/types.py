@@ -208,6 +208,11 @@ class RunResult:
     stages_ms_median: dict[str, float] = field(default_factory=dict)
     stages_ms_p95: dict[str, float] = field(default_factory=dict)
     stages_ms_max: dict[str, float] = field(default_factory=dict)
+    # Camera-rate runs (slam.realtime): time from a frame's arrival to its pose, and the
+    # frames that arrived while the previous one was still being tracked.
+    realtime: bool = False
+    latency_ms: dict[str, float] = field(default_factory=dict)
+    late_frames: int = 0
     dynamic_ratio_mean: float = 0.0
     wall_s: float = 0.0
     fps: float = 0.0
