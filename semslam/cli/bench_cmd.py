@@ -24,6 +24,8 @@ def register(app: typer.Typer) -> None:
         json_path: Optional[Path] = typer.Option(None, "--json", help="also write the JSON here"),
         profile: bool = typer.Option(False, "--profile", help="run each under py-spy: CPU per thread and stage, top functions"),
         rate: int = typer.Option(250, "--rate", min=10, max=2000, help="--profile: samples per second"),
+        realtime: bool = typer.Option(False, "--realtime", help="feed frames at camera rate (semslam run --realtime): "
+                                                                 "per-frame times as ORB-SLAM3's examples measure them"),
     ) -> None:
         """Benchmark presets on the synthetic sequences: JSON + a markdown table of ATE and ms/frame."""
         from semslam.experiments.bench import (
@@ -40,6 +42,8 @@ def register(app: typer.Typer) -> None:
             presets = "" if ablation else "f2kf,orb"
         texts = [p for p in presets.split(",") if p] + list(variant) + (ABLATION_VARIANTS if ablation else [])
         variants = [Variant.parse(t) for t in texts]
+        if realtime:
+            variants = [Variant(v.label, v.preset, (*v.overrides, "slam.realtime=true")) for v in variants]
         names = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else (
             ABLATION_SEQUENCES if ablation else DEFAULT_SEQUENCES)
 
