@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
     @app.command("bench")
     def bench(
         presets: Optional[str] = typer.Option(None, "--presets", help="comma-separated presets (default f2kf,orb; none with --ablation)"),
-        ablation: bool = typer.Option(False, "--ablation", help="STDC-SLAM Table 1 variants + ddl on walking/static sequences"),
+        ablation: bool = typer.Option(False, "--ablation", help="STDC-SLAM Table 1 variants + ddl + default on the walking, static and walking_box sequences"),
         variant: list[str] = typer.Option([], "--variant", help="label:preset:key=value,... (repeatable)"),
         sequences: Optional[str] = typer.Option(None, "--sequences", help="comma-separated synthetic sequence names"),
         frames: Optional[int] = typer.Option(None, "--frames", min=2, help="frames per sequence (default: each sequence's own)"),

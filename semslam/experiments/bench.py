@@ -32,6 +32,7 @@ ABLATION_VARIANTS = [
     "+S+SRM+Q:stdc:",
     "+Q:orb:features.extractor=qtree_orb,features.n_levels=6",
     "ddl:ddl:",
+    "default:default:",
 ]
 ABLATION_SEQUENCES = ["walking_xyz", "walking_rpy", "walking_halfsphere", "walking_static", "static_xyz", "walking_box"]
 DEFAULT_SEQUENCES = ["static_xyz", "loop", "room_loop", "walking_static", "walking_xyz", "walking_rpy", "walking_halfsphere"]
