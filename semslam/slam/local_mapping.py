@@ -504,23 +504,24 @@ class LocalMapping(KeyframeWorker):
         cands = [c for c in kf.ordered_covis if c.id != 0 and not c.bad and c is not kf]
         if not cands:
             return
-        row: dict[int, int] = {}
-        points: list[MapPoint] = []
-        slots: list[tuple[NDArray[np.intp], NDArray[np.intp]]] = []
+        # Each candidate's live points by store row, numbered in first-seen order.
+        store = self.map.store
+        idx_of = []
         for c in cands:
-            idx, rows = [], []
-            for i, p in enumerate(c.points):
-                if p is None or p.bad:
-                    continue
-                r = row.get(p.id)
-                if r is None:
-                    r = row[p.id] = len(points)
-                    points.append(p)
-                idx.append(i)
-                rows.append(r)
-            slots.append((np.asarray(idx, np.intp), np.asarray(rows, np.intp)))
-        if not points:
+            slot_rows = c.points.rows
+            idx = np.flatnonzero(slot_rows >= 0)
+            idx_of.append(idx[~store.bad[slot_rows[idx]]])
+        all_rows = np.concatenate([c.points.rows[idx] for c, idx in zip(cands, idx_of)])
+        if not all_rows.size:
             return
+        uniq, first, inverse = np.unique(all_rows, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # unique rows in first-seen order
+        rank = np.empty_like(order)
+        rank[order] = np.arange(order.size)
+        local = rank[inverse]
+        points = store.points(uniq[order])
+        bounds = np.cumsum([0, *(idx.size for idx in idx_of)])
+        slots = [(idx, local[a:b]) for idx, a, b in zip(idx_of, bounds[:-1], bounds[1:])]
         n_lv = self.pyr.n_levels
         ob_row, ob_kf, ob_kp, ob_kfs = observation_table(points)
         _, ob_ur, ob_oct = gather_keypoints(ob_kfs, ob_kf, ob_kp)
