@@ -7,8 +7,9 @@ waiting is what is measured.
 
 ``synthetic [--repeat N]`` (the default): synthetic RGB-D data (TUM-like camera, bf = 40):
 
-* pose-only optimisation (numpy vs GTSAM reference) with 300 / 1000 observations, 0.5 px noise
-  and 10 % gross outliers;
+* pose-only optimisation (numba kernel vs its numpy reference vs GTSAM) with 300 / 1000
+  observations, 0.5 px noise and 10 % gross outliers (``benchmarks/pose_only_timing.py`` has
+  more sizes);
 * local BA: 10 keyframes (7 free, 3 fixed), 3000 points, ~15000 observations, 20 % without
   depth, with both solvers (``schur``: numba, ``gtsam``);
 * pose graph: 200 nodes on a loop, odometry + covisibility-like + one loop-closure edge.
@@ -42,7 +43,12 @@ import numpy as np
 
 from semslam.backend.bundle_adjustment import BAProblem, bundle_adjust
 from semslam.backend.pose_graph import optimize_pose_graph
-from semslam.backend.pose_only import optimize_pose, optimize_pose_gtsam, se3_exp
+from semslam.backend.pose_only import (
+    optimize_pose,
+    optimize_pose_gtsam,
+    optimize_pose_numpy,
+    se3_exp,
+)
 from semslam.geometry.se3 import invert
 
 FX = FY = 525.0
@@ -169,7 +175,9 @@ def synthetic(args: argparse.Namespace) -> dict[str, Any]:
     for n in (300, 1000):
         _, T0, pw, uv, ur, inv = pose_only_case(n, rng)
         args_n = (T0, pw, uv, ur, inv, *cam)
-        out[f"pose_only_numpy_{n}_ms"] = _cpu_ms(lambda a=args_n: optimize_pose(*a), args.repeat * 10)
+        out[f"pose_only_kernel_{n}_ms"] = _cpu_ms(lambda a=args_n: optimize_pose(*a), args.repeat * 10)
+        out[f"pose_only_numpy_{n}_ms"] = _cpu_ms(lambda a=args_n: optimize_pose_numpy(*a),
+                                                 args.repeat * 10)
         out[f"pose_only_gtsam_{n}_ms"] = _cpu_ms(lambda a=args_n: optimize_pose_gtsam(*a),
                                                  max(args.repeat // 10, 1))
     prob = local_ba_case(rng)

@@ -1,7 +1,7 @@
 """Optimisation back end (ORB-SLAM2 ``Optimizer`` as pure functions over arrays).
 
-* :func:`optimize_pose` - motion-only BA for tracking (vectorised numpy; GTSAM reference
-  :func:`optimize_pose_gtsam`);
+* :func:`optimize_pose` - motion-only BA for tracking (one numba call; references
+  :func:`optimize_pose_numpy`, vectorised numpy, and :func:`optimize_pose_gtsam`);
 * :func:`bundle_adjust` - local / global BA on GTSAM with ORB-SLAM's outlier handling;
 * :func:`optimize_pose_graph` - SE(3) essential graph on GTSAM, and
   :func:`correct_points_with_poses` to carry map points along.
@@ -16,7 +16,7 @@ from semslam.backend.bundle_adjustment import (
                                                reprojection_errors,
 )
 from semslam.backend.pose_graph import correct_points_with_poses, optimize_pose_graph
-from semslam.backend.pose_only import PoseResult, optimize_pose, optimize_pose_gtsam
+from semslam.backend.pose_only import PoseResult, optimize_pose, optimize_pose_gtsam, optimize_pose_numpy
 
 __all__ = [
     "BAProblem",
@@ -27,5 +27,6 @@ __all__ = [
     "optimize_pose",
     "optimize_pose_graph",
     "optimize_pose_gtsam",
+    "optimize_pose_numpy",
     "reprojection_errors",
 ]

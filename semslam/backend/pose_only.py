@@ -1,9 +1,13 @@
 """Motion-only optimisation of a camera pose against fixed map points (ORB-SLAM2 PoseOptimization).
 
 Runs for every frame (twice: after the motion-model / reference-keyframe match and after the local
-map search), so the main implementation is a vectorised numpy Levenberg-Marquardt on SE(3) with
-analytic Jacobians; :func:`optimize_pose_gtsam` solves the same problem with GTSAM's stock factors
-and exists as an independent reference for tests and benchmarks.
+map search).  :func:`optimize_pose` validates and normalises its inputs here and solves in one
+compiled call (``semslam.backend.pose_only_kernel``, numba, ``nogil``): every round, the LM
+iterations, the Huber reweighting and the inlier classification.  :func:`optimize_pose_numpy` is
+the reference it is tested against: the same Levenberg-Marquardt on SE(3) with analytic
+Jacobians, vectorised numpy (about 1 ms a call, most of it numpy call overhead).
+:func:`optimize_pose_gtsam` solves the same problem with GTSAM's stock factors and is an
+independent reference for tests and benchmarks.
 
 Observation model (ORB-SLAM2 RGB-D): ``(u, v, ur)`` with the virtual right coordinate
 ``ur = u - bf / z``; ``ur < 0`` marks an observation without depth (2 residuals instead of 3).
@@ -20,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.gtsam_utils import CHI2_MONO, CHI2_STEREO
+from semslam.backend.pose_only_kernel import optimize_pose_kernel
 
 Array = NDArray[np.float64]
 
@@ -231,14 +236,18 @@ def _lm(ev: _Evaluator, T: Array, active: NDArray[np.bool_], robust: bool,
 
 
 def _prepare(T_cw0, pts_w, uv, ur, inv_sigma2, fixed_outliers):
-    T = np.asarray(T_cw0, dtype=np.float64).copy()
+    """Inputs as fresh or contiguous float64 / bool arrays of consistent shapes (the compiled
+    kernel sees one type signature whatever the caller passes)."""
+    T = np.array(T_cw0, dtype=np.float64, order="C")  # a copy: the result never aliases it
+    if T.shape != (4, 4):
+        raise ValueError(f"T_cw0 must be 4x4, got shape {T.shape}")
     pts = np.ascontiguousarray(pts_w, dtype=np.float64).reshape(-1, 3)
     n = pts.shape[0]
-    uv = np.asarray(uv, dtype=np.float64).reshape(n, 2)
-    ur = np.asarray(ur, dtype=np.float64).reshape(n)
+    uv = np.ascontiguousarray(np.asarray(uv, dtype=np.float64).reshape(n, 2))
+    ur = np.ascontiguousarray(np.asarray(ur, dtype=np.float64).reshape(n))
     inv_sigma2 = np.broadcast_to(np.asarray(inv_sigma2, dtype=np.float64), (n,)).copy()
     fixed = (np.zeros(n, bool) if fixed_outliers is None
-             else np.asarray(fixed_outliers, bool).reshape(n))
+             else np.ascontiguousarray(np.asarray(fixed_outliers, bool).reshape(n)))
     return T, pts, uv, ur, inv_sigma2, fixed
 
 
@@ -258,7 +267,10 @@ def optimize_pose(
     iterations: int = 10,
     robust_rounds: int = 3,
 ) -> PoseResult:
-    """ORB-SLAM2 PoseOptimization in numpy: ``rounds`` x (LM, then inlier/outlier classification).
+    """ORB-SLAM2 PoseOptimization: ``rounds`` x (LM, then inlier/outlier classification).
+
+    One compiled call (``pose_only_kernel.optimize_pose_kernel``); :func:`optimize_pose_numpy`
+    is the reference it equals up to round-off (the same decisions, poses to ~1e-12).
 
     After each round every observation is re-classified by its chi2 (> 5.991 mono, > 7.815 stereo,
     or non-positive depth -> outlier); outliers are left out of the next round but can come back.
@@ -273,6 +285,32 @@ def optimize_pose(
     inside the loop); at convergence the result is the same and the later rounds cost one or two
     iterations instead of a full re-solve.  Fewer than 3 usable observations return the input
     pose with no inliers (ORB-SLAM returns 0 correspondences).
+    """
+    T, pts, uv, ur, info, fixed = _prepare(T_cw0, pts_w, uv, ur, inv_sigma2, fixed_outliers)
+    T, inliers, n_inliers, chi2 = optimize_pose_kernel(
+        T, pts, uv, ur, info, fixed, float(fx), float(fy), float(cx), float(cy), float(bf),
+        int(rounds), int(iterations), int(robust_rounds), _DELTA2_MONO, _DELTA2_STEREO)
+    return PoseResult(T, inliers, int(n_inliers), chi2)
+
+
+def optimize_pose_numpy(
+    T_cw0: Array,
+    pts_w: Array,
+    uv: Array,
+    ur: Array,
+    inv_sigma2: Array,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    bf: float,
+    fixed_outliers: NDArray[np.bool_] | None = None,
+    rounds: int = 4,
+    iterations: int = 10,
+    robust_rounds: int = 3,
+) -> PoseResult:
+    """ORB-SLAM2 PoseOptimization in vectorised numpy: the reference of :func:`optimize_pose`
+    (same arguments, same rounds and decisions; see there), kept for the tests and benchmarks.
     """
     T, pts, uv, ur, info, fixed = _prepare(T_cw0, pts_w, uv, ur, inv_sigma2, fixed_outliers)
     n = pts.shape[0]

@@ -14,6 +14,7 @@ import time
 KERNEL_MODULES = (
     "semslam.features.matching_kernels",
     "semslam.features.keypoint_grid",
+    "semslam.backend.pose_only_kernel",
 )
 
 _done = False
