@@ -7,6 +7,8 @@ The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comm
 from __future__ import annotations
 
 import time
+from collections import Counter
+from itertools import chain
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -338,13 +340,10 @@ class Tracking:
         """Local keyframes (those sharing points with the frame, their best covisibles,
         children and parents; ORB-SLAM UpdateLocalKeyFrames) and their points, as store
         rows in first-seen order (UpdateLocalPoints)."""
-        counts: dict[KeyFrame, int] = {}
-        for i in np.flatnonzero((cur.points.rows >= 0) & ~cur.outlier).tolist():
-            p = cur.points[i]
-            if p.bad:
-                continue
-            for kf in p.observations:
-                counts[kf] = counts.get(kf, 0) + 1
+        rows = cur.points.rows[(cur.points.rows >= 0) & ~cur.outlier]
+        store = self.map.store
+        # Observing keyframes counted in first-seen order (Counter counts in C).
+        counts = Counter(chain.from_iterable(p.observations for p in store.points(rows[~store.bad[rows]])))
         if not counts:
             return
         local: dict[KeyFrame, None] = {kf: None for kf in counts if not kf.bad}
