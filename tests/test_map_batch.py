@@ -281,3 +281,24 @@ def test_normals_of_a_pending_change_equal_those_after_it() -> None:
     np.testing.assert_array_equal(pending.ranged, after.ranged)
     np.testing.assert_allclose(pending.max_dist, after.max_dist, rtol=1e-12)
     np.testing.assert_allclose(pending.min_dist, after.min_dist, rtol=1e-12)
+
+
+def test_observation_table_lists_every_observation_in_order() -> None:
+    """The flattened table equals walking each point's observations in order, with every
+    keyframe numbered first-seen, or by a given index (observers outside it left out)."""
+    from semslam.slam.local_mapping import observation_table
+
+    rng = np.random.default_rng(11)
+    m, points = _world(rng, orb_spec(1.2, 8))
+    points = [p for p in points if p.observations] + [p for p in points if not p.observations][:3]
+    direct = [(j, kf, i) for j, p in enumerate(points) for kf, i in p.observations.items()]
+    pr, kr, kp, kfs = observation_table(points)
+    assert kfs == list(dict.fromkeys(kf for _, kf, _ in direct))
+    assert [(int(a), kfs[b], int(c)) for a, b, c in zip(pr, kr, kp)] == direct
+    some = m.all_keyframes()[1:6:2]
+    index = {kf: k for k, kf in enumerate(some)}
+    pr, kr, kp, kfs = observation_table(points, index)
+    assert kfs == some
+    assert [(int(a), kfs[b], int(c)) for a, b, c in zip(pr, kr, kp)] == [t for t in direct if t[1] in index]
+    empty = observation_table([])
+    assert all(a.size == 0 for a in empty[:3]) and empty[3] == []

@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import partial
+from itertools import chain, repeat
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -52,18 +53,20 @@ def observation_table(points: list[MapPoint], kf_index: dict[KeyFrame, int] | No
 
     With ``kf_index`` only the observations by those keyframes are listed (rows from it);
     without, every observing keyframe gets a row in first-seen order."""
+    # Flattened with chain/map (loops in C): tens of thousands of observations per call.
+    obs_dicts = [p.observations for p in points]
+    counts = np.fromiter(map(len, obs_dicts), np.intp, len(obs_dicts))
+    obs_kf = list(chain.from_iterable(obs_dicts))
+    kp = np.fromiter(chain.from_iterable(d.values() for d in obs_dicts), np.intp, len(obs_kf))
+    point_row = np.repeat(np.arange(len(obs_dicts), dtype=np.intp), counts)
     if kf_index is None:
-        rows: dict[KeyFrame, int] = {}
-        trip = [(j, rows.setdefault(kf, len(rows)), i)
-                for j, p in enumerate(points) for kf, i in p.observations.items()]
-        kfs = list(rows)
-    else:
-        get = kf_index.get
-        trip = [(j, k, i) for j, p in enumerate(points) for kf, i in p.observations.items()
-                if (k := get(kf)) is not None]
-        kfs = list(kf_index)
-    obs = np.array(trip, np.intp).reshape(-1, 3)
-    return obs[:, 0], obs[:, 1], obs[:, 2], kfs
+        kfs = list(dict.fromkeys(obs_kf))  # first-seen order
+        kf_index = {kf: k for k, kf in enumerate(kfs)}
+        kf_row = np.fromiter(map(kf_index.__getitem__, obs_kf), np.intp, len(obs_kf))
+        return point_row, kf_row, kp, kfs
+    kf_row = np.fromiter(map(kf_index.get, obs_kf, repeat(-1, len(obs_kf))), np.intp, len(obs_kf))
+    keep = kf_row >= 0
+    return point_row[keep], kf_row[keep], kp[keep], list(kf_index)
 
 
 def gather_keypoints(kfs: list[KeyFrame], kf_row: NDArray[np.intp], kp: NDArray[np.intp]
