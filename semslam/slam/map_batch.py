@@ -17,6 +17,7 @@ assignment per field; without a store, attribute by attribute.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import TYPE_CHECKING, Any
 
 import numba
@@ -157,9 +158,10 @@ def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float
         refs.append(None if idx is None else (ref, idx))
     if not live:
         return NormalUpdate()
-    kf_row: dict[KeyFrame, int] = {}
-    rows = [kf_row.setdefault(kf, len(kf_row)) for kfs in obs_kfs for kf in kfs]
-    counts = np.fromiter((len(kfs) for kfs in obs_kfs), np.intp, len(live))
+    flat = list(chain.from_iterable(obs_kfs))  # loops in C: thousands of observations
+    kf_row = {kf: k for k, kf in enumerate(dict.fromkeys(flat))}  # first-seen order
+    rows = np.fromiter(map(kf_row.__getitem__, flat), np.intp, len(flat))
+    counts = np.fromiter(map(len, obs_kfs), np.intp, len(live))
     center = np.array([centers[kf] if kf in centers else kf.center for kf in kf_row])
     xyz = np.array([p.pos for p in live]) if pos is None else np.asarray(pos)[live_idx]
     d = np.repeat(xyz, counts, axis=0) - center[rows]
