@@ -8,7 +8,9 @@ stage needs vectorised work (projection of the local map, bundle adjustment).
 from __future__ import annotations
 
 import threading
+from collections import Counter
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -284,13 +286,8 @@ class KeyFrame:
 
     def update_connections(self) -> None:
         """Covisibility weights = shared map points; spanning-tree parent = best covisible."""
-        counts: dict[KeyFrame, int] = {}
-        for p in self.points:
-            if p is None or p.bad:
-                continue
-            for kf in p.observations:
-                if kf is not self and not kf.bad:
-                    counts[kf] = counts.get(kf, 0) + 1
+        every = Counter(chain.from_iterable(p.observations for p in self.valid_points()))  # C loop, first-seen order
+        counts = {kf: n for kf, n in every.items() if kf is not self and not kf.bad}
         if not counts:
             return
         best = max(counts, key=lambda k: counts[k])
