@@ -4,8 +4,8 @@
     python benchmarks/pose_only_timing.py [--sizes 200,400,800] [--cases 5] [--repeat 40]
 
 Per size, ``--cases`` synthetic frames (TUM-like camera, bf = 40, 20 % of observations without
-depth, 0.5 px noise at level 0 scaled by octave, 10 % gross outliers, a start 1 deg / 3 cm
-off, as ``benchmarks/backend_timing.py``) are each solved ``--repeat`` times by
+depth, 0.5 px noise at level 0 scaled by octave, 10 % gross outliers, a start ~1 deg / 3 cm
+off: ``benchmarks/backend_timing.py``'s frames) are each solved ``--repeat`` times by
 ``optimize_pose_numpy`` and by ``optimize_pose`` (the numba kernel; warmed up first, so no
 JIT time is counted).  Reports the median CPU time (this thread) of one call over all cases
 and repeats, and checks that both return the same inliers and pose.  Prints one JSON object,
@@ -16,38 +16,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from semslam.backend.pose_only import optimize_pose, optimize_pose_numpy, se3_exp
+from semslam.backend.pose_only import optimize_pose, optimize_pose_numpy
 from semslam.backend.pose_only_kernel import warm_up
 
-FX = FY = 525.0
-CX, CY = 319.5, 239.5
-BF = 40.0
-W, H = 640, 480
+sys.path.insert(0, str(Path(__file__).parent))
+from backend_timing import BF, CX, CY, FX, FY, pose_only_case  # noqa: E402  (the same synthetic frames)
 
 
-def case(n: int, rng: np.random.Generator, noise: float = 0.5, outliers: float = 0.1):
+def case(n: int, rng: np.random.Generator):
     """(T_init, pts_w, uv, ur, inv_sigma2) of one frame with ``n`` matched map points."""
-    T = se3_exp(np.r_[rng.normal(0, 0.1, 3), rng.normal(0, 0.3, 3)])
-    u = rng.uniform(0, W, n)
-    v = rng.uniform(0, H, n)
-    z = rng.uniform(0.5, 6.0, n)
-    pc = np.column_stack([(u - CX) / FX * z, (v - CY) / FY * z, z])
-    pw = (pc - T[:3, 3]) @ T[:3, :3]
-    inv = 1.2 ** (-2.0 * rng.integers(0, 8, n))
-    sig = 1.0 / np.sqrt(inv)
-    uv = np.column_stack([u, v]) + rng.normal(0, noise, (n, 2)) * sig[:, None]
-    ur = u - BF / z + rng.normal(0, noise, n) * sig
-    ur[rng.random(n) < 0.2] = -1.0
-    bad = rng.random(n) < outliers
-    uv[bad] += rng.uniform(20, 60, (bad.sum(), 2)) * rng.choice([-1, 1], (bad.sum(), 2))
-    d = np.r_[rng.normal(size=3), rng.normal(size=3)]
-    d[:3] *= np.radians(1.0) / np.linalg.norm(d[:3])
-    d[3:] *= 0.03 / np.linalg.norm(d[3:])
-    return se3_exp(d) @ T, pw, uv, ur, inv
+    return pose_only_case(n, rng)[1:]
 
 
 def _cpu_us(fn, repeat: int) -> list[float]:

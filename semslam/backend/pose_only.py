@@ -17,14 +17,13 @@ dimension.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.gtsam_utils import CHI2_MONO, CHI2_STEREO
-from semslam.backend.pose_only_kernel import optimize_pose_kernel
+from semslam.backend.pose_only_kernel import _se3_exp, optimize_pose_kernel
 
 Array = NDArray[np.float64]
 
@@ -49,36 +48,11 @@ class PoseResult:
 
 
 def se3_exp(xi: Array) -> Array:
-    """4x4 ``exp`` of a twist ``xi = (omega, v)`` (rotation first, as GTSAM's Pose3 tangent).
-
-    Scalar Python maths: it runs once per LM step on 6 numbers, where numpy call overhead
-    would dominate.
-    """
-    w0, w1, w2, v0, v1, v2 = (float(x) for x in xi)
-    th2 = w0 * w0 + w1 * w1 + w2 * w2
-    if th2 < 1e-16:
-        a, b, c = 1.0, 0.5, 1.0 / 6.0
-    else:
-        th = math.sqrt(th2)
-        sn = math.sin(th)
-        a = sn / th
-        b = (1.0 - math.cos(th)) / th2
-        c = (th - sn) / (th2 * th)
-    # [w]x^2 = w w^T - th2 I
-    q00, q11, q22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
-    q01, q02, q12 = w0 * w1, w0 * w2, w1 * w2
-    # R = I + a [w]x + b [w]x^2 ;  V = I + b [w]x + c [w]x^2
-    r = ((1 + b * q00, -a * w2 + b * q01, a * w1 + b * q02),
-         (a * w2 + b * q01, 1 + b * q11, -a * w0 + b * q12),
-         (-a * w1 + b * q02, a * w0 + b * q12, 1 + b * q22))
-    V = ((1 + c * q00, -b * w2 + c * q01, b * w1 + c * q02),
-         (b * w2 + c * q01, 1 + c * q11, -b * w0 + c * q12),
-         (-b * w1 + c * q02, b * w0 + c * q12, 1 + c * q22))
-    t = [V[i][0] * v0 + V[i][1] * v1 + V[i][2] * v2 for i in range(3)]
-    return np.array([[r[0][0], r[0][1], r[0][2], t[0]],
-                     [r[1][0], r[1][1], r[1][2], t[1]],
-                     [r[2][0], r[2][1], r[2][2], t[2]],
-                     [0.0, 0.0, 0.0, 1.0]])
+    """4x4 ``exp`` of a twist ``xi = (omega, v)`` (rotation first, as GTSAM's Pose3 tangent):
+    the compiled kernel's own (one implementation; it runs once per LM step on 6 numbers)."""
+    E = np.empty((4, 4))
+    _se3_exp(np.ascontiguousarray(xi, dtype=np.float64).reshape(6), E)
+    return E
 
 
 class _Evaluator:

@@ -78,7 +78,8 @@ def _np_sum(a: Array) -> float:
 
 @numba.njit(cache=True, nogil=True)
 def _se3_exp(dx: Array, E: Array) -> None:
-    """``pose_only.se3_exp(dx)`` into ``E`` (4x4), same expressions."""
+    """4x4 ``exp`` of a twist ``dx = (omega, v)`` into ``E`` (``pose_only.se3_exp`` wraps it):
+    R = I + a [w]x + b [w]x^2, t = (I + b [w]x + c [w]x^2) v, with [w]x^2 = w w^T - th2 I."""
     w0, w1, w2, v0, v1, v2 = dx[0], dx[1], dx[2], dx[3], dx[4], dx[5]
     th2 = w0 * w0 + w1 * w1 + w2 * w2
     if th2 < 1e-16:
