@@ -311,3 +311,37 @@ def test_system_takes_frames_or_packets_and_depth_from_its_source(static_seq: Pa
         tracker.track(FramePacket(f))
     tracker.shutdown()
     assert calls == [f.index for f in frames]
+
+
+def test_tracking_marks_its_frames_and_local_mapping_waits_for_the_gap(static_seq: Path) -> None:
+    """Map.tracking_idle is clear exactly while tracking works on a frame; a threaded local
+    mapping waits for it before a step, at most slam.yield_to_tracking_ms."""
+    seq = open_sequence(static_seq)
+    system = System(load_config("orb", ["slam.yield_to_tracking_ms=200"]), seq.camera)
+    try:
+        tracker = system.tracker
+        idle = tracker.map.tracking_idle
+        seen: list[bool] = []
+        extract = tracker.tracking.extractor.extract
+
+        def spy(*args, **kwargs):  # type: ignore[no-untyped-def]
+            seen.append(idle.is_set())
+            return extract(*args, **kwargs)
+
+        tracker.tracking.extractor.extract = spy  # type: ignore[method-assign]
+        for f in seq.frames(0, 3):
+            system.track(f)
+        assert seen == [False, False, False] and idle.is_set()
+        mapping = tracker.mapper
+        idle.clear()
+        t0 = time.perf_counter()
+        mapping.yield_to_tracking()
+        assert time.perf_counter() - t0 >= 0.19  # waited for the frame, up to the bound
+        idle.set()
+        t0 = time.perf_counter()
+        mapping.yield_to_tracking()
+        assert time.perf_counter() - t0 < 0.15  # no frame in progress: no wait
+    finally:
+        system.close()
+    with pytest.raises(ConfigError, match="slam.yield_to_tracking_ms"):
+        load_config("orb", ["slam.yield_to_tracking_ms=-1"])

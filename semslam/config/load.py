@@ -113,6 +113,7 @@ def _check(cfg: SystemConfig) -> None:
     if cfg.sensor not in SENSORS:
         raise ConfigError(f"sensor: unknown sensor {cfg.sensor!r} (known: {', '.join(SENSORS)})")
     cfg.semantics.check()
+    cfg.slam.check()
 
 
 def config_to_dict(cfg: SystemConfig) -> dict[str, Any]:

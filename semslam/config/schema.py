@@ -98,7 +98,16 @@ class SlamConfig:
     # tracked before their time, and each frame's latency is reported. Off: as fast as
     # frames decode.
     realtime: bool = False
+    # Local mapping starts each step once tracking has finished its frame, waiting at most
+    # this long (0: never waits).
+    yield_to_tracking_ms: float = 15.0
     localization_only: bool = False
+
+    def check(self) -> None:
+        """Raise ConfigError on values the core cannot use (the config loader checks types only)."""
+        if not 0.0 <= self.yield_to_tracking_ms <= 1000.0:
+            raise ConfigError(f"slam.yield_to_tracking_ms: expected 0 (never wait) to 1000 ms, "
+                              f"got {self.yield_to_tracking_ms}")
 
 
 @dataclass

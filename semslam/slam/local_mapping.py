@@ -150,6 +150,7 @@ class LocalMapping(KeyframeWorker):
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
                  ba: BundleAdjustmentRunner, fusion: PointFusion, inbox: KeyframeInbox, next_stage: KeyframeSink) -> None:
         self.cfg = config.slam
+        self.yield_s = config.slam.yield_to_tracking_ms / 1e3
         self.camera = camera
         self.map = slam_map
         self.voc = vocabulary
@@ -198,9 +199,18 @@ class LocalMapping(KeyframeWorker):
                 desc.write(self.map.store)
             normals.write(self.map.store)
 
+    def yield_to_tracking(self) -> None:
+        """In a threaded run, wait (at most ``slam.yield_to_tracking_ms``) until tracking has
+        finished its frame before a Python-heavy step: both threads share one GIL, and a
+        step started between frames does not stretch the next frame's extraction."""
+        if self._thread is not None and self.yield_s > 0:
+            self.map.tracking_idle.wait(self.yield_s)
+
     @contextmanager
     def _step(self, name: str) -> Iterator[None]:
-        """Wall and CPU (this thread) milliseconds of one step, in ``stats["steps"]``."""
+        """Wall and CPU (this thread) milliseconds of one step, in ``stats["steps"]``; each
+        step starts between tracked frames when it can (``yield_to_tracking``)."""
+        self.yield_to_tracking()
         w0, c0 = time.perf_counter(), time.thread_time()
         try:
             yield

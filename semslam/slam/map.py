@@ -331,6 +331,10 @@ class Map:
         self.points: dict[int, MapPoint] = {}
         self.store = PointStore(spec.dim, np.uint8 if spec.kind is DescriptorKind.BINARY else np.float32)
         self.lock = threading.RLock()
+        # Clear while tracking works on a frame: background threads start their Python-heavy
+        # steps in the gaps (they share one GIL with tracking, see LocalMapping.yield_to_tracking).
+        self.tracking_idle = threading.Event()
+        self.tracking_idle.set()
         self._next_kf = 0
         self._next_pt = 0
         self.origins: list[KeyFrame] = []

@@ -82,6 +82,13 @@ class Tracking:
 
     # ------------------------------------------------------------------ entry point
     def track(self, packet: FramePacket) -> TrackResult:
+        self.map.tracking_idle.clear()
+        try:
+            return self._track(packet)
+        finally:
+            self.map.tracking_idle.set()
+
+    def _track(self, packet: FramePacket) -> TrackResult:
         frame = packet.frame
         timings: dict[str, float] = {}
         dynamic, mask = None, None
