@@ -31,6 +31,7 @@ class SemanticThread:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="semantic") if threaded else None
         self.segment_ms: list[float] = []
         self.refine_ms: list[float] = []
+        self._closed = False
 
     def _compute(self, frame: Frame) -> NDArray[np.bool_]:
         from semslam.semantics.base import dynamic_mask
@@ -64,12 +65,17 @@ class SemanticThread:
 
     def stats(self) -> dict[str, float]:
         return {
+            "segmented_frames": len(self.segment_ms),
             "segment_ms_median": float(np.median(self.segment_ms)) if self.segment_ms else 0.0,
+            "segment_ms_p95": float(np.percentile(self.segment_ms, 95)) if self.segment_ms else 0.0,
             "srm_ms_median": float(np.median(self.refine_ms)) if self.refine_ms else 0.0,
         }
 
     def close(self) -> None:
+        """Stop the thread and free the segmenter; safe to call twice, stats stay readable."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-        self.segmenter.close()
+        if not self._closed:
+            self._closed = True
+            self.segmenter.close()

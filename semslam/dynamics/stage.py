@@ -56,9 +56,10 @@ class SceneDynamics:
         return self.semantic.stats() if self.semantic is not None else {}
 
     def close(self) -> None:
+        # The thread is kept (closed) so that ``stats()`` still reports after shutdown:
+        # the pipeline writes stats.json after stopping every thread.
         if self.semantic is not None:
             self.semantic.close()
-            self.semantic = None
 
 
 def create_dynamic_stage(dyn: DynamicsConfig, sem: SemanticsConfig, camera: PinholeCamera,
