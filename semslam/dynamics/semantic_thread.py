@@ -5,32 +5,57 @@ waits only for what it needs, the mask of its own frame.
 The mask is the segmenter's a-priori dynamic classes, grown over depth by STDC-SLAM's
 Segmentation Refinement Module (``dynamics/srm.py``) when it is on; both run in this
 thread, ahead of tracking. The mask travels on the pipeline's ``FramePacket``.
+
+Scheduling (``semantics.schedule`` / ``stride``): on two cores the segmenter competes with
+tracking. A frame can be skipped - when it is decoded while the previous frame is still
+being segmented (``when_behind``), or by a forced stride - and then gets the mask of the
+last segmented frame, warped to it with the motion model (``dynamics/warp.py``).
 """
 
 from __future__ import annotations
 
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SemanticsConfig
-from semslam.core.protocols import FramePacket
+from semslam.core.protocols import FramePacket, MotionPrior
 from semslam.core.types import Frame
+from semslam.dynamics.warp import relative_pose, warp_mask
+from semslam.geometry.camera import PinholeCamera
+
+
+@dataclass
+class _Source:
+    """The last segmented frame tracking took: what a skipped frame's mask is warped from."""
+
+    index: int
+    mask: NDArray[np.bool_]
+    depth: NDArray[np.float32] | None
+    T_cw: NDArray[np.float64] | None = None  # learnt from the next frame's motion prior
 
 
 class SemanticThread:
-    """``prepare(packet)`` starts segmenting; ``mask(packet)`` returns (mask, ms waited)."""
+    """``prepare(packet)`` starts segmenting (or skips the frame); ``mask(packet, prior)``
+    returns (mask, ms tracking spent on it: waiting, or warping a skipped frame's mask)."""
 
-    def __init__(self, cfg: SemanticsConfig, threaded: bool = True) -> None:
+    def __init__(self, cfg: SemanticsConfig, threaded: bool = True, camera: PinholeCamera | None = None) -> None:
         from semslam.semantics.base import create_segmenter
 
         self.cfg = cfg
+        self.camera = camera
         self.segmenter = create_segmenter(cfg)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="semantic") if threaded else None
+        self._pending: Future[NDArray[np.bool_]] | None = None  # the last segmentation submitted
+        self._skipped: set[int] = set()  # frame indices prepare() decided not to segment
+        self._source: _Source | None = None
         self.segment_ms: list[float] = []
         self.refine_ms: list[float] = []
+        self.wait_ms: list[float] = []  # tracking waiting for a segmented frame's mask
+        self.warp_ms: list[float] = []  # tracking warping a skipped frame's mask
         self._closed = False
 
     def _compute(self, frame: Frame) -> NDArray[np.bool_]:
@@ -48,27 +73,79 @@ class SemanticThread:
             self.refine_ms.append((time.perf_counter() - t1) * 1e3)
         return mask
 
-    def prepare(self, packet: FramePacket) -> None:
-        """Start segmenting the packet's frame (called from the reader, right after decoding)."""
-        if self._pool is not None and packet.dynamic is None:
-            packet.dynamic = self._pool.submit(self._compute, packet.frame)
+    def _on_stride(self, index: int) -> bool:
+        return index % self.cfg.stride == 0
 
-    def mask(self, packet: FramePacket) -> tuple[NDArray[np.bool_], float]:
+    def _behind(self) -> bool:
+        """The previous frame is still being segmented (a backlog is building)."""
+        return (self.cfg.schedule == "when_behind" and self._pending is not None
+                and not self._pending.done())
+
+    def prepare(self, packet: FramePacket) -> None:
+        """Start segmenting the packet's frame, or mark it skipped (called from the reader,
+        right after decoding)."""
+        if packet.dynamic is not None:
+            return
+        index = packet.frame.index
+        if not self._on_stride(index) or (self._pool is not None and self._behind()):
+            self._skipped.add(index)
+        elif self._pool is not None:
+            packet.dynamic = self._pending = self._pool.submit(self._compute, packet.frame)
+
+    def mask(self, packet: FramePacket, prior: MotionPrior | None = None) -> tuple[NDArray[np.bool_], float]:
+        """The packet's mask: its own segmentation, or (skipped frame) the last segmented
+        mask warped to it; called by tracking, frame after frame."""
         t0 = time.perf_counter()
-        m = packet.dynamic
-        if isinstance(m, Future):
-            m = m.result()
-        elif m is None:
-            m = self._compute(packet.frame)
+        frame, m = packet.frame, packet.dynamic
+        self._learn_pose(prior)
+        skipped = frame.index in self._skipped or (m is None and not self._on_stride(frame.index))
+        self._skipped.discard(frame.index)
+        if skipped and m is None and self._source is not None:
+            m = self._warp(prior)
+            ms = (time.perf_counter() - t0) * 1e3
+            self.warp_ms.append(ms)
+        else:
+            if isinstance(m, Future):
+                m = m.result()
+            elif m is None:
+                m = self._compute(frame)
+            self._source = _Source(frame.index, m, frame.depth)
+            ms = (time.perf_counter() - t0) * 1e3
+            self.wait_ms.append(ms)
         packet.dynamic = m
-        return m, (time.perf_counter() - t0) * 1e3
+        return m, ms
+
+    def _learn_pose(self, prior: MotionPrior | None) -> None:
+        """The source frame's tracked pose arrives with the prior of the frame after it."""
+        src = self._source
+        if prior is not None and src is not None and src.T_cw is None and prior.last_index == src.index:
+            src.T_cw = prior.T_cw_last.copy()
+
+    def _warp(self, prior: MotionPrior | None) -> NDArray[np.bool_]:
+        src = self._source
+        assert src is not None
+        T_kj = None
+        if self.cfg.warp == "pose" and prior is not None and self.camera is not None:
+            T_kj = relative_pose(src.T_cw, prior.predicted())
+        return warp_mask(src.mask, src.depth, self.camera, T_kj, self.cfg.warp_margin_px)
 
     def stats(self) -> dict[str, float]:
+        def median(v: list[float]) -> float:
+            return float(np.median(v)) if v else 0.0
+
+        def p95(v: list[float]) -> float:
+            return float(np.percentile(v, 95)) if v else 0.0
+
         return {
             "segmented_frames": len(self.segment_ms),
-            "segment_ms_median": float(np.median(self.segment_ms)) if self.segment_ms else 0.0,
-            "segment_ms_p95": float(np.percentile(self.segment_ms, 95)) if self.segment_ms else 0.0,
-            "srm_ms_median": float(np.median(self.refine_ms)) if self.refine_ms else 0.0,
+            "segment_ms_median": median(self.segment_ms),
+            "segment_ms_p95": p95(self.segment_ms),
+            "srm_ms_median": median(self.refine_ms),
+            "semantic_wait_ms_median": median(self.wait_ms),
+            "semantic_wait_ms_p95": p95(self.wait_ms),
+            "warped_frames": len(self.warp_ms),
+            "warp_ms_median": median(self.warp_ms),
+            "warp_ms_p95": p95(self.warp_ms),
         }
 
     def close(self) -> None:
