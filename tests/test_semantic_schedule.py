@@ -237,3 +237,14 @@ def test_schedule_config_defaults() -> None:
     assert (cfg.schedule, cfg.stride, cfg.warp) == ("every", 1, "pose")
     cfg = load_config("default", ["semantics.schedule=when_behind", "semantics.stride=2"]).semantics
     assert (cfg.schedule, cfg.stride) == ("when_behind", 2)
+
+
+def test_margin_grows_with_the_frames_since_the_segmented_one(segmenter: _Blocking) -> None:
+    """The people's own motion adds up: stride 3, margin 2 px -> frame 1 grown 2 px, frame 2 4 px."""
+    st = _thread(stride=3, threaded=False, margin=2)
+    try:
+        masks = [st.mask(q)[0] for q in _packets(3)]
+    finally:
+        st.close()
+    assert segmenter.calls == [0]
+    assert np.array_equal(masks[1], dilate(_painted(0), 2)) and np.array_equal(masks[2], dilate(_painted(0), 4))

@@ -157,7 +157,8 @@ class SemanticsConfig:
     # A skipped frame's mask: "pose" (forward-warped with the segmented frame's depth and
     # the motion model's relative pose, dynamics/warp.py) or "none" (as it was).
     warp: str = "pose"
-    # Growth (px) of a warped mask, for the people's own motion, which no pose explains.
+    # Growth (px) of a warped mask per frame since the segmented one, for the people's own
+    # motion, which no pose explains.
     warp_margin_px: int = 4
 
     def check(self) -> None:

@@ -101,7 +101,7 @@ class SemanticThread:
         skipped = frame.index in self._skipped or (m is None and not self._on_stride(frame.index))
         self._skipped.discard(frame.index)
         if skipped and m is None and self._source is not None:
-            m = self._warp(prior)
+            m = self._warp(frame.index, prior)
             ms = (time.perf_counter() - t0) * 1e3
             self.warp_ms.append(ms)
         else:
@@ -121,13 +121,16 @@ class SemanticThread:
         if prior is not None and src is not None and src.T_cw is None and prior.last_index == src.index:
             src.T_cw = prior.T_cw_last.copy()
 
-    def _warp(self, prior: MotionPrior | None) -> NDArray[np.bool_]:
+    def _warp(self, index: int, prior: MotionPrior | None) -> NDArray[np.bool_]:
+        """The source mask moved by the camera's motion; the margin, for the people's own
+        motion, grows with the frames since the source (benchmarks/mask_warp.py)."""
         src = self._source
         assert src is not None
         T_kj = None
         if self.cfg.warp == "pose" and prior is not None and self.camera is not None:
             T_kj = relative_pose(src.T_cw, prior.predicted())
-        return warp_mask(src.mask, src.depth, self.camera, T_kj, self.cfg.warp_margin_px)
+        margin = self.cfg.warp_margin_px * max(1, index - src.index)
+        return warp_mask(src.mask, src.depth, self.camera, T_kj, margin)
 
     def stats(self) -> dict[str, float]:
         def median(v: list[float]) -> float:
