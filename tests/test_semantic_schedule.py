@@ -168,6 +168,31 @@ def test_when_behind_skips_a_frame_and_gives_it_the_last_segmented_mask(segmente
     assert (stats["segmented_frames"], stats["warped_frames"]) == (2, 1)
 
 
+def test_latest_does_not_wait_and_uses_the_late_mask_once_finished(segmenter: _Blocking) -> None:
+    """Frame 1's segmentation hangs: tracking takes frame 0's mask for it instead of waiting;
+    frame 2 (skipped: decoded while 1 was segmented) gets frame 1's, finished meanwhile."""
+    st = _thread("latest")
+    try:
+        p = _packets(3)
+        st.prepare(p[0])
+        m0, _ = st.mask(p[0])
+        segmenter.go.clear()
+        st.prepare(p[1])
+        st.prepare(p[2])
+        late = p[1].dynamic
+        m1, _ = st.mask(p[1])
+        segmenter.go.set()
+        assert late is not None and not isinstance(late, np.ndarray)
+        late.result()
+        m2, _ = st.mask(p[2])
+    finally:
+        st.close()
+    assert segmenter.calls == [0, 1]
+    assert np.array_equal(m0, _painted(0)) and np.array_equal(m1, _painted(0)) and np.array_equal(m2, _painted(1))
+    stats = st.stats()
+    assert (stats["late_frames"], stats["warped_frames"], stats["segmented_frames"]) == (1, 2, 2)
+
+
 def test_every_waits_through_the_backlog(segmenter: _Blocking) -> None:
     st = _thread("every")
     try:
@@ -221,7 +246,7 @@ def test_stride_warps_skipped_frames_with_the_motion_model(segmenter: _Blocking,
 
 
 @pytest.mark.parametrize(("field", "value", "message"), [
-    ("schedule", "sometimes", "semantics.schedule: expected one of every, when_behind, got 'sometimes'"),
+    ("schedule", "sometimes", "semantics.schedule: expected one of every, when_behind, latest, got 'sometimes'"),
     ("stride", 0, "semantics.stride: expected 1 .* or more, got 0"),
     ("warp", "flow", "semantics.warp: expected one of pose, none, got 'flow'"),
     ("warp_margin_px", -2, "semantics.warp_margin_px: expected a margin >= 0 px, got -2"),

@@ -123,7 +123,7 @@ class DynamicsConfig:
     downscale: int = 2
 
 
-SEMANTIC_SCHEDULES = ("every", "when_behind")
+SEMANTIC_SCHEDULES = ("every", "when_behind", "latest")
 MASK_WARPS = ("pose", "none")
 
 
@@ -150,6 +150,8 @@ class SemanticsConfig:
     # Which frames are segmented. "every": all, tracking waits for a mask that is late.
     # "when_behind": a frame decoded while the previous one is still being segmented is
     # skipped (threaded runs only); it gets the last segmented mask, warped to it.
+    # "latest": skips the same way, and tracking never waits while an earlier mask is
+    # ready: a frame whose segmentation is unfinished gets the newest finished mask, warped.
     schedule: str = "every"
     # Segment only frames whose index is a multiple of this (1 = all), warp the others:
     # falling behind forced, deterministic, to measure what the warp costs.
