@@ -4,12 +4,13 @@
     python benchmarks/mask_warp.py SEQ_DIR [SEQ_DIR ...] [--gap 1] [--json out.json]
 
 On rendered sequences (exact ground-truth poses and person labels, semantic/): the person
-mask of frame j is carried to frame k = j + gap, either as it is ("none") or forward-warped
-with j's depth and the constant-velocity prediction T_cw(k) = v^gap T_cw(j), v = T_cw(j)
-T_cw(j-1)^-1 - what tracking's motion model gives - and grown by a margin per frame of the gap. Against the true
-mask of k: recall (share of k's person pixels covered: keypoints there would be on a
-mover), its 5th percentile over frames, and the excess (static pixels masked, % of the
-image: keypoints lost for nothing). Ground-truth masks isolate the warp from the segmenter.
+mask of frame j is carried to frame k = j + gap, either as it is ("none") or warped with
+j's depth (``warp_mask``: a plane at the mask's median depth) and the constant-velocity
+prediction T_cw(k) = v^gap T_cw(j), v = T_cw(j) T_cw(j-1)^-1 - what tracking's motion
+model gives - and grown by a margin per frame of the gap. Against the true mask of k:
+recall (share of k's person pixels covered: keypoints there would be on a mover), its 5th
+percentile over frames, and the excess (static pixels masked, % of the image: keypoints
+lost for nothing). Ground-truth masks isolate the warp from the segmenter.
 """
 
 from __future__ import annotations
