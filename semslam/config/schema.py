@@ -137,6 +137,10 @@ class DynamicsConfig:
     downscale: int = 2
 
 
+SEMANTIC_SCHEDULES = ("every", "when_behind", "latest")
+MASK_WARPS = ("pose", "none")
+
+
 @dataclass
 class SemanticsConfig:
     """Segmenter backend, the a-priori dynamic classes and STDC-SLAM's refinement (SRM)."""
@@ -157,6 +161,23 @@ class SemanticsConfig:
     srm_tau_m: float = 0.1
     # Resize to this width before inference (0 = native resolution); masks come back native.
     input_width: int = 0
+    # Which frames are segmented. "every": all, tracking waits for a mask that is late.
+    # "when_behind": a frame decoded while the previous one is still being segmented is
+    # skipped (threaded runs only); it gets the last segmented mask, warped to it.
+    # "latest": skips the same way, and tracking never waits while an earlier mask is
+    # ready: a frame whose segmentation is unfinished gets the newest finished mask, warped.
+    schedule: str = "every"
+    # Segment only frames whose index is a multiple of this (1 = all), warp the others:
+    # falling behind forced, deterministic, to measure what the warp costs.
+    stride: int = 1
+    # A skipped frame's mask: "pose" (forward-warped with the segmented frame's depth and
+    # the motion model's relative pose, dynamics/warp.py) or "none" (as it was).
+    warp: str = "pose"
+    # Growth (px) of a warped mask per frame since the segmented one, for the people's own
+    # motion, which no pose explains (~10 px/frame on the walking renders). With "pose",
+    # 8 px covered 98.6-99.4 % of the next frame's true person pixels (4 px: 95.5-96.6 %)
+    # for 2.5-3.5 % of the image masked in excess (benchmarks/mask_warp.py).
+    warp_margin_px: int = 8
 
     def check(self) -> None:
         """Raise ConfigError on values no backend can use (the config loader checks types only)."""
@@ -174,6 +195,15 @@ class SemanticsConfig:
             raise ConfigError(f"semantics.srm_tau_m: expected a positive depth step in metres, got {self.srm_tau_m}")
         if self.input_width < 0:
             raise ConfigError(f"semantics.input_width: expected 0 (native) or a width in px, got {self.input_width}")
+        if self.schedule not in SEMANTIC_SCHEDULES:
+            raise ConfigError(f"semantics.schedule: expected one of {', '.join(SEMANTIC_SCHEDULES)}, "
+                              f"got {self.schedule!r}")
+        if self.stride < 1:
+            raise ConfigError(f"semantics.stride: expected 1 (segment every frame) or more, got {self.stride}")
+        if self.warp not in MASK_WARPS:
+            raise ConfigError(f"semantics.warp: expected one of {', '.join(MASK_WARPS)}, got {self.warp!r}")
+        if self.warp_margin_px < 0:
+            raise ConfigError(f"semantics.warp_margin_px: expected a margin >= 0 px, got {self.warp_margin_px}")
 
 
 @dataclass

@@ -52,6 +52,20 @@ class FramePacket:
 
 
 @dataclass
+class MotionPrior:
+    """What tracking knows of the camera before it extracts a frame: the last frame (index,
+    tracked pose) and the constant-velocity model, T_cw(k) = velocity @ T_cw(k-1) (None when
+    tracking is lost). The dynamic stage warps skipped frames' masks with it."""
+
+    last_index: int
+    T_cw_last: NDArray[np.float64]
+    velocity: NDArray[np.float64] | None
+
+    def predicted(self) -> NDArray[np.float64] | None:
+        return None if self.velocity is None else self.velocity @ self.T_cw_last
+
+
+@dataclass
 class KeyframeSnapshot:
     """What a map builder gets for a new keyframe: a copy that stays valid after the SLAM
     core moves on (poses change later through ``MapBuilder.correct_poses``)."""
@@ -156,13 +170,15 @@ class DynamicStage(Protocol):
 
     ``prepare`` runs in the reader thread as soon as a frame is decoded (segmentation starts);
     ``before_extraction`` gives the mask of pixels where no keypoint may be extracted (dynamic
-    classes, refined by SRM, grown by the border band) and the ms waited for it;
+    classes, refined by SRM, grown by the border band) and the ms waited for it; ``prior``
+    carries the motion model, for frames whose mask is warped from an earlier one;
     ``after_pose`` finds moving regions with the pose just tracked (multi-view geometry).
     """
 
     def prepare(self, packet: FramePacket) -> None: ...
 
-    def before_extraction(self, packet: FramePacket) -> tuple[BoolImage | None, NDArray[np.uint8] | None, float]:
+    def before_extraction(self, packet: FramePacket, prior: MotionPrior | None = None
+                          ) -> tuple[BoolImage | None, NDArray[np.uint8] | None, float]:
         """(dynamic mask, extractor mask, ms waited)."""
         ...
 

@@ -5,32 +5,66 @@ waits only for what it needs, the mask of its own frame.
 The mask is the segmenter's a-priori dynamic classes, grown over depth by STDC-SLAM's
 Segmentation Refinement Module (``dynamics/srm.py``) when it is on; both run in this
 thread, ahead of tracking. The mask travels on the pipeline's ``FramePacket``.
+
+Scheduling (``semantics.schedule`` / ``stride``): on two cores the segmenter competes with
+tracking. A frame can be skipped - when it is decoded while the previous frame is still
+being segmented (``when_behind``, ``latest``), or by a forced stride - and then gets the
+mask of the last segmented frame, warped to it with the motion model (``dynamics/warp.py``).
+With ``latest`` tracking does not wait either: a frame whose segmentation has not finished
+gets the newest finished mask, warped; its own mask serves the frames after it.
 """
 
 from __future__ import annotations
 
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SemanticsConfig
-from semslam.core.protocols import FramePacket
+from semslam.core.protocols import FramePacket, MotionPrior
 from semslam.core.types import Frame
+from semslam.dynamics.warp import relative_pose, warp_mask
+from semslam.geometry.camera import PinholeCamera
+
+
+@dataclass
+class _Segmented:
+    """A segmented frame: what the masks of skipped frames after it are warped from."""
+
+    index: int
+    mask: NDArray[np.bool_] | Future[NDArray[np.bool_]]
+    depth: NDArray[np.float32] | None
+
+
+#: Tracked poses kept for warping (frames back from the newest): more than any backlog.
+_POSE_HISTORY = 32
 
 
 class SemanticThread:
-    """``prepare(packet)`` starts segmenting; ``mask(packet)`` returns (mask, ms waited)."""
+    """``prepare(packet)`` starts segmenting (or skips the frame); ``mask(packet, prior)``
+    returns (mask, ms tracking spent on it: waiting, or warping a skipped frame's mask)."""
 
-    def __init__(self, cfg: SemanticsConfig, threaded: bool = True) -> None:
+    def __init__(self, cfg: SemanticsConfig, threaded: bool = True, camera: PinholeCamera | None = None) -> None:
         from semslam.semantics.base import create_segmenter
 
         self.cfg = cfg
+        self.camera = camera
         self.segmenter = create_segmenter(cfg)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="semantic") if threaded else None
+        self._pending: Future[NDArray[np.bool_]] | None = None  # the last segmentation submitted
+        self._skipped: set[int] = set()  # frame indices prepare() decided not to segment
+        self._source: _Segmented | None = None  # the newest finished segmentation tracking took
+        self._late: list[_Segmented] = []  # ("latest") segmentations tracking went past unfinished
+        self._poses: dict[int, NDArray[np.float64]] = {}  # recent tracked T_cw, from the priors
         self.segment_ms: list[float] = []
         self.refine_ms: list[float] = []
+        self.wait_ms: list[float] = []  # tracking waiting for a segmented frame's mask
+        self.warp_ms: list[float] = []  # tracking warping a skipped frame's mask
+        self.late_frames = 0  # ("latest") frames that did not wait for their own mask
+        self._closed = False
 
     def _compute(self, frame: Frame) -> NDArray[np.bool_]:
         from semslam.semantics.base import dynamic_mask
@@ -47,29 +81,109 @@ class SemanticThread:
             self.refine_ms.append((time.perf_counter() - t1) * 1e3)
         return mask
 
-    def prepare(self, packet: FramePacket) -> None:
-        """Start segmenting the packet's frame (called from the reader, right after decoding)."""
-        if self._pool is not None and packet.dynamic is None:
-            packet.dynamic = self._pool.submit(self._compute, packet.frame)
+    def _on_stride(self, index: int) -> bool:
+        return index % self.cfg.stride == 0
 
-    def mask(self, packet: FramePacket) -> tuple[NDArray[np.bool_], float]:
+    def _behind(self) -> bool:
+        """The previous frame is still being segmented (a backlog is building)."""
+        return (self.cfg.schedule != "every" and self._pending is not None
+                and not self._pending.done())
+
+    def prepare(self, packet: FramePacket) -> None:
+        """Start segmenting the packet's frame, or mark it skipped (called from the reader,
+        right after decoding)."""
+        if packet.dynamic is not None:
+            return
+        index = packet.frame.index
+        if not self._on_stride(index) or (self._pool is not None and self._behind()):
+            self._skipped.add(index)
+        elif self._pool is not None:
+            packet.dynamic = self._pending = self._pool.submit(self._compute, packet.frame)
+
+    def mask(self, packet: FramePacket, prior: MotionPrior | None = None) -> tuple[NDArray[np.bool_], float]:
+        """The packet's mask: its own segmentation, or (skipped frame, or ``latest`` and not
+        finished) the newest finished mask warped to it; called by tracking, frame after frame."""
         t0 = time.perf_counter()
-        m = packet.dynamic
-        if isinstance(m, Future):
-            m = m.result()
-        elif m is None:
-            m = self._compute(packet.frame)
+        frame, m = packet.frame, packet.dynamic
+        self._learn_pose(prior)
+        self._promote_late()
+        skipped = frame.index in self._skipped or (m is None and not self._on_stride(frame.index))
+        self._skipped.discard(frame.index)
+        if (isinstance(m, Future) and not m.done() and self.cfg.schedule == "latest"
+                and self._source is not None):
+            self._late.append(_Segmented(frame.index, m, frame.depth))
+            self.late_frames += 1
+            skipped, m = True, None
+        if skipped and m is None and self._source is not None:
+            m = self._warp(frame.index, prior)
+            ms = (time.perf_counter() - t0) * 1e3
+            self.warp_ms.append(ms)
+        else:
+            if isinstance(m, Future):
+                m = m.result()
+            elif m is None:
+                m = self._compute(frame)
+            self._source = _Segmented(frame.index, m, frame.depth)
+            self._late.clear()  # all older than this frame
+            ms = (time.perf_counter() - t0) * 1e3
+            self.wait_ms.append(ms)
         packet.dynamic = m
-        return m, (time.perf_counter() - t0) * 1e3
+        return m, ms
+
+    def _learn_pose(self, prior: MotionPrior | None) -> None:
+        """A frame's tracked pose arrives with the prior of the frame after it."""
+        if prior is None:
+            return
+        self._poses[prior.last_index] = prior.T_cw_last.copy()
+        for index in [i for i in self._poses if i < prior.last_index - _POSE_HISTORY]:
+            del self._poses[index]
+
+    def _promote_late(self) -> None:
+        """The newest segmentation tracking went past that has finished since becomes the source."""
+        done = [s for s in self._late if isinstance(s.mask, Future) and s.mask.done()]
+        if not done:
+            return
+        newest = done[-1]
+        assert isinstance(newest.mask, Future)
+        self._source = _Segmented(newest.index, newest.mask.result(), newest.depth)
+        self._late = [s for s in self._late if s.index > newest.index]
+
+    def _warp(self, index: int, prior: MotionPrior | None) -> NDArray[np.bool_]:
+        """The source mask moved by the camera's motion; the margin, for the people's own
+        motion, grows with the frames since the source (benchmarks/mask_warp.py)."""
+        src = self._source
+        assert src is not None and not isinstance(src.mask, Future)
+        T_kj = None
+        if self.cfg.warp == "pose" and prior is not None and self.camera is not None:
+            T_kj = relative_pose(self._poses.get(src.index), prior.predicted())
+        margin = self.cfg.warp_margin_px * max(1, index - src.index)
+        return warp_mask(src.mask, src.depth, self.camera, T_kj, margin)
 
     def stats(self) -> dict[str, float]:
+        def median(v: list[float]) -> float:
+            return float(np.median(v)) if v else 0.0
+
+        def p95(v: list[float]) -> float:
+            return float(np.percentile(v, 95)) if v else 0.0
+
         return {
-            "segment_ms_median": float(np.median(self.segment_ms)) if self.segment_ms else 0.0,
-            "srm_ms_median": float(np.median(self.refine_ms)) if self.refine_ms else 0.0,
+            "segmented_frames": len(self.segment_ms),
+            "segment_ms_median": median(self.segment_ms),
+            "segment_ms_p95": p95(self.segment_ms),
+            "srm_ms_median": median(self.refine_ms),
+            "semantic_wait_ms_median": median(self.wait_ms),
+            "semantic_wait_ms_p95": p95(self.wait_ms),
+            "warped_frames": len(self.warp_ms),
+            "warp_ms_median": median(self.warp_ms),
+            "warp_ms_p95": p95(self.warp_ms),
+            "late_frames": self.late_frames,
         }
 
     def close(self) -> None:
+        """Stop the thread and free the segmenter; safe to call twice, stats stay readable."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-        self.segmenter.close()
+        if not self._closed:
+            self._closed = True
+            self.segmenter.close()

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import DynamicsConfig, SemanticsConfig
-from semslam.core.protocols import FramePacket, MovingRegions
+from semslam.core.protocols import FramePacket, MotionPrior, MovingRegions
 from semslam.dynamics.masks import dilate, extractor_mask
 from semslam.dynamics.multiview import multiview_mask
 from semslam.geometry.camera import PinholeCamera
@@ -30,17 +30,18 @@ class SceneDynamics:
 
         self.border_px = dyn.border_px
         self.camera = camera
-        self.semantic = SemanticThread(sem, threaded=threaded) if dyn.semantic else None
+        self.semantic = SemanticThread(sem, threaded=threaded, camera=camera) if dyn.semantic else None
         self.multiview = dyn if dyn.multiview else None
 
     def prepare(self, packet: FramePacket) -> None:
         if self.semantic is not None:
             self.semantic.prepare(packet)
 
-    def before_extraction(self, packet: FramePacket) -> tuple[NDArray[np.bool_] | None, NDArray[np.uint8] | None, float]:
+    def before_extraction(self, packet: FramePacket, prior: MotionPrior | None = None
+                          ) -> tuple[NDArray[np.bool_] | None, NDArray[np.uint8] | None, float]:
         if self.semantic is None:
             return None, None, 0.0
-        dynamic, wait_ms = self.semantic.mask(packet)
+        dynamic, wait_ms = self.semantic.mask(packet, prior)
         return dynamic, extractor_mask(dynamic, self.border_px), wait_ms
 
     def after_pose(self, T_cw: NDArray[np.float64], depth: NDArray[np.float32],
@@ -56,9 +57,10 @@ class SceneDynamics:
         return self.semantic.stats() if self.semantic is not None else {}
 
     def close(self) -> None:
+        # The thread is kept (closed) so that ``stats()`` still reports after shutdown:
+        # the pipeline writes stats.json after stopping every thread.
         if self.semantic is not None:
             self.semantic.close()
-            self.semantic = None
 
 
 def create_dynamic_stage(dyn: DynamicsConfig, sem: SemanticsConfig, camera: PinholeCamera,

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from semslam.backend.pose_only import optimize_pose
 from semslam.config import SystemConfig
-from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket
+from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket, MotionPrior
 from semslam.core.types import TrackingState, TrackResult
 from semslam.dynamics.masks import keypoints_in_mask
 from semslam.geometry.camera import PinholeCamera
@@ -93,7 +93,7 @@ class Tracking:
         timings: dict[str, float] = {}
         dynamic, mask = None, None
         if self.dynamics is not None:
-            dynamic, mask, wait_ms = self.dynamics.before_extraction(packet)
+            dynamic, mask, wait_ms = self.dynamics.before_extraction(packet, self._motion_prior())
             if dynamic is not None:
                 timings["semantic_wait"] = wait_ms
         t0 = time.perf_counter()
@@ -154,6 +154,14 @@ class Tracking:
                            timings=timings)
 
     # ------------------------------------------------------------------ dynamics
+    def _motion_prior(self) -> MotionPrior | None:
+        """The last frame's pose and the motion model, for a skipped frame's warped mask."""
+        last = self.last
+        if last is None or last.T_cw is None:
+            return None
+        velocity = self.velocity if self.state is TrackingState.OK else None
+        return MotionPrior(last.index, last.T_cw, velocity)
+
     def _remove_moving(self, cur: FrameState, depth: NDArray[np.float32],
                        dynamic: NDArray[np.bool_] | None) -> NDArray[np.bool_] | None:
         """With the pose just tracked, the dynamic stage finds moving regions (DDL-SLAM's
