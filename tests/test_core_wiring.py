@@ -345,3 +345,18 @@ def test_tracking_marks_its_frames_and_local_mapping_waits_for_the_gap(static_se
         system.close()
     with pytest.raises(ConfigError, match="slam.yield_to_tracking_ms"):
         load_config("orb", ["slam.yield_to_tracking_ms=-1"])
+
+
+def test_frames_after_initialisation_track_while_local_mapping_lags(static_seq: Path) -> None:
+    """On a slow machine local mapping may not have reached the first keyframe (its bag of
+    words) when frame 1 is tracked against it: the frame must still track, not be lost."""
+    seq = open_sequence(static_seq)
+    system = System(load_config("orb"), seq.camera)
+    try:
+        frames = list(seq.frames(0, 4))
+        with system.tracker.mapper.inbox.paused() as ok:  # the first keyframe waits in the queue
+            assert ok
+            results = [system.track(f) for f in frames]
+        assert [r.state for r in results[1:]] == [TrackingState.OK] * 3
+    finally:
+        system.close()
