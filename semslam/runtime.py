@@ -45,8 +45,9 @@ def limit_threads() -> None:
 #: on walking_xyz 34-39 -> 20-21 ms median, `default` 31 -> 27-30 ms; static_xyz within
 #: run-to-run noise. 0 turns it off.
 BACKGROUND_NICE = int(os.environ.get("SEMSLAM_BACKGROUND_NICE", "5"))
-#: The semantic thread keeps its priority: niced by 5 it made no difference to `default`
-#: (2 runs each on static_xyz and walking_xyz).
+#: The semantic thread takes it too when tracking never waits for it (``semantics.schedule:
+#: latest``, the ``default`` preset); with ``every`` it keeps its priority (niced, it made no
+#: difference there).
 
 
 def lower_thread_priority(increment: int | None = None) -> bool:

@@ -43,6 +43,12 @@ class _Segmented:
 _POSE_HISTORY = 32
 
 
+def _background_priority() -> None:
+    from semslam.runtime import lower_thread_priority
+
+    lower_thread_priority()
+
+
 class SemanticThread:
     """``prepare(packet)`` starts segmenting (or skips the frame); ``mask(packet, prior)``
     returns (mask, ms tracking spent on it: waiting, or warping a skipped frame's mask)."""
@@ -53,7 +59,13 @@ class SemanticThread:
         self.cfg = cfg
         self.camera = camera
         self.segmenter = create_segmenter(cfg)
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="semantic") if threaded else None
+        self._pool = ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="semantic",
+            # With `latest` tracking never waits for this thread: it runs below tracking like
+            # local mapping (at camera rate on 2 cores, walking_xyz 25-26 -> 24 ms/frame
+            # median, late frames 67-84 -> 37-53; with `every` tracking waits for it, and
+            # niced it made no difference).
+            initializer=_background_priority if cfg.schedule == "latest" else None) if threaded else None
         self._pending: Future[NDArray[np.bool_]] | None = None  # the last segmentation submitted
         self._skipped: set[int] = set()  # frame indices prepare() decided not to segment
         self._source: _Segmented | None = None  # the newest finished segmentation tracking took
