@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from semslam.backend.pose_only import optimize_pose, optimize_pose_numpy
-from semslam.backend.pose_only_kernel import warm_up
+from semslam.backend.pose_only import warm_up
 
 sys.path.insert(0, str(Path(__file__).parent))
 from backend_timing import BF, CX, CY, FX, FY, pose_only_case  # noqa: E402  (the same synthetic frames)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from semslam.backend.pose_only import PoseResult, optimize_pose, optimize_pose_numpy, se3_exp
-from semslam.backend.pose_only_kernel import _np_sum, warm_up
+from semslam.backend.pose_only import warm_up
+from semslam.backend.pose_only_kernel import _np_sum
 
 FX, FY, CX, CY, BF = 525.0, 525.0, 319.5, 239.5, 40.0
 CAM = (FX, FY, CX, CY, BF)

@@ -390,3 +390,15 @@ def optimize_pose_gtsam(
         if n_valid < 10:
             break
     return PoseResult(T, active, int(active.sum()), ev.chi2.copy())
+
+
+def warm_up() -> None:
+    """Compile (or load) the kernel for the types :func:`optimize_pose` passes (listed in
+    ``features/jit.py``; here, not in the kernel module, which must not import this one)."""
+    pts = np.array([[0.0, 0.0, 2.0], [0.3, -0.2, 2.5], [-0.4, 0.1, 3.0], [0.2, 0.3, 1.5]])
+    uv = np.c_[500.0 * pts[:, 0] / pts[:, 2] + 320.0, 500.0 * pts[:, 1] / pts[:, 2] + 240.0]
+    ur = uv[:, 0] - 40.0 / pts[:, 2]
+    ur[0] = -1.0
+    T0 = np.eye(4)
+    T0[0, 3] = 0.01
+    optimize_pose(T0, pts, uv, ur, np.ones(4), 500.0, 500.0, 320.0, 240.0, 40.0)

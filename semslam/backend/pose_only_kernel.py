@@ -439,15 +439,3 @@ def optimize_pose_kernel(T0: Array, pts: Array, uv: Array, ur: Array, info: Arra
         n_inl += active[k]
     return T, active, n_inl, chi2
 
-
-def warm_up() -> None:
-    """Compile (or load) the kernel for the types ``pose_only.optimize_pose`` passes."""
-    from semslam.backend.pose_only import optimize_pose
-
-    pts = np.array([[0.0, 0.0, 2.0], [0.3, -0.2, 2.5], [-0.4, 0.1, 3.0], [0.2, 0.3, 1.5]])
-    uv = np.c_[500.0 * pts[:, 0] / pts[:, 2] + 320.0, 500.0 * pts[:, 1] / pts[:, 2] + 240.0]
-    ur = uv[:, 0] - 40.0 / pts[:, 2]
-    ur[0] = -1.0
-    T0 = np.eye(4)
-    T0[0, 3] = 0.01
-    optimize_pose(T0, pts, uv, ur, np.ones(4), 500.0, 500.0, 320.0, 240.0, 40.0)

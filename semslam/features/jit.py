@@ -14,7 +14,7 @@ import time
 KERNEL_MODULES = (
     "semslam.features.matching_kernels",
     "semslam.features.keypoint_grid",
-    "semslam.backend.pose_only_kernel",
+    "semslam.backend.pose_only",
 )
 
 _done = False
