@@ -46,8 +46,10 @@ class System:
     def has_map(self) -> bool:
         return self.tracker.has_map
 
-    def prepare(self, packet: FramePacket) -> FramePacket:
-        """Start per-frame work that can run ahead of tracking (segmentation), from the reader."""
+    def prepare(self, frame: FramePacket | Frame) -> FramePacket:
+        """Start per-frame work that can run ahead of tracking (segmentation), from the reader
+        (a bare ``Frame`` is wrapped in a packet, which ``track`` then takes)."""
+        packet = frame if isinstance(frame, FramePacket) else FramePacket(frame)
         if self.dynamics is not None:
             self.dynamics.prepare(packet)
         return packet
