@@ -260,7 +260,7 @@ def test_schedule_config_errors(field: str, value: object, message: str) -> None
 
 def test_schedule_config_defaults() -> None:
     cfg = load_config("default").semantics  # tracking takes the newest finished mask
-    assert (cfg.schedule, cfg.stride, cfg.warp) == ("latest", 1, "pose")
+    assert (cfg.schedule, cfg.stride, cfg.warp) == ("latest", 2, "pose")
     assert load_config("stdc").semantics.schedule == "every"  # STDC-SLAM waits for its own
     cfg = load_config("default", ["semantics.schedule=when_behind", "semantics.stride=2"]).semantics
     assert (cfg.schedule, cfg.stride) == ("when_behind", 2)
