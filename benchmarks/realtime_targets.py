@@ -4,7 +4,8 @@
     python benchmarks/realtime_targets.py [--frames 300] [--long-frames 900] [--json out.json]
                                           [--modes fast,camera] [--skip-long] [--skip-one-core]
 
-1. ``orb``, ``default``, ``stdc``, ``ddl`` on the static and walking renders: per-frame
+1. ``orb``, ``default``, ``stdc``, ``ddl`` on the static and walking renders, each run a
+   ``semslam run`` process of its own: per-frame
    median / p95, the per-stage medians, the tracking thread's wait for the map lock
    (median / p95 / max), local BA median, ATE. Targets: ``orb`` <= 15 ms median and <= 30
    ms p95, ``default`` <= 17 / <= 35 (the median over the two renders is the mean of the
@@ -38,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from semslam.experiments.bench import Variant, machine, run_benchmark
+from semslam.core.types import RunResult
+from semslam.experiments.bench import machine
 from semslam.synth import SEQUENCES, ensure_rendered
 
 PRESETS = ["orb", "default", "stdc", "ddl"]
@@ -86,10 +88,14 @@ def main(argv: list[str] | None = None) -> int:
     for mode in modes:
         if mode not in MODES:
             raise SystemExit(f"--modes: unknown {mode!r} (known: {', '.join(MODES)})")
-        variants = [Variant(f"{p}{MODES[mode][0]}", p, MODES[mode][1]) for p in args.presets.split(",")]
-        rows = run_benchmark(variants, RENDERS, args.data, args.out / "runs", frames=args.frames)
-        for row in rows:
-            doc["runs"].setdefault(row.variant, {})[row.sequence] = _row(row.result)
+        for name in RENDERS:  # each run in a process of its own, as `semslam run` runs
+            seq = args.data / name
+            ensure_rendered(replace(SEQUENCES[name], frames=args.frames), seq)
+            for p in args.presets.split(","):
+                label = f"{p}{MODES[mode][0]}"
+                flags = [f for o in MODES[mode][1] for f in ("--set", o)]
+                stats = _cli_run(seq, args.out / "runs" / label / name, p, [], tuple(flags))
+                doc["runs"].setdefault(label, {})[name] = _row(RunResult.from_dict(stats))
         for preset, (t_med, t_p95) in TARGETS.items():
             runs = doc["runs"].get(f"{preset}{MODES[mode][0]}")
             if not runs:
