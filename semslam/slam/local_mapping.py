@@ -229,9 +229,8 @@ class LocalMapping(KeyframeWorker):
         matched: list[MapPoint] = []
 
         def set_bow() -> None:
-            if bow is not None and kf.bow is None:
-                kf.featvec = featvec
-                kf.bow = bow
+            if bow is not None:
+                kf.set_words(bow, featvec)
 
         def observe(slots: list[tuple[int, MapPoint]]) -> None:
             for i, p in slots:

@@ -266,6 +266,14 @@ class KeyFrame:
         self.T_cw = np.asarray(T_cw, dtype=np.float64).copy()
         self._center = -self.T_cw[:3, :3].T @ self.T_cw[:3, 3]
 
+    def set_words(self, bow: Any, featvec: dict[int, Any]) -> None:
+        """The keyframe's bag of words, set once: tracking, local mapping and the place
+        indexer may each compute it first; later sets keep it. ``featvec`` goes first, as
+        readers check ``bow``."""
+        if self.bow is None:
+            self.featvec = featvec
+            self.bow = bow
+
     def tracked_points(self, min_obs: int = 1) -> int:
         """Points with at least ``min_obs`` observations (ORB-SLAM TrackedMapPoints)."""
         rows = self.points.rows

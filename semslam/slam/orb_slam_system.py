@@ -67,7 +67,7 @@ class PlaceIndexer:
 
     def insert(self, kf: KeyFrame) -> None:
         if kf.bow is None:
-            kf.bow, kf.featvec = self.vocabulary.transform(kf.keypoints.descriptors)
+            kf.set_words(*self.vocabulary.transform(kf.keypoints.descriptors))
         self.database.add(kf.id, kf.bow)
 
     def idle(self) -> bool:

@@ -337,10 +337,8 @@ class Tracking:
         self._compute_bow(cur)
         if kf.bow is None:  # local mapping has not reached this keyframe yet (a slow machine
             # right after initialisation): without its words nothing would match and the
-            # frame would be lost. Computed as local mapping would; it keeps what is set.
-            bow, featvec = self.voc.transform(kf.keypoints.descriptors)
-            kf.featvec = featvec
-            kf.bow = bow
+            # frame would be lost.
+            kf.set_words(*self.voc.transform(kf.keypoints.descriptors))
         kf_valid = np.array([p is not None and not p.bad for p in kf.points], bool)
         ia, ib = search_by_bow(kf.featvec, kf.keypoints.descriptors, cur.featvec or {}, cur.keypoints.descriptors,
                                kf_valid, np.ones(len(cur), bool), self.map.matcher,
