@@ -190,7 +190,7 @@ def test_latest_does_not_wait_and_uses_the_late_mask_once_finished(segmenter: _B
     assert segmenter.calls == [0, 1]
     assert np.array_equal(m0, _painted(0)) and np.array_equal(m1, _painted(0)) and np.array_equal(m2, _painted(1))
     stats = st.stats()
-    assert (stats["late_frames"], stats["warped_frames"], stats["segmented_frames"]) == (1, 2, 2)
+    assert (stats["frames_without_own_mask"], stats["warped_frames"], stats["segmented_frames"]) == (1, 2, 2)
 
 
 def test_every_waits_through_the_backlog(segmenter: _Blocking) -> None:

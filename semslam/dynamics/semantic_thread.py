@@ -75,7 +75,7 @@ class SemanticThread:
         self.refine_ms: list[float] = []
         self.wait_ms: list[float] = []  # tracking waiting for a segmented frame's mask
         self.warp_ms: list[float] = []  # tracking warping a skipped frame's mask
-        self.late_frames = 0  # ("latest") frames that did not wait for their own mask
+        self.frames_without_own_mask = 0  # ("latest") frames that did not wait for their own mask
         self._closed = False
 
     def _compute(self, frame: Frame) -> NDArray[np.bool_]:
@@ -124,7 +124,7 @@ class SemanticThread:
         if (isinstance(m, Future) and not m.done() and self.cfg.schedule == "latest"
                 and self._source is not None):
             self._late.append(_Segmented(frame.index, m, frame.depth))
-            self.late_frames += 1
+            self.frames_without_own_mask += 1
             skipped, m = True, None
         if skipped and m is None and self._source is not None:
             m = self._warp(frame.index, prior)
@@ -188,7 +188,7 @@ class SemanticThread:
             "warped_frames": len(self.warp_ms),
             "warp_ms_median": median(self.warp_ms),
             "warp_ms_p95": p95(self.warp_ms),
-            "late_frames": self.late_frames,
+            "frames_without_own_mask": self.frames_without_own_mask,
         }
 
     def close(self) -> None:
