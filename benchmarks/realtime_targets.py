@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Benchmark: issue 10's real-time targets, measured as ``semslam run`` is used (threaded).
 
-    python benchmarks/realtime_targets.py [--frames 300] [--long-frames 900] [--json out.json]
+    python benchmarks/realtime_targets.py [--frames 300] [--long-frames 900] [--repeats 3] [--json out.json]
                                           [--modes fast,camera] [--skip-long] [--skip-one-core]
 
 1. ``orb``, ``default``, ``stdc``, ``ddl`` on the static and walking renders, each run a
@@ -63,6 +63,19 @@ def _row(r: Any) -> dict[str, Any]:
     }
 
 
+def _median_run(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The run whose per-frame median is the median of the repeats, with every repeat's median and p95 beside it.
+
+    One run of a threaded SLAM system on a 2-core machine varies by 1-3 ms in its median (scheduling,
+    which frames become keyframes while the semantic thread holds the other core); the median run
+    of several is a stable figure, and the spread is shown rather than hidden.
+    """
+    order = sorted(range(len(rows)), key=lambda i: rows[i]["ms_median"])
+    mid = dict(rows[order[(len(rows) - 1) // 2]])
+    mid["repeats"] = [{"ms_median": r["ms_median"], "ms_p95": r["ms_p95"]} for r in rows]
+    return mid
+
+
 def _cli_run(seq: Path, out: Path, preset: str, prefix: list[str], flags: tuple[str, ...] = ()) -> dict[str, Any]:
     semslam = shutil.which("semslam") or str(Path(sys.executable).with_name("semslam"))
     cmd = [*prefix, semslam, "run", str(seq), "--out", str(out), "--preset", preset, "--quiet", "--no-report", *flags]
@@ -78,6 +91,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("out/bench/realtime"))
     ap.add_argument("--presets", default=",".join(PRESETS))
     ap.add_argument("--modes", default="fast,camera", help="fast (as frames decode), camera (--realtime)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="runs per (preset, render, mode); the cell reports the median run (by median ms)")
     ap.add_argument("--skip-long", action="store_true")
     ap.add_argument("--skip-one-core", action="store_true")
     ap.add_argument("--json", type=Path)
@@ -94,8 +109,9 @@ def main(argv: list[str] | None = None) -> int:
             for p in args.presets.split(","):
                 label = f"{p}{MODES[mode][0]}"
                 flags = [f for o in MODES[mode][1] for f in ("--set", o)]
-                stats = _cli_run(seq, args.out / "runs" / label / name, p, [], tuple(flags))
-                doc["runs"].setdefault(label, {})[name] = _row(RunResult.from_dict(stats))
+                rows = [_row(RunResult.from_dict(_cli_run(seq, args.out / "runs" / label / name / f"run{i}", p, [],
+                                                          tuple(flags)))) for i in range(args.repeats)]
+                doc["runs"].setdefault(label, {})[name] = _median_run(rows)
         for preset, (t_med, t_p95) in TARGETS.items():
             runs = doc["runs"].get(f"{preset}{MODES[mode][0]}")
             if not runs:
@@ -142,8 +158,8 @@ def main(argv: list[str] | None = None) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(doc, indent=2))
     print("\n| preset | sequence | ms/frame median / p95 | extract | track | local map | lock wait median / p95 / max "
-          "| local BA ms | ATE cm | latency median / p95 | late frames |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| local BA ms | ATE cm | latency median / p95 | late frames | every repeat's median |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for preset, runs in doc["runs"].items():
         for name, r in runs.items():
             s, w = r["stages_ms_median"], r["lock_wait_ms"]
@@ -152,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
                   f" / {w['max'] or 0:.1f} | {r['local_ba_ms_median'] or 0:.0f} | "
                   f"{'n/a' if r['ate_cm'] is None else format(r['ate_cm'], '.2f')} | "
                   + (f"{r['latency_ms']['median']:.1f} / {r['latency_ms']['p95']:.1f} | {r['late_frames']} |"
-                     if r["latency_ms"] else "- | - |"))
+                     if r["latency_ms"] else "- | - |")
+                  + " " + ", ".join(f"{x['ms_median']:.1f}" for x in r["repeats"]) + " |")
     print("\n| target | measured | met |\n|---|---|---|")
     for t in doc["targets"]:
         v = t["value"]
