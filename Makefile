@@ -4,9 +4,9 @@ PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# Debian packages the Python wheels need at run time (none yet: opencv is the headless
-# build; open3d will need libusb-1.0-0). Installed with apt-get when running as root.
-APT_PACKAGES :=
+# Debian packages the Python wheels need at run time (opencv is the headless build; open3d
+# loads libusb-1.0). Installed with apt-get when running as root.
+APT_PACKAGES := libusb-1.0-0
 
 .PHONY: demo test lint bench setup clean
 
