@@ -7,6 +7,7 @@ from semslam.config.schema import (
     DynamicsConfig,
     FeatureConfig,
     FrameToKeyframeConfig,
+    InpaintingConfig,
     MapsConfig,
     SemanticsConfig,
     SlamConfig,
@@ -15,7 +16,7 @@ from semslam.config.schema import (
 )
 
 __all__ = [
-    "PRESET_DIR", "SENSORS", "DepthConfig", "DynamicsConfig", "MapsConfig", "FeatureConfig", "FrameToKeyframeConfig", "SemanticsConfig",
+    "PRESET_DIR", "SENSORS", "DepthConfig", "DynamicsConfig", "InpaintingConfig", "MapsConfig", "FeatureConfig", "FrameToKeyframeConfig", "SemanticsConfig",
     "SlamConfig", "SystemConfig", "TrackingConfig", "available_presets", "config_to_dict", "load_config",
     "parse_override",
 ]

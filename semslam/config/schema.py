@@ -214,10 +214,35 @@ class DepthConfig:
 
 
 @dataclass
+class InpaintingConfig:
+    """DDL-SLAM's background inpainting (III-E) before the maps: each keyframe's dynamic
+    pixels are filled with the static background the last ``keyframes`` keyframes saw."""
+
+    enabled: bool = True
+    keyframes: int = 15
+    # A projected source pixel fills a target pixel only if the source's depth agrees with
+    # the z-buffer there within this (metres, plus 2 % of the depth for sensor noise).
+    depth_tolerance_m: float = 0.03
+    # Second stage (DDL-SLAM's future work): holes no keyframe saw, up to this radius in
+    # pixels, are filled by OpenCV's image inpainting and marked synthesised (0 = off).
+    hole_fill_px: int = 0
+
+
+@dataclass
 class MapsConfig:
-    """Map builders fed with keyframe snapshots (registry names); they write OUT/map/."""
+    """Map builders fed with keyframe snapshots (registry names: octree, cloud, mesh,
+    keyframe_cloud); they run in a mapping thread of their own and write OUT/map/."""
 
     builders: list[str] = field(default_factory=list)
+    # Octree leaf size (OctoMap resolution), metres.
+    octree_resolution_m: float = 0.05
+    # Voxel size of the semantic cloud's downsampling, metres.
+    cloud_voxel_m: float = 0.02
+    # TSDF voxel size, metres (truncation is 4 voxels).
+    mesh_voxel_m: float = 0.02
+    # Depth beyond this is not integrated (Kinect-class noise grows with depth squared).
+    max_depth_m: float = 4.0
+    inpainting: InpaintingConfig = field(default_factory=InpaintingConfig)
 
 
 @dataclass

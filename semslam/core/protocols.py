@@ -78,6 +78,11 @@ class KeyframeSnapshot:
     dynamic: BoolImage | None
     labels: LabelMap | None
     camera: PinholeCamera
+    #: Set by background inpainting (``reconstruction.inpainting``): dynamic pixels whose
+    #: static background was filled from earlier keyframes, and those filled by image
+    #: inpainting (synthesised, not observed). ``dynamic`` then marks what stays unknown.
+    filled: BoolImage | None = None
+    synthesized: BoolImage | None = None
 
 
 @dataclass

@@ -13,15 +13,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.config import MapsConfig
 from semslam.core.protocols import KeyframeSnapshot
 
 
 class KeyframeCloud:
     """``MapBuilder``: a coloured cloud of the keyframes' static depth, subsampled on a grid."""
 
-    def __init__(self, stride: int = 4, max_depth_m: float = 4.0) -> None:
+    def __init__(self, cfg: MapsConfig | None = None, stride: int = 4) -> None:
         self.stride = stride
-        self.max_depth_m = max_depth_m
+        self.max_depth_m = (cfg or MapsConfig()).max_depth_m
         self._points: dict[int, tuple[NDArray[np.float32], NDArray[np.uint8]]] = {}
         self._poses: dict[int, NDArray[np.float64]] = {}
 

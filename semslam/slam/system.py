@@ -31,7 +31,8 @@ class System:
         self.config = config
         self.camera = camera
         depth: DepthSource = registry.create("depth_source", config.depth.source)
-        builders: list[MapBuilder] = [registry.create("map_builder", name) for name in config.maps.builders]
+        builders: list[MapBuilder] = [registry.create("map_builder", name, config.maps)
+                                      for name in config.maps.builders]
         self.dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
                                              threaded=not config.slam.sequential)
         self.inputs = TrackerInputs(depth, self.dynamics, builders)
