@@ -35,3 +35,8 @@ class EvalError(SemslamError):
 
 class ConfigError(SemslamError):
     """A preset, a --set override or a command-line option is invalid."""
+
+
+class WorkerFailed(SemslamError):
+    """A background worker (local mapping, loop closing, the maps' worker) raised; the run
+    stops after writing what it has."""

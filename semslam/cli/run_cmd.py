@@ -47,9 +47,14 @@ def print_summary(result: RunResult) -> None:
 
 
 def run_overrides(set_: list[str], depth_scale: float | None, sequential: bool, localization_only: bool,
-                  realtime: bool = False) -> list[str]:
+                  realtime: bool = False, maps: str | None = None, save_inpainted: Path | None = None) -> list[str]:
     """Command-line flags as ``--set`` overrides, so the config is built once, one way."""
     flags = list(set_)
+    if maps is not None:
+        names = [] if maps.strip() in ("", "none") else [m.strip() for m in maps.split(",") if m.strip()]
+        flags.append(f"maps.builders=[{', '.join(names)}]")
+    if save_inpainted is not None:
+        flags.append(f"maps.save_inpainted={save_inpainted}")
     if realtime:
         flags.append("slam.realtime=true")
     if depth_scale is not None:
@@ -80,10 +85,17 @@ def register(app: typer.Typer) -> None:
                                                                  "does; reports each frame's latency"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
         verbose: bool = typer.Option(False, "--verbose", "-v"),
+        maps: Optional[str] = typer.Option(None, "--map", help="maps to build into OUT/map/: a comma list of octree, "
+                                                               "cloud, mesh, keyframe_cloud, or none (default: "
+                                                               "the preset's maps.builders)"),
+        save_inpainted: Optional[Path] = typer.Option(None, "--save-inpainted",
+                                                      help="write every tracked frame's inpainted RGB, depth and "
+                                                           "fill mask to this folder"),
     ) -> None:
-        """Run SLAM on a sequence; write trajectory.txt, stats.json and report.html."""
+        """Run SLAM on a sequence; write trajectory.txt, stats.json, report.html and the maps (OUT/map/)."""
         _setup_logging(verbose)
-        cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only, realtime))
+        cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only, realtime,
+                                                maps, save_inpainted))
         seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
         print_summary(run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
                                save_map=save_map, load_map=load_map))

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from semslam.config import SemanticsConfig
 from semslam.core.protocols import FramePacket, MotionPrior
-from semslam.core.types import Frame
+from semslam.core.types import Frame, LabelMap
 from semslam.dynamics.warp import relative_pose, warp_mask
 from semslam.geometry.camera import PinholeCamera
 
@@ -76,6 +76,7 @@ class SemanticThread:
         self.wait_ms: list[float] = []  # tracking waiting for a segmented frame's mask
         self.warp_ms: list[float] = []  # tracking warping a skipped frame's mask
         self.frames_without_own_mask = 0  # ("latest") frames that did not wait for their own mask
+        self._labels: dict[int, LabelMap] = {}  # segmented frames' labels until tracking takes them
         self._closed = False
 
     def _compute(self, frame: Frame) -> NDArray[np.bool_]:
@@ -83,6 +84,7 @@ class SemanticThread:
 
         t0 = time.perf_counter()
         labels = self.segmenter.segment(frame.rgb, frame)
+        self._labels[frame.index] = labels  # for the maps' classes (keyframes take it)
         mask = dynamic_mask(labels, list(self.cfg.dynamic_classes))
         t1 = time.perf_counter()
         self.segment_ms.append((t1 - t0) * 1e3)
@@ -137,6 +139,9 @@ class SemanticThread:
                 m = self._compute(frame)
             self._source = _Segmented(frame.index, m, frame.depth)
             self._late.clear()  # all older than this frame
+            packet.labels = self._labels.pop(frame.index, None)
+            for old in [i for i in list(self._labels) if i < frame.index]:  # list(): one C-level copy,
+                self._labels.pop(old, None)  # safe while the semantic thread inserts
             ms = (time.perf_counter() - t0) * 1e3
             self.wait_ms.append(ms)
         packet.dynamic = m

@@ -24,7 +24,7 @@ from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.core.protocols import FramePacket, KeyframeSnapshot, TrackerInputs
 from semslam.core.types import TrackResult
-from semslam.errors import ConfigError, SemslamError
+from semslam.errors import ConfigError, WorkerFailed
 from semslam.features import create_extractor, feature_spec
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
@@ -51,10 +51,6 @@ def _pose_cw_through_tree(T_c_ref: np.ndarray, ref: KeyFrame) -> np.ndarray:
         T = T @ k.T_cp
         k = k.parent
     return T @ k.T_cw
-
-
-class WorkerFailed(SemslamError):
-    """Local mapping or loop closing raised; the run stops after writing what it has."""
 
 
 class PlaceIndexer:
@@ -105,6 +101,8 @@ class OrbSlamSystem:
         self.config = config
         self.camera = camera
         self.map_builders = inputs.map_builders
+        # Builders that also take every other tracked frame (--save-inpainted).
+        self._frame_sinks = [b for b in self.map_builders if getattr(b, "wants_frames", False)]
         self._fed_keyframes: list[KeyFrame] = []  # culled ones too: their points stay in the maps
         self.threaded = not config.slam.sequential
         # One BA runner shared by local mapping and loop closing; owned (and closed) here.
@@ -151,15 +149,23 @@ class OrbSlamSystem:
         result = self.tracking.track(packet)
         if result.is_keyframe and self.map_builders:
             self._feed_builders(packet)
+        elif self._frame_sinks and result.pose_wc is not None:
+            snap = self._snapshot(packet, -1, result.timestamp, result.pose_wc)
+            for sink in self._frame_sinks:
+                sink.add_frame(snap)
         return result
 
+    def _snapshot(self, packet: FramePacket, kf_id: int, timestamp: float, T_wc: np.ndarray) -> KeyframeSnapshot:
+        """A frame, its pose and its final dynamic mask, as the map builders take it."""
+        dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
+        return KeyframeSnapshot(kf_id, timestamp, T_wc, packet.frame.rgb, self.tracking.depth.depth(packet.frame),
+                                dynamic, packet.labels, self.camera)
+
     def _feed_builders(self, packet: FramePacket) -> None:
-        """A snapshot of the keyframe just made (its frame, pose and final dynamic mask)."""
+        """A snapshot of the keyframe just made."""
         kf = self.tracking.ref_kf
         assert kf is not None
-        dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
-        snap = KeyframeSnapshot(kf.id, kf.timestamp, kf.T_wc, packet.frame.rgb, self.tracking.depth.depth(packet.frame),
-                                dynamic, packet.labels, self.camera)
+        snap = self._snapshot(packet, kf.id, kf.timestamp, kf.T_wc)
         for builder in self.map_builders:
             builder.add_keyframe(snap)
         self._fed_keyframes.append(kf)

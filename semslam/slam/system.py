@@ -31,8 +31,13 @@ class System:
         self.config = config
         self.camera = camera
         depth: DepthSource = registry.create("depth_source", config.depth.source)
-        builders: list[MapBuilder] = [registry.create("map_builder", name, config.maps)
-                                      for name in config.maps.builders]
+        builders: list[MapBuilder] = []
+        if config.maps.builders:  # inpainting + every builder in the maps' own worker
+            from semslam.reconstruction.mapping_worker import MappingWorker
+
+            builders.append(MappingWorker(config.maps.builders, config.maps, threaded=not config.slam.sequential,
+                                          inpainted_dir=Path(config.maps.save_inpainted)
+                                          if config.maps.save_inpainted else None))
         self.dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
                                              threaded=not config.slam.sequential)
         self.inputs = TrackerInputs(depth, self.dynamics, builders)
@@ -84,7 +89,11 @@ class System:
         }
 
     def stats(self) -> dict[str, Any]:
-        return {**self.tracker.stats(), **(self.dynamics.stats() if self.dynamics is not None else {}),
+        """The tracker's, the dynamic stage's and (once written) the maps' counters."""
+        maps: dict[str, Any] = {}
+        for builder in self.inputs.map_builders:
+            maps.update(getattr(builder, "stats", dict)())
+        return {**self.tracker.stats(), **(self.dynamics.stats() if self.dynamics is not None else {}), **maps,
                 "jit_warmup_s": self.jit_warmup_s}
 
     def save_map(self, path: Path) -> None:

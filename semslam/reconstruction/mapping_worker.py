@@ -1,0 +1,244 @@
+"""The maps' own worker: background inpainting, then every map builder, off the tracking path.
+
+DDL-SLAM builds its octree in a thread of its own. Here it is a process: OctoMap's ray
+casting and Open3D's TSDF hold the GIL for tens of milliseconds per keyframe, which in a
+thread would stall tracking on a 2-core machine (the BA worker exists for the same reason,
+``backend/worker.py``). Keyframe snapshots are a few MB of arrays, cheap to send. One worker,
+tasks in order: keyframes, pose corrections and the final write reach the builders in the
+order the SLAM system issued them. A sequential (deterministic) run does the same work
+in the calling thread.
+
+The builders and the inpainter are created *inside* the worker from their registry names
+and the maps config, so nothing but plain data crosses the process boundary.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import time
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.config import MapsConfig
+from semslam.core import registry
+from semslam.core.protocols import KeyframeSnapshot, MapBuilder
+from semslam.errors import WorkerFailed
+
+log = logging.getLogger(__name__)
+
+#: Niceness of the maps' process: below tracking, the semantic thread and local mapping (a
+#: map that lags a few keyframes costs nothing; a late frame does).
+MAP_NICE = 10
+
+
+@dataclass
+class _MapState:
+    """What the worker holds: the builders, the inpainter, where inpainted frames go, counters."""
+
+    builders: list[MapBuilder]
+    inpainter: Any | None
+    inpainted_dir: Path | None
+    keyframe_ms: list[float] = field(default_factory=list)
+    inpaint_ms: list[float] = field(default_factory=list)
+    dynamic_px: int = 0
+    filled_px: int = 0
+    synthesized_px: int = 0
+    frames_written: int = 0
+
+
+_STATE: _MapState | None = None
+
+
+def _create_state(names: list[str], cfg: MapsConfig, inpainted_dir: Path | None, lower_priority: bool) -> bool:
+    """Build the builders and the inpainter (in the worker when there is one)."""
+    global _STATE
+    if lower_priority:
+        import os
+
+        from semslam.runtime import limit_threads
+
+        limit_threads()
+        try:
+            os.nice(MAP_NICE)
+        except OSError:
+            pass
+    inpainter = None
+    if cfg.inpainting.enabled:
+        from semslam.reconstruction.inpainting import BackgroundInpainter
+
+        inpainter = BackgroundInpainter(cfg.inpainting)
+    _STATE = _MapState([registry.create("map_builder", n, cfg) for n in names], inpainter, inpainted_dir)
+    return True
+
+
+def _state() -> _MapState:
+    if _STATE is None:
+        raise RuntimeError("map worker used before it was started")
+    return _STATE
+
+
+def _add_keyframe(snapshot: KeyframeSnapshot) -> None:
+    st = _state()
+    t0 = time.perf_counter()
+    if st.inpainter is not None:
+        dynamic = snapshot.dynamic
+        snapshot = st.inpainter.inpaint(snapshot)
+        t1 = time.perf_counter()
+        st.inpaint_ms.append((t1 - t0) * 1e3)
+        if dynamic is not None:
+            st.dynamic_px += int(dynamic.sum())
+            st.filled_px += int(snapshot.filled.sum()) if snapshot.filled is not None else 0
+            st.synthesized_px += int(snapshot.synthesized.sum()) if snapshot.synthesized is not None else 0
+        if st.inpainted_dir is not None:
+            _write_inpainted(st, snapshot)
+    for builder in st.builders:
+        builder.add_keyframe(snapshot)
+    st.keyframe_ms.append((time.perf_counter() - t0) * 1e3)
+
+
+def _add_frame(snapshot: KeyframeSnapshot) -> None:
+    """A frame that is not a keyframe: inpainted from the history and written, not mapped."""
+    st = _state()
+    if st.inpainter is None or st.inpainted_dir is None:
+        return
+    _write_inpainted(st, st.inpainter.inpaint(snapshot, remember=False))
+
+
+def _write_inpainted(st: _MapState, snapshot: KeyframeSnapshot) -> None:
+    from semslam.reconstruction.inpainting import write_inpainted
+
+    assert st.inpainted_dir is not None
+    write_inpainted(st.inpainted_dir, f"{snapshot.timestamp:.6f}", snapshot)
+    st.frames_written += 1
+
+
+def _correct_poses(poses_wc: dict[int, NDArray[np.float64]]) -> None:
+    st = _state()
+    if st.inpainter is not None:
+        st.inpainter.correct_poses(poses_wc)
+    for builder in st.builders:
+        builder.correct_poses(poses_wc)
+
+
+def _finish(out_dir: Path) -> tuple[dict[str, Path], dict[str, float]]:
+    st = _state()
+    paths: dict[str, Path] = {}
+    t0 = time.perf_counter()
+    for builder in st.builders:
+        paths.update(builder.finish(out_dir))
+    stats: dict[str, float] = {
+        "map_keyframes": len(st.keyframe_ms),
+        "map_keyframe_ms_median": float(np.median(st.keyframe_ms)) if st.keyframe_ms else 0.0,
+        "map_finish_s": time.perf_counter() - t0,
+    }
+    if st.inpainter is not None:
+        stats["inpaint_ms_median"] = float(np.median(st.inpaint_ms)) if st.inpaint_ms else 0.0
+        stats["inpaint_dynamic_px"] = st.dynamic_px
+        stats["inpaint_filled_share"] = st.filled_px / st.dynamic_px if st.dynamic_px else 0.0
+        stats["inpaint_synthesized_share"] = st.synthesized_px / st.dynamic_px if st.dynamic_px else 0.0
+        stats["inpainted_frames_written"] = st.frames_written
+    return paths, stats
+
+
+def _close() -> None:
+    global _STATE
+    if _STATE is not None:
+        for builder in _STATE.builders:
+            builder.close()
+        _STATE = None
+
+
+class MappingWorker:
+    """``MapBuilder`` (and frame sink) in front of the maps' worker.
+
+    ``add_keyframe`` / ``add_frame`` / ``correct_poses`` return at once (the work is queued);
+    ``finish`` waits for the queue, writes every builder's files and returns their paths;
+    ``stats`` says how far behind the maps ever were (``map_queue_max``) and what they cost.
+    """
+
+    def __init__(self, names: list[str], cfg: MapsConfig, threaded: bool,
+                 inpainted_dir: Path | None = None) -> None:
+        for name in names:
+            registry.resolve("map_builder", name)  # a typo fails here, before any frame
+        self.names = list(names)
+        self._pool: ProcessPoolExecutor | None = None
+        self._pending: list[Future[Any]] = []
+        self._error: BaseException | None = None
+        self.queue_max = 0
+        self.wants_frames = inpainted_dir is not None and cfg.inpainting.enabled
+        self.stats_: dict[str, float] = {}
+        if threaded:
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
+            self._pending.append(self._pool.submit(_create_state, self.names, cfg, inpainted_dir, True))
+        else:
+            _create_state(self.names, cfg, inpainted_dir, False)
+
+    # ------------------------------------------------------------------ MapBuilder contract
+    def add_keyframe(self, snapshot: KeyframeSnapshot) -> None:
+        self._call(_add_keyframe, snapshot)
+
+    def add_frame(self, snapshot: KeyframeSnapshot) -> None:
+        self._call(_add_frame, snapshot)
+
+    def correct_poses(self, poses_wc: dict[int, NDArray[np.float64]]) -> None:
+        self._call(_correct_poses, poses_wc)
+
+    def finish(self, out_dir: Path) -> dict[str, Path]:
+        self._drain()
+        if self._pool is None:
+            paths, self.stats_ = _finish(out_dir)
+        else:
+            paths, self.stats_ = self._wait(self._pool.submit(_finish, out_dir))
+        self.stats_["map_queue_max"] = self.queue_max
+        return paths
+
+    def stats(self) -> dict[str, float]:
+        return dict(self.stats_)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            pool, self._pool = self._pool, None
+            try:
+                pool.submit(_close).result(timeout=60)
+            except Exception:  # noqa: BLE001 - closing after a failure: the first error is what matters
+                pass
+            pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            _close()
+
+    # ------------------------------------------------------------------ queue
+    def _call(self, fn: Any, *args: Any) -> None:
+        if self._pool is None:
+            fn(*args)
+            return
+        self._pending = [f for f in self._pending if not f.done() or self._check(f)]
+        self._pending.append(self._pool.submit(fn, *args))
+        self.queue_max = max(self.queue_max, len(self._pending))
+
+    def _check(self, fut: Future[Any]) -> bool:
+        """Keep the first failure of a finished task (raised at ``finish``); never keep done tasks."""
+        if self._error is None and fut.exception() is not None:
+            self._error = fut.exception()
+            log.error("mapping worker failed: %s", self._error)
+        return False
+
+    def _drain(self) -> None:
+        for fut in self._pending:
+            fut.exception()  # waits
+            self._check(fut)
+        self._pending = []
+        if self._error is not None:
+            raise WorkerFailed(f"mapping worker failed: {type(self._error).__name__}: {self._error}") \
+                from self._error
+
+    def _wait(self, fut: Future[Any]) -> Any:
+        try:
+            return fut.result()
+        except Exception as exc:
+            raise WorkerFailed(f"mapping worker failed: {type(exc).__name__}: {exc}") from exc
