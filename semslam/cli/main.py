@@ -23,9 +23,9 @@ app = typer.Typer(
 
 
 def _register_commands() -> None:
-    from semslam.cli import bench_cmd, eval_cmd, run_cmd, synth_cmd, train_cmd, train_nets_cmd
+    from semslam.cli import bench_cmd, eval_cmd, map_cmd, run_cmd, synth_cmd, train_cmd, train_nets_cmd
 
-    for module in (run_cmd, eval_cmd, synth_cmd, train_cmd, train_nets_cmd, bench_cmd):
+    for module in (run_cmd, map_cmd, eval_cmd, synth_cmd, train_cmd, train_nets_cmd, bench_cmd):
         module.register(app)
 
 

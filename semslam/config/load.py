@@ -98,6 +98,12 @@ def load_config(preset: str | Path = "default", overrides: list[str] | None = No
     cfg = load_config(base) if base else SystemConfig()
     _apply(cfg, data, path.stem)
     cfg.preset = data.get("preset", path.stem)
+    _apply_overrides(cfg, overrides)
+    return cfg
+
+
+def _apply_overrides(cfg: SystemConfig, overrides: list[str] | None) -> None:
+    """``--set section.key=value`` overrides, then the whole-config checks."""
     for text in overrides or []:
         keys, value = parse_override(text)
         nested: dict[str, Any] = {keys[-1]: value}
@@ -105,7 +111,6 @@ def load_config(preset: str | Path = "default", overrides: list[str] | None = No
             nested = {k: nested}
         _apply(cfg, nested, "--set")
     _check(cfg)
-    return cfg
 
 
 def _check(cfg: SystemConfig) -> None:
@@ -118,3 +123,14 @@ def _check(cfg: SystemConfig) -> None:
 
 def config_to_dict(cfg: SystemConfig) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
+
+
+def config_from_dict(data: dict[str, Any], where: str, overrides: list[str] | None = None) -> SystemConfig:
+    """The config a run wrote (``config.json``), checked like a preset, with ``--set`` overrides."""
+    data = dict(data)
+    preset = data.pop("preset", "custom")
+    cfg = SystemConfig()
+    _apply(cfg, data, where)
+    cfg.preset = preset
+    _apply_overrides(cfg, overrides)
+    return cfg
