@@ -12,7 +12,7 @@ settings (resolution, which maps) and rebuild in seconds per keyframe.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -55,26 +55,36 @@ def rebuild_maps(run_dir: Path, sequence_dir: Path | None = None, out_dir: Path 
     if not cfg.maps.builders:
         raise ConfigError("no maps to build: the run's config has maps.builders empty; choose them with "
                           "--map octree,cloud,mesh")
-    seq = open_sequence(sequence_dir or Path(stats["sequence"]), depth_scale=cfg.depth_scale)
+    cfg.maps.save_inpainted = ""
+    worker = MappingWorker(cfg.maps.builders, cfg.maps, threaded=False)
+    try:
+        for snap, done, total in keyframe_snapshots(run_dir, cfg, Path(sequence_dir or stats["sequence"])):
+            worker.add_keyframe(snap)
+            if progress is not None:
+                progress(done, total)
+        paths = worker.finish(out_dir or run_dir / "map")
+        return paths, worker.stats()
+    finally:
+        worker.close()
+
+
+def keyframe_snapshots(run_dir: Path, cfg: SystemConfig, sequence_dir: Path
+                       ) -> Iterator[tuple[KeyframeSnapshot, int, int]]:
+    """The run's keyframes in order, with their final poses and dynamic masks recomputed as
+    ``cfg`` says: (snapshot, how many so far, how many in all)."""
+    seq = open_sequence(sequence_dir, depth_scale=cfg.depth_scale)
     keyframes = read_trajectory(run_dir / "keyframes.txt")
     index = _frame_indices(seq.timestamps, keyframes.timestamps, run_dir / "keyframes.txt")
     dynamics = create_dynamic_stage(cfg.dynamics, cfg.semantics, seq.camera, threaded=False)
-    cfg.maps.save_inpainted = ""
-    worker = MappingWorker(cfg.maps.builders, cfg.maps, threaded=False)
     refs: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]] = []
     try:
         for k, (i, T_wc) in enumerate(zip(index, keyframes.poses)):
             frame = next(seq.frames(int(i), int(i) + 1))
             snap = _snapshot(k, frame, T_wc, dynamics, refs[-cfg.dynamics.multiview_keyframes:], seq.camera)
-            worker.add_keyframe(snap)
             if frame.depth is not None:
                 refs.append(_reference(np.linalg.inv(T_wc), frame.depth, snap.dynamic))
-            if progress is not None:
-                progress(k + 1, len(index))
-        paths = worker.finish(out_dir or run_dir / "map")
-        return paths, worker.stats()
+            yield snap, k + 1, len(index)
     finally:
-        worker.close()
         if dynamics is not None:
             dynamics.close()
 
