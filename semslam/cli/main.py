@@ -23,9 +23,10 @@ app = typer.Typer(
 
 
 def _register_commands() -> None:
-    from semslam.cli import bench_cmd, eval_cmd, map_cmd, run_cmd, synth_cmd, train_cmd, train_nets_cmd
+    from semslam.cli import (bench_cmd, eval_cmd, eval_map_cmd, map_cmd, run_cmd, synth_cmd, train_cmd,
+                             train_nets_cmd)
 
-    for module in (run_cmd, map_cmd, eval_cmd, synth_cmd, train_cmd, train_nets_cmd, bench_cmd):
+    for module in (run_cmd, map_cmd, eval_cmd, eval_map_cmd, synth_cmd, train_cmd, train_nets_cmd, bench_cmd):
         module.register(app)
 
 
