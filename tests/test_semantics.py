@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from semslam.errors import ConfigError, DataError
+from semslam.core.labels import NYU40_CLASSES, SYNTH_STATIC_OFFSET
 from semslam.core.types import Frame
 from semslam.io.sequence import TumRgbdSequence
 from semslam.core import registry
@@ -58,8 +59,13 @@ def test_label_sets() -> None:
     assert len(DDL_SLAM_DYNAMIC_CLASSES) == 14
     assert set(DDL_SLAM_DYNAMIC_CLASSES) <= set(VOC_CLASSES.values())
     assert {"chair", "tvmonitor", "bottle"}.isdisjoint(DDL_SLAM_DYNAMIC_CLASSES)
-    # The synthetic sequences write exactly these ids.
-    assert {int(k): v for k, v in synth_writer.LABELS.items()} == SYNTH_CLASSES
+    # The synthetic sequences write these dynamic ids and NYU-40 classes at 100 + NYU id.
+    written = {int(k): v for k, v in synth_writer.LABELS.items()}
+    assert {k: v for k, v in written.items() if k < SYNTH_STATIC_OFFSET} == SYNTH_CLASSES
+    static = {k: v for k, v in written.items() if k >= SYNTH_STATIC_OFFSET}
+    assert static and all(NYU40_CLASSES[k - SYNTH_STATIC_OFFSET] == v for k, v in static.items())
+    assert {"wall", "floor", "ceiling", "desk", "chair"} <= set(static.values())
+    assert not set(static.values()) & set(DDL_SLAM_DYNAMIC_CLASSES)  # no static class is masked
 
 
 def test_config_defaults_and_checks() -> None:
@@ -156,7 +162,7 @@ def test_ground_truth_backend_reads_labels_back_exactly(tmp_path: Path) -> None:
     for frame in seq:
         lm = seg.segment(frame.rgb, frame)
         np.testing.assert_array_equal(lm.labels, truth.render(frame.index).semantic)
-        assert lm.names == SYNTH_CLASSES
+        assert lm.names == {int(k): v for k, v in synth_writer.LABELS.items()}
         mask = dynamic_mask(lm, DDL_SLAM_DYNAMIC_CLASSES)  # person, not the unlabelled mover
         np.testing.assert_array_equal(mask, lm.labels == 15)
         n_person += int(mask.sum())

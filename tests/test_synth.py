@@ -70,16 +70,21 @@ def test_layout(small_seq: Path) -> None:
     c = cv2.imread(str(small_seq / rgb[0][1]), cv2.IMREAD_UNCHANGED)
     assert c.dtype == np.uint8 and c.shape == (240, 320, 3)
     s = cv2.imread(str(small_seq / "semantic" / Path(rgb[0][1]).name), cv2.IMREAD_UNCHANGED)
-    assert s.dtype == np.uint8 and s.shape == (240, 320) and set(np.unique(s)) <= {0, 15, 21}
+    labels = {
+        int(k): v for k, v in json.loads((small_seq / "semantic/labels.json").read_text()).items()
+    }
+    assert s.dtype == np.uint8 and s.shape == (240, 320) and set(np.unique(s)) <= set(labels)
     calib = [float(v) for v in (small_seq / "calib.txt").read_text().split()]
     assert calib == pytest.approx([535.4 / 2, 539.2 / 2, 320.1 / 2, 247.6 / 2])
     meta = json.loads((small_seq / "sequence.json").read_text())
     assert meta["config"]["seed"] == 3 and meta["config"]["frames"] == 6
-    assert json.loads((small_seq / "semantic/labels.json").read_text()) == {
-        "0": "background",
-        "15": "person",
-        "21": "moving_object",
+    # dynamic ids as ever; the static scene's NYU-40 classes at 100 + NYU id
+    assert {k: v for k, v in labels.items() if k < 100} == {
+        0: "background",
+        15: "person",
+        21: "moving_object",
     }
+    assert labels[101] == "wall" and labels[102] == "floor" and labels[122] == "ceiling"
 
 
 def test_project_loader_reads_it(small_seq: Path) -> None:

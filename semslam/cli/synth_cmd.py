@@ -60,10 +60,19 @@ def synth_command(
         help="Folder with the TUM person photos "
         "(default: $SEMSLAM_PEOPLE_DIR or ../shared/data/images_people).",
     ),
+    background: bool | None = typer.Option(
+        None,
+        "--background/--no-background",
+        help="Also render every frame without people and movers into background/rgb and "
+        "background/depth (exact depth), the truth for inpainting (default: off).",
+    ),
     workers: int = typer.Option(2, "--workers", help="Frames rendered in parallel (threads)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
-    """Render a synthetic TUM RGB-D sequence (rgb, depth, semantic, exact ground truth)."""
+    """Render a synthetic TUM RGB-D sequence (rgb, depth, semantic, exact ground truth).
+
+    Static surfaces are labelled with NYU-40 classes (id 100 + NYU id); ``scene.json`` and
+    ``movers.json`` hold the static boxes and the movers' boxes for map metrics."""
     from semslam.synth.render import render_sequence
 
     base = get_sequence(sequence) if sequence else SynthConfig()
@@ -83,11 +92,12 @@ def synth_command(
         width=width,
         height=height,
         people_dir=str(people_dir) if people_dir is not None else None,
+        background=background,
     ).validate()
     start = time.perf_counter()
     path = render_sequence(cfg, out, progress=not quiet, workers=workers)
     secs = time.perf_counter() - start
-    mover_note = ", mover" if cfg.mover else ""
+    mover_note = (", mover" if cfg.mover else "") + (", background" if cfg.background else "")
     typer.echo(
         f"synth: {cfg.frames} frames ({cfg.motion}, {cfg.people} people{mover_note}) "
         f"in {secs:.1f} s ({secs / cfg.frames:.3f} s/frame) -> {path}"

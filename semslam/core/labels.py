@@ -48,8 +48,9 @@ DDL_SLAM_DYNAMIC_CLASSES: tuple[str, ...] = (
     "train",
 )
 
-# semslam's synthetic sequences (semslam/synth/writer.py LABELS): the unlabelled mover is
-# deliberately not a VOC class, so only geometry (not semantics) can catch it.
+# semslam's synthetic sequences, their dynamic ids (semslam/synth/writer.py LABELS adds the
+# static scene's NYU-40 classes, below): the unlabelled mover is deliberately not a VOC
+# class, so only geometry (not semantics) can catch it.
 SYNTH_MOVING_OBJECT = 21
 SYNTH_CLASSES: dict[int, str] = {0: "background", VOC_PERSON: "person", SYNTH_MOVING_OBJECT: "moving_object"}
 

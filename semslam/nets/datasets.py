@@ -7,7 +7,11 @@ not in the set become background by default (``other="background"``) or are igno
 (``"ignore"``, index 255). The default set is 2 classes, background/person, because a
 person model is what can be trained on CPU here. Id 21 (the synthetic "moving object",
 a textured box that is not a person) is therefore background by default: a person
-segmenter must not fire on it, and a box has no appearance cue that it moves.
+segmenter must not fire on it, and a box has no appearance cue that it moves. The
+synthetic sequences label the static scene with NYU-40 classes at ids 100..140; unless a
+class set names them, they are background whatever ``other`` says, as when the whole
+static scene was id 0 (ignoring it would leave a person net nothing to learn "not a
+person" from).
 
 Images are decoded once, resized so they fit the target size (640x480 -> 320x240) and
 kept in memory (uint8), so an epoch costs only augmentation + the network. Augmentation
@@ -28,6 +32,7 @@ import torch
 from numpy.typing import NDArray
 from torch.utils.data import Dataset
 
+from semslam.core.labels import NYU40_CLASSES, SYNTH_STATIC_OFFSET
 from semslam.errors import ConfigError, DataError
 
 IGNORE_INDEX = 255
@@ -88,6 +93,8 @@ class ClassSet:
         """Dataset id -> train index (255 = ignore); id 255 stays ignore."""
         table = np.full(256, 0 if self.other == "background" else IGNORE_INDEX, np.uint8)
         table[IGNORE_INDEX] = IGNORE_INDEX
+        # the synthetic static scene (NYU-40 ids at 100 + id) is background, as id 0 was
+        table[SYNTH_STATIC_OFFSET + 1 : SYNTH_STATIC_OFFSET + len(NYU40_CLASSES) + 1] = 0
         for idx, i in enumerate(self.ids):
             table[i] = idx
         return table

@@ -75,10 +75,24 @@ class Buffers:
         self.cos = np.ones((h, w), np.float32)  # |cos| of incidence, for depth dropout
         self.label = np.zeros((h, w), np.uint8)
 
+    def copy(self) -> Buffers:
+        """An independent copy (to go on casting into one while keeping the other)."""
+        out = Buffers.__new__(Buffers)
+        for name in ("z", "mapx", "mapy", "foot", "cos", "label"):
+            setattr(out, name, getattr(self, name).copy())
+        return out
+
 
 def _lut(values: NDArray[np.float32]) -> NDArray[np.float32]:
     """A 256-entry float32 table for ``cv2.LUT`` (much faster than ``np.take``)."""
     lut = np.zeros(256, np.float32)
+    lut[: len(values)] = values
+    return lut
+
+
+def _lut8(values: tuple[int, ...]) -> NDArray[np.uint8]:
+    """A 256-entry uint8 table for ``cv2.LUT`` (face index -> label id)."""
+    lut = np.zeros(256, np.uint8)
     lut[: len(values)] = values
     return lut
 
@@ -153,7 +167,10 @@ def cast_box(
     np.copyto(buf.mapy[r0:r1, c0:c1], ay, where=hit)
     np.copyto(buf.foot[r0:r1, c0:c1], foot, where=hit)
     np.copyto(buf.cos[r0:r1, c0:c1], cos, where=hit)
-    if box.label or not box.inside:
+    if box.classes:  # a static box: the class of the face hit
+        labels = cv2.LUT(face, _lut8(box.classes))
+        np.copyto(buf.label[r0:r1, c0:c1], labels, where=hit)
+    elif box.label or not box.inside:
         np.copyto(buf.label[r0:r1, c0:c1], np.uint8(box.label), where=hit)
 
 
@@ -196,22 +213,53 @@ class Billboard:
     label: int
 
 
+def _billboard_frame(
+    bb: Billboard, cam_pos: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
+    """(normal towards the camera, right axis, the 4 corners) of a billboard seen from
+    ``cam_pos``; None when the camera stands right above its foot."""
+    up = np.array([0.0, 0.0, 1.0])
+    n = cam_pos - bb.foot
+    n[2] = 0.0
+    dist_h = np.linalg.norm(n)
+    if dist_h < 1e-3:
+        return None
+    n /= dist_h
+    right = np.cross(up, n)
+    corners = np.array(
+        [bb.foot + sa * bb.width / 2 * right + z * up for sa in (-1, 1) for z in (0.0, bb.height)]
+    )
+    return n, right, corners
+
+
+def billboard_aabb(
+    bb: Billboard, cam: Camera, pose: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """World axis-aligned box holding every surface point :func:`cast_billboard` can draw
+    for ``bb`` seen from ``pose``: the sprite's rectangle and the same moved towards the
+    camera by the largest bulge (along a ray, hence the factor of the most oblique ray)."""
+    frame = _billboard_frame(bb, pose[:3, 3])
+    if frame is None:
+        return None
+    n, _, corners = frame
+    nc2 = abs(float((pose[:3, :3].T @ n)[2]))
+    reach = float(max(np.max(b) for b in bb.bulge)) * nc2 * float(cam.ray_norm.max())
+    towards = pose[:3, 3] - corners
+    towards /= np.linalg.norm(towards, axis=1, keepdims=True)
+    pts = np.vstack([corners, corners + reach * towards])
+    return pts.min(axis=0), pts.max(axis=0)
+
+
 def cast_billboard(
     buf: Buffers, rgb: NDArray[np.uint8], cam: Camera, pose: NDArray[np.float64], bb: Billboard
 ) -> None:
     """Draw a billboard over ``rgb`` with alpha, depth test against and update ``buf``."""
     c = pose[:3, 3]
     up = np.array([0.0, 0.0, 1.0])
-    n = c - bb.foot
-    n[2] = 0.0
-    dist_h = np.linalg.norm(n)
-    if dist_h < 1e-3:
+    frame = _billboard_frame(bb, c)
+    if frame is None:
         return
-    n /= dist_h
-    right = np.cross(up, n)
-    corners = np.array(
-        [bb.foot + sa * bb.width / 2 * right + z * up for sa in (-1, 1) for z in (0.0, bb.height)]
-    )
+    n, right, corners = frame
     rect = cam.bbox(corners, pose)
     if rect is None:
         return

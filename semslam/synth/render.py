@@ -3,6 +3,12 @@
 Each frame depends only on (config, frame index), with its own random streams, so frames
 can be rendered in any order or in parallel and the output is byte-identical for the same
 config.
+
+Besides the TUM folder, a sequence holds the ground truth for map metrics: ``scene.json``
+(the static boxes and the class of each face) and ``movers.json`` (per frame, the boxes
+the people and movers occupy), read by :mod:`semslam.synth.static_geometry`; with
+``SynthConfig.background`` also ``background/rgb`` and ``background/depth``: every frame
+without people and movers, the truth for inpainting.
 """
 
 from __future__ import annotations
@@ -25,12 +31,20 @@ from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
 from semslam.synth.depth_noise import DEPTH_SCALE, Z_MAX, Z_MIN, kinect_depth
 from semslam.synth.people import People
-from semslam.synth.raycast import Buffers, Camera, cast_billboard, cast_box, sample_atlas
-from semslam.synth.scene import Box, mover_box, static_boxes
+from semslam.synth.raycast import (
+    Buffers,
+    Camera,
+    billboard_aabb,
+    cast_billboard,
+    cast_box,
+    sample_atlas,
+)
+from semslam.synth.scene import LABEL_PERSON, Box, mover_box, static_boxes
 from semslam.synth.sequences import SynthConfig
+from semslam.synth.static_geometry import MOVERS_FILE, SCENE_FILE, movers_json, scene_json
 
 #: SynthConfig fields added after renders were first cached (absent there = default).
-_ADDED_FIELDS = ("box_carrier",)
+_ADDED_FIELDS = ("box_carrier", "background")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -83,12 +97,22 @@ class Renderer:
             self.depth_noise = bank_rng.standard_normal(shape, dtype=np.float32)
 
     def render(self, i: int) -> Frame:
+        return self.render_with_background(i, background=False)[0]
+
+    def render_with_background(self, i: int, background: bool = True) -> tuple[Frame, Frame | None]:
+        """Frame ``i`` and, with ``background``, the same frame without people and movers.
+
+        The background has the same RGB (same blur, vignette and noise draw, so it equals
+        the frame wherever no mover is near) but exact depth: no noise and no holes, only
+        the range limits and the 0.2 mm PNG step, because it is the truth for inpainting.
+        """
         cfg = self.cfg
         t = float(self.times[i])
         pose = self.poses[i]
         buf = Buffers(cfg.height, cfg.width)
         for box, table, ppm in zip(self.boxes, self.atlas.tables, self.atlas.ppm):
             cast_box(buf, self.cam, pose, box, table, ppm)
+        static = buf.copy() if background else None
         if cfg.mover:
             k = len(self.boxes)  # the mover's atlas entry follows the static boxes
             cast_box(buf, self.cam, pose, mover_box(t), self.atlas.tables[k], self.atlas.ppm[k])
@@ -97,18 +121,48 @@ class Renderer:
         rgb8 = sample_atlas(self.atlas.levels, buf)
         for bb in self.people.billboards(t, pose[:3, 3]):
             cast_billboard(buf, rgb8, self.cam, pose, bb)
+        img, rng, depth_noise = self._sensor_rgb(rgb8, i)
+        depth = kinect_depth(buf.z, buf.cos, rng, depth_noise)
+        frame = Frame(img, depth, buf.label, buf.z)
+        if static is None:
+            return frame, None
+        bg_img, _, _ = self._sensor_rgb(sample_atlas(self.atlas.levels, static), i)
+        bg_depth = kinect_depth(static.z, static.cos, None)
+        return frame, Frame(bg_img, bg_depth, static.label, static.z)
+
+    def _sensor_rgb(
+        self, rgb8: NDArray[np.uint8], i: int
+    ) -> tuple[NDArray[np.uint8], np.random.Generator | None, NDArray[np.float32] | None]:
+        """Optics and sensor noise of frame ``i``: (RGB, the frame's random stream after the
+        noise windows were drawn, the depth noise window); the same for any content."""
         rgb = cv2.GaussianBlur(rgb8, (0, 0), BLUR_SIGMA).astype(np.float32)
         rgb *= self.vignette
-        rng = np.random.default_rng([cfg.seed, i, 5]) if cfg.noise else None
+        rng = np.random.default_rng([self.cfg.seed, i, 5]) if self.cfg.noise else None
         depth_noise = None
         if rng is not None:  # read noise + shot noise
             rgb += (np.float32(1.2) + np.float32(0.012) * rgb) * self._noise(self.rgb_noise, rng)
             depth_noise = self._noise(self.depth_noise, rng)
         rgb += np.float32(0.5)
         np.clip(rgb, 0, 255, out=rgb)
-        img = rgb.astype(np.uint8)
-        depth = kinect_depth(buf.z, buf.cos, rng, depth_noise)
-        return Frame(img, depth, buf.label, buf.z)
+        return rgb.astype(np.uint8), rng, depth_noise
+
+    def mover_boxes(self, i: int) -> list[dict[str, Any]]:
+        """World axis-aligned boxes of everything that moves in frame ``i`` (in view or
+        not): each person's drawable volume, the mover, the carried box."""
+        t = float(self.times[i])
+        pose = self.poses[i]
+        out: list[dict[str, Any]] = []
+        for bb in self.people.billboards(t, pose[:3, 3]):
+            box = billboard_aabb(bb, self.cam, pose)
+            if box is not None:
+                out.append({"name": "person", "label": LABEL_PERSON, "min": box[0], "max": box[1]})
+        movers = ([mover_box(t)] if self.cfg.mover else []) + (
+            [carried_box(t)] if self.cfg.box_carrier else []
+        )
+        for mb in movers:
+            c = mb.corners()
+            out.append({"name": mb.name, "label": mb.label, "min": c.min(0), "max": c.max(0)})
+        return out
 
     def _noise(self, bank: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.float32]:
         """A frame-sized window of a noise bank at a random offset (with random flips)."""
@@ -140,14 +194,17 @@ def render_sequence(
     """
     out = Path(out_dir)
     renderer = Renderer(cfg)
-    writer.prepare_dir(out)
+    writer.prepare_dir(out, background=cfg.background)
     rgb_stamps, depth_stamps = _stamps(cfg)
 
     def job(i: int) -> int:
-        fr = renderer.render(i)
+        fr, bg = renderer.render_with_background(i, cfg.background)
         writer.write_png(out / "rgb" / f"{rgb_stamps[i]}.png", fr.rgb)
         writer.write_png(out / "depth" / f"{depth_stamps[i]}.png", fr.depth)
         writer.write_png(out / "semantic" / f"{rgb_stamps[i]}.png", fr.semantic)
+        if bg is not None:  # same names as rgb/ and depth/
+            writer.write_png(out / "background" / "rgb" / f"{rgb_stamps[i]}.png", bg.rgb)
+            writer.write_png(out / "background" / "depth" / f"{depth_stamps[i]}.png", bg.depth)
         return i
 
     bar: Any = None
@@ -174,6 +231,9 @@ def render_sequence(
     writer.write_groundtruth(out / "groundtruth.txt", rgb_stamps, renderer.poses)
     writer.write_calib(out / "calib.txt", cfg.intrinsics())
     writer.write_json(out / "semantic" / "labels.json", writer.LABELS)
+    writer.write_json(out / SCENE_FILE, scene_json(renderer.boxes))
+    movers = [renderer.mover_boxes(i) for i in range(cfg.frames)]
+    writer.write_json(out / MOVERS_FILE, movers_json(rgb_stamps, movers), indent=None)
     writer.write_json(
         out / "sequence.json",
         {
@@ -186,6 +246,11 @@ def render_sequence(
             "depth_range_m": [Z_MIN, Z_MAX],
             "depth_rendered_at": "rgb timestamp (registered to the RGB camera)",
             "labels": writer.LABELS,
+            **(
+                {"background_depth": "exact: no noise, no holes (range limits, 0.2 mm steps)"}
+                if cfg.background
+                else {}
+            ),
         },
     )
     return out
@@ -194,7 +259,8 @@ def render_sequence(
 def needs_render(seq_dir: Path, cfg: SynthConfig) -> bool:
     """True unless ``seq_dir`` holds this exact configuration, completely rendered."""
     meta = seq_dir / "sequence.json"
-    if not meta.is_file() or not (seq_dir / "groundtruth.txt").is_file():
+    needed = ("groundtruth.txt", SCENE_FILE, MOVERS_FILE)  # no scene.json: labels before NYU-40
+    if not meta.is_file() or not all((seq_dir / f).is_file() for f in needed):
         return True
     try:
         saved = json.loads(meta.read_text())

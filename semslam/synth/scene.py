@@ -4,6 +4,12 @@ Everything static is a box because a ray/box test (slab method) is cheap to vect
 a box's six faces give walls, desks, shelves, monitors and parcels alike. The room is a
 box seen from inside. World frame: x to the right of the rest view, y away from the
 camera, z up; the floor is z = 0.
+
+Every static box carries an NYU-40 class per face (label id ``100 + NYU id``, see
+:mod:`semslam.core.labels`), given where the box is defined, so the semantic images label
+walls, floor, desks, chairs ... and the movers keep their own ids (person 15, mover 21).
+Things painted on a texture (posters and boards on the walls, the books on the shelf's
+front) take the class of the face they are painted on.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.labels import NYU40_CLASSES, SYNTH_STATIC_OFFSET, synth_static_id
 from semslam.geometry.se3 import so3_exp
 
 Array = NDArray[np.float64]
@@ -28,7 +35,7 @@ LIGHTS = (
 #: Face order of a box: +x, -x, +y, -y, +z, -z (index = 2 * axis + (0 if + else 1)).
 FACE_AXES = ((0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1))
 
-LABEL_STATIC = 0
+LABEL_NONE = 0  # "background": no surface hit (never inside the room)
 LABEL_PERSON = 15
 LABEL_MOVER = 21
 
@@ -38,7 +45,9 @@ class Box:
     """An oriented box with one texture kind per face.
 
     ``faces`` lists six texture kinds (see ``textures.GENERATORS``) in :data:`FACE_AXES`
-    order; ``inside`` marks the room, whose faces are seen from within.
+    order; ``inside`` marks the room, whose faces are seen from within. A static box has
+    ``classes``, six label ids (100 + NYU-40 id) in the same order; a mover has none and
+    is labelled ``label`` on every face.
     """
 
     name: str
@@ -46,9 +55,10 @@ class Box:
     size: Array
     rot: Array = field(default_factory=lambda: np.eye(3))
     faces: tuple[str, ...] = ("wood",) * 6
-    label: int = LABEL_STATIC
+    label: int = LABEL_NONE
     inside: bool = False
     ppm: float = 256.0
+    classes: tuple[int, ...] = ()
 
     @property
     def half(self) -> Array:
@@ -101,14 +111,22 @@ def _box(
     hi: tuple[float, float, float],
     faces,
     yaw_deg: float = 0.0,
+    cls: str | tuple[str, ...] | None = None,
     **kw,
 ) -> Box:
-    """Box from axis-aligned corners (before an optional yaw about its centre)."""
+    """Box from axis-aligned corners (before an optional yaw about its centre).
+
+    ``cls`` is the NYU-40 class name of every face, or six names in :data:`FACE_AXES`
+    order (static boxes); movers leave it out and pass ``label``.
+    """
     lo_a, hi_a = np.array(lo, float), np.array(hi, float)
     if isinstance(faces, str):
         faces = (faces,) * 6
+    if isinstance(cls, str):
+        cls = (cls,) * 6
+    classes = tuple(synth_static_id(c) for c in cls) if cls is not None else ()
     rot = so3_exp(np.array([0.0, 0.0, np.deg2rad(yaw_deg)]))
-    return Box(name, (lo_a + hi_a) / 2, hi_a - lo_a, rot, tuple(faces), **kw)
+    return Box(name, (lo_a + hi_a) / 2, hi_a - lo_a, rot, tuple(faces), classes=classes, **kw)
 
 
 def _faces(
@@ -140,6 +158,7 @@ def static_boxes() -> list[Box]:
             (rx, ry, rz),
             ("wall", "wall", "wall", "wall", "ceiling", "floor"),
             inside=True,
+            cls=("wall", "wall", "wall", "wall", "ceiling", "floor"),
             ppm=200.0,
         ),
         # partition board behind the desks, like the fr3 office
@@ -148,6 +167,7 @@ def static_boxes() -> list[Box]:
             (1.2, 4.9, 0.0),
             (4.8, 4.95, 1.65),
             _faces("painted", front="partition"),
+            cls="otherstructure",
             ppm=256.0,
         ),
     ]
@@ -159,6 +179,7 @@ def static_boxes() -> list[Box]:
                 (x0, 4.15, 0.72),
                 (x1, 4.88, 0.75),
                 _faces("wood", top="desk_top"),
+                cls="desk",
                 ppm=300.0,
             )
         )
@@ -169,6 +190,7 @@ def static_boxes() -> list[Box]:
                     (lx, 4.2, 0.0),
                     (lx + 0.05, 4.25, 0.72),
                     "metal_plain",
+                    cls="desk",
                     ppm=100.0,
                 )
             )
@@ -178,6 +200,7 @@ def static_boxes() -> list[Box]:
                 (x0 + 0.05, 4.8, 0.15),
                 (x1 - 0.05, 4.83, 0.72),
                 _faces("wood", front="painted"),
+                cls="desk",
                 ppm=150.0,
             )
         )
@@ -189,15 +212,24 @@ def static_boxes() -> list[Box]:
             (2.45, 4.6, 1.28),
             _faces("metal_plain", front="screen"),
             yaw_deg=-6,
+            cls="television",
             ppm=400.0,
         ),
-        _box("monitor_stand", (2.1, 4.55, 0.75), (2.2, 4.62, 0.92), "metal_plain", ppm=100.0),
+        _box(
+            "monitor_stand",
+            (2.1, 4.55, 0.75),
+            (2.2, 4.62, 0.92),
+            "metal_plain",
+            cls="television",
+            ppm=100.0,
+        ),
         _box(
             "keyboard",
             (1.9, 4.25, 0.75),
             (2.35, 4.4, 0.77),
             _faces("metal_plain", top="keyboard"),
             yaw_deg=3,
+            cls="otherprop",
             ppm=500.0,
         ),
         _box(
@@ -206,9 +238,18 @@ def static_boxes() -> list[Box]:
             (1.8, 4.52, 0.87),
             _faces("books", top="poster"),
             yaw_deg=12,
+            cls="books",
             ppm=400.0,
         ),
-        _box("parcel", (2.55, 4.45, 0.75), (2.9, 4.75, 1.0), "cardboard", yaw_deg=-15, ppm=350.0),
+        _box(
+            "parcel",
+            (2.55, 4.45, 0.75),
+            (2.9, 4.75, 1.0),
+            "cardboard",
+            yaw_deg=-15,
+            cls="box",
+            ppm=350.0,
+        ),
     ]
     # things on desk 1: white cabinet with stickers, dice, laptop, magazine, bottles
     boxes += [
@@ -217,15 +258,25 @@ def static_boxes() -> list[Box]:
             (3.2, 4.45, 0.75),
             (4.0, 4.8, 1.1),
             _faces("painted", top="paper", front="poster"),
+            cls="cabinet",
             ppm=300.0,
         ),
-        _box("dice", (3.45, 4.2, 0.75), (3.6, 4.35, 0.9), "fabric", yaw_deg=20, ppm=400.0),
+        _box(
+            "dice",
+            (3.45, 4.2, 0.75),
+            (3.6, 4.35, 0.9),
+            "fabric",
+            yaw_deg=20,
+            cls="otherprop",
+            ppm=400.0,
+        ),
         _box(
             "laptop_base",
             (4.05, 4.2, 0.75),
             (4.4, 4.45, 0.77),
             _faces("metal_plain", top="keyboard"),
             yaw_deg=-10,
+            cls="otherprop",
             ppm=500.0,
         ),
         _box(
@@ -234,6 +285,7 @@ def static_boxes() -> list[Box]:
             (4.4, 4.47, 1.0),
             _faces("metal_plain", front="screen"),
             yaw_deg=-10,
+            cls="otherprop",
             ppm=500.0,
         ),
         _box(
@@ -242,10 +294,25 @@ def static_boxes() -> list[Box]:
             (3.93, 4.42, 0.755),
             _faces("paper", top="poster"),
             yaw_deg=25,
+            cls="books",
             ppm=500.0,
         ),
-        _box("bottle0", (3.15, 4.3, 0.75), (3.22, 4.37, 1.02), _faces("poster"), ppm=500.0),
-        _box("bottle1", (4.45, 4.6, 0.75), (4.52, 4.67, 1.0), _faces("poster"), ppm=500.0),
+        _box(
+            "bottle0",
+            (3.15, 4.3, 0.75),
+            (3.22, 4.37, 1.02),
+            _faces("poster"),
+            cls="otherprop",
+            ppm=500.0,
+        ),
+        _box(
+            "bottle1",
+            (4.45, 4.6, 0.75),
+            (4.52, 4.67, 1.0),
+            _faces("poster"),
+            cls="otherprop",
+            ppm=500.0,
+        ),
     ]
     # bookshelf on the left wall, filing cabinets and boxes on the right
     boxes += [
@@ -254,14 +321,18 @@ def static_boxes() -> list[Box]:
             (0.0, 2.6, 0.0),
             (0.42, 4.7, 1.95),
             _faces("wood", front="books", front_axis=0),
+            cls="bookshelf",
             ppm=300.0,
         ),
-        _box("shelf_top_box", (0.05, 3.0, 1.95), (0.4, 3.4, 2.2), "cardboard", ppm=300.0),
+        _box(
+            "shelf_top_box", (0.05, 3.0, 1.95), (0.4, 3.4, 2.2), "cardboard", cls="box", ppm=300.0
+        ),
         _box(
             "filing0",
             (5.52, 3.4, 0.0),
             (6.0, 4.0, 1.1),
             _faces("metal", front="metal", front_axis=1),
+            cls="cabinet",
             ppm=300.0,
         ),
         _box(
@@ -269,16 +340,42 @@ def static_boxes() -> list[Box]:
             (5.52, 4.05, 0.0),
             (6.0, 4.65, 1.1),
             _faces("metal", front="metal", front_axis=1),
+            cls="cabinet",
             ppm=300.0,
         ),
-        _box("filing_box", (5.55, 3.5, 1.1), (5.95, 3.9, 1.4), "cardboard", yaw_deg=8, ppm=300.0),
-        _box("crate0", (0.1, 1.4, 0.0), (0.65, 1.95, 0.45), "cardboard", yaw_deg=6, ppm=300.0),
-        _box("crate1", (0.15, 1.5, 0.45), (0.55, 1.85, 0.75), "cardboard", yaw_deg=-9, ppm=300.0),
+        _box(
+            "filing_box",
+            (5.55, 3.5, 1.1),
+            (5.95, 3.9, 1.4),
+            "cardboard",
+            yaw_deg=8,
+            cls="box",
+            ppm=300.0,
+        ),
+        _box(
+            "crate0",
+            (0.1, 1.4, 0.0),
+            (0.65, 1.95, 0.45),
+            "cardboard",
+            yaw_deg=6,
+            cls="box",
+            ppm=300.0,
+        ),
+        _box(
+            "crate1",
+            (0.15, 1.5, 0.45),
+            (0.55, 1.85, 0.75),
+            "cardboard",
+            yaw_deg=-9,
+            cls="box",
+            ppm=300.0,
+        ),
         _box(
             "bin",
             (4.7, 4.3, 0.0),
             (4.95, 4.55, 0.38),
             _faces("metal_plain", top="metal_plain"),
+            cls="otherfurniture",
             ppm=200.0,
         ),
         _box(
@@ -287,15 +384,24 @@ def static_boxes() -> list[Box]:
             (2.42, 4.4, 0.5),
             _faces("fabric"),
             yaw_deg=10,
+            cls="chair",
             ppm=250.0,
         ),
-        _box("chair_post", (2.15, 4.14, 0.08), (2.22, 4.21, 0.44), "metal_plain", ppm=100.0),
+        _box(
+            "chair_post",
+            (2.15, 4.14, 0.08),
+            (2.22, 4.21, 0.44),
+            "metal_plain",
+            cls="chair",
+            ppm=100.0,
+        ),
         _box(
             "chair_back",
             (1.97, 4.36, 0.5),
             (2.4, 4.41, 0.9),
             _faces("fabric"),
             yaw_deg=10,
+            cls="chair",
             ppm=250.0,
         ),
         _box(
@@ -303,6 +409,7 @@ def static_boxes() -> list[Box]:
             (2.2, 0.0, 0.15),
             (3.8, 0.1, 0.75),
             _faces("metal_plain", front="metal", front_axis=2),
+            cls="otherfurniture",
             ppm=150.0,
         ),
         _box(
@@ -310,10 +417,17 @@ def static_boxes() -> list[Box]:
             (4.5, 0.0, 0.0),
             (5.4, 0.04, 2.05),
             _faces("wood", front="painted", front_axis=2),
+            cls="door",
             ppm=200.0,
         ),
     ]
     return boxes
+
+
+def static_class_names(boxes: list[Box]) -> dict[int, str]:
+    """Label id -> NYU-40 class name of every class that ``boxes`` carry (sorted by id)."""
+    ids = sorted({c for b in boxes for c in b.classes})
+    return {i: NYU40_CLASSES[i - SYNTH_STATIC_OFFSET] for i in ids}
 
 
 def mover_box(t: float) -> Box:

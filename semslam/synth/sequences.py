@@ -29,7 +29,10 @@ class SynthConfig:
     ``noise=False`` gives exact images and depth (no sensor noise, no depth holes) for
     tests that check that poses, depth and intrinsics agree exactly. ``box_carrier`` adds
     a person (beyond ``people``) who pushes a large unlabelled box along the floor, then
-    carries it up to the camera (``synth/box_carry.py``).
+    carries it up to the camera (``synth/box_carry.py``). ``background`` also renders
+    every frame without people and movers into ``background/rgb`` and
+    ``background/depth`` (exact depth), the truth for inpainting; it costs about a
+    second texture pass per frame, hence off by default.
     """
 
     motion: str = "xyz"
@@ -45,6 +48,7 @@ class SynthConfig:
     people_mode: str = "walking"
     people_dir: str | None = None
     start_time: float = DEFAULT_START_TIME
+    background: bool = False
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""

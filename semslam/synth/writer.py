@@ -14,10 +14,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.labels import SYNTH_CLASSES
 from semslam.errors import DataError
 from semslam.geometry.se3 import pose_to_tum
+from semslam.synth.scene import static_boxes, static_class_names
 
-LABELS = {"0": "background", "15": "person", "21": "moving_object"}
+#: ``semantic/labels.json``: every id a sequence can contain. The dynamic ids (0 nothing
+#: hit, 15 person, 21 unlabelled mover) and the NYU-40 classes of the static scene at
+#: 100 + NYU id (the layout is fixed, so every sequence has the same set).
+LABELS = {str(k): v for k, v in {**SYNTH_CLASSES, **static_class_names(static_boxes())}.items()}
 
 
 def stamp(t: float) -> str:
@@ -25,13 +30,20 @@ def stamp(t: float) -> str:
     return f"{t:.6f}"
 
 
-def prepare_dir(out: Path) -> None:
-    """Create ``out`` and its image folders; remove PNGs of an earlier rendering there."""
+#: Image folders of a sequence; the ``background/`` ones only with ``SynthConfig.background``.
+IMAGE_DIRS = ("rgb", "depth", "semantic")
+BACKGROUND_DIRS = ("background/rgb", "background/depth")
+
+
+def prepare_dir(out: Path, background: bool = False) -> None:
+    """Create ``out`` and its image folders; remove PNGs of an earlier rendering there
+    (the background folders too, so that a render without them leaves none behind)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
-        for sub in ("rgb", "depth", "semantic"):
+        for sub in IMAGE_DIRS + BACKGROUND_DIRS:
             d = out / sub
-            d.mkdir(exist_ok=True)
+            if sub in IMAGE_DIRS or background:
+                d.mkdir(parents=True, exist_ok=True)
             for old in d.glob("*.png"):
                 old.unlink()
     except OSError as exc:
@@ -72,5 +84,6 @@ def write_calib(path: Path, intrinsics: tuple[float, float, float, float]) -> No
     path.write_text(" ".join(f"{v:.6g}" for v in intrinsics) + "\n")
 
 
-def write_json(path: Path, data: dict[str, Any]) -> None:
-    path.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+def write_json(path: Path, data: dict[str, Any], indent: int | None = 2) -> None:
+    """Sorted keys; ``indent=None`` for compact files (one line per file)."""
+    path.write_text(json.dumps(data, indent=indent, sort_keys=True) + "\n")
