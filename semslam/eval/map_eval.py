@@ -85,7 +85,7 @@ def read_class_table(path: Path) -> dict[int, str]:
 
 def evaluate_map(run_dir: Path, seq_dir: Path, tolerance_m: float = 0.05) -> MapEval:
     from semslam.io.sequence import open_sequence
-    from semslam.synth.static_geometry import load_static_geometry
+    from semslam.synth.static_geometry import load_movers, load_static_geometry
 
     for name in ("trajectory.txt", "keyframes.txt"):
         if not (run_dir / name).is_file():
@@ -93,7 +93,7 @@ def evaluate_map(run_dir: Path, seq_dir: Path, tolerance_m: float = 0.05) -> Map
     gt_path = seq_dir / "groundtruth.txt"
     if not gt_path.is_file():
         raise DataError(gt_path, "not found: eval-map needs the sequence's ground truth")
-    truth = load_static_geometry(seq_dir)
+    truth = _Truth(load_static_geometry(seq_dir), load_movers(seq_dir))
     gt = read_trajectory(gt_path)
     a = ate(gt, read_trajectory(run_dir / "trajectory.txt"), align="se3")
     to_truth = a.transform
@@ -142,6 +142,22 @@ def evaluate_map(run_dir: Path, seq_dir: Path, tolerance_m: float = 0.05) -> Map
         res.mesh_vertices = len(xyz)
         res.mesh_point_accuracy = point_accuracy(dist, tolerance_m)
     return res
+
+
+class _Truth:
+    """The scene's static surfaces and its movers' volumes behind ``map_metrics.SceneTruth``."""
+
+    def __init__(self, geometry: Any, movers: Any) -> None:
+        self.geometry, self.movers = geometry, movers
+
+    def distance(self, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        return self.geometry.distance(points)
+
+    def sample_surface(self, spacing_m: float) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        return self.geometry.sample_surface(spacing_m)
+
+    def in_any_mover(self, points: NDArray[np.float64]) -> NDArray[np.bool_]:
+        return self.movers.in_any_mover(points)
 
 
 def _names(labels: NDArray[np.int64], table: dict[int, str]) -> NDArray[np.str_]:
