@@ -151,3 +151,18 @@ def test_pose_moved_thresholds() -> None:
     turned = T.copy()
     turned[:3, :3] = rot @ T[:3, :3]
     assert pose_moved(T, turned) and not pose_moved(T, scene.pose(pitch_deg=20.04))
+
+
+def test_occupied_leaves_expand_pruned_nodes_like_octomap() -> None:
+    tree = octomap.OcTree(RES)
+    block = np.array([[i, j, k] for i in range(4) for j in range(4) for k in range(4)], float) * RES + RES / 2
+    for _ in range(10):  # hits until every voxel is clamped: OctoMap prunes the 4x4x4 block
+        for p in block:
+            tree.updateNode(p, True)
+    tree.updateNode(np.array([1.0, 1.0, 1.0]), True)  # one more, lone voxel
+    tree.updateInnerOccupancy()
+    assert tree.getNumLeafNodes() < 65  # merged: fewer leaves than voxels
+    coords, occupancy = occupied_leaves(tree)
+    reference, _ = tree.extractPointCloud()  # the library's own expansion
+    assert len(coords) == 65 and (occupancy > 0.5).all()
+    np.testing.assert_array_equal(np.sort(voxels.pack(coords)), np.sort(voxels.pack(voxels.voxel_coords(reference, RES))))

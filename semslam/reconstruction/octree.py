@@ -1,7 +1,7 @@
 """DDL-SLAM's octree map (III-E) with a class per voxel: OctoMap occupancy + class votes.
 
 Per keyframe the usable pixels (``backproject``: static, depth in range, not synthesised) are
-sampled about one voxel apart at the keyframe's median depth (``stride_for_voxel``), placed
+sampled about half a voxel apart at the keyframe's median depth (``stride_for_voxel``), placed
 in the world with ``T_wc`` and inserted with ``OcTree.insertPointCloud`` from the camera
 centre: OctoMap casts the rays, marks the end voxels occupied and the voxels on the way free,
 with its own clamped log-odds (hit 0.7, miss 0.4, clamping 0.12 / 0.97). ``discretize=True``
@@ -26,9 +26,12 @@ class colour, int ``label`` = global class index, float ``occupancy``; read it w
 from __future__ import annotations
 
 import json
+import os
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,6 +46,12 @@ from semslam.reconstruction.classes import CLASS_COLOURS, CLASS_NAMES, UNKNOWN, 
 # A keyframe whose pose moved more than this since insertion makes ``finish`` rebuild.
 REBUILD_TRANSLATION_M = 1e-3
 REBUILD_ROTATION_DEG = 0.05
+# Samples per voxel edge at the keyframe's median depth. With discretize=True OctoMap casts
+# one ray per end voxel, so two samples cost little more than one but cover grazing floors
+# and far walls better. Measured on 20 keyframes of 640x480 at 5 cm (one CPU thread): one
+# sample per voxel (stride 8) 19 ms per keyframe, two (stride 4-5) 26 ms with 21 % more
+# occupied voxels, every pixel 95 ms with 53 % more.
+SAMPLES_PER_VOXEL = 2
 
 
 @dataclass
@@ -76,7 +85,7 @@ class SemanticOctree:
             raise ValueError(f"maps.octree_resolution_m must be > 0, got {cfg.octree_resolution_m}")
         self.resolution = float(cfg.octree_resolution_m)
         self.max_depth_m = float(cfg.max_depth_m)
-        self.stride = stride  # None: about one voxel per sample at each keyframe's median depth
+        self.stride = stride  # None: SAMPLES_PER_VOXEL per voxel at each keyframe's median depth
         self._octomap = octomap
         self._tree = octomap.OcTree(self.resolution)
         self._keyframes: dict[int, _Keyframe] = {}
@@ -85,7 +94,7 @@ class SemanticOctree:
 
     # ------------------------------------------------------------------ MapBuilder contract
     def add_keyframe(self, snapshot: KeyframeSnapshot) -> None:
-        stride = self.stride or stride_for_voxel(snapshot, self.resolution, self.max_depth_m)
+        stride = self.stride or stride_for_voxel(snapshot, self.resolution / SAMPLES_PER_VOXEL, self.max_depth_m)
         sp = static_points(snapshot, stride, self.max_depth_m)
         kf = _Keyframe(sp.points_c, sp.class_ids, sp.confidence, np.array(snapshot.T_wc, np.float64))
         with self._lock:
@@ -105,7 +114,7 @@ class SemanticOctree:
             found = self._voxels()
             out_dir.mkdir(parents=True, exist_ok=True)
             bt = out_dir / "octree.bt"
-            if not self._tree.writeBinary(str(bt).encode()):
+            if not self._tree.writeBinary(os.fsencode(bt)):
                 raise OSError(f"{bt}: OctoMap could not write the octree")
         ply = out_dir / "octree_semantic.ply"
         colours = CLASS_COLOURS[found.labels]
@@ -128,8 +137,8 @@ class SemanticOctree:
 
     # ------------------------------------------------------------------ queries
     @property
-    def tree(self):  # noqa: ANN201 - octomap.OcTree (the package is imported lazily)
-        """The OctoMap octree as integrated so far (poses as inserted)."""
+    def tree(self) -> Any:
+        """The ``octomap.OcTree`` as integrated so far (poses as inserted)."""
         return self._tree
 
     def needs_rebuild(self) -> bool:
@@ -143,8 +152,6 @@ class SemanticOctree:
 
     # ------------------------------------------------------------------ internals
     def _insert(self, kf: _Keyframe) -> None:
-        import time
-
         t0 = time.perf_counter()
         T = kf.T_wc.copy()
         world = np.ascontiguousarray(kf.points_c.astype(np.float64) @ T[:3, :3].T + T[:3, 3])
@@ -178,9 +185,9 @@ class SemanticOctree:
         return OctreeVoxels(voxels.voxel_centres(coords, self.resolution), occupancy, labels)
 
 
-def occupied_leaves(tree) -> tuple[NDArray[np.int64], NDArray[np.float64]]:  # noqa: ANN001 - octomap.OcTree
-    """Integer voxel coordinates (N, 3) and occupancy probabilities (N,) of the occupied leaves,
-    pruned (merged) leaves expanded to the finest resolution."""
+def occupied_leaves(tree: Any) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Integer voxel coordinates (N, 3) and occupancy probabilities (N,) of an ``octomap.OcTree``'s
+    occupied leaves, pruned (merged) leaves expanded to the finest resolution."""
     res = tree.getResolution()
     coords: list[NDArray[np.int64]] = []
     occ: list[float] = []
