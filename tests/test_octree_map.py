@@ -12,6 +12,7 @@ import pytest
 
 from semslam.config import MapsConfig
 from semslam.core import protocols, registry
+from semslam.eval.map_eval import read_class_table
 from semslam.io.ply import read_vertex_ply, xyz_of
 from semslam.reconstruction import voxels
 from semslam.reconstruction.classes import CLASS_COLOURS, CLASS_INDEX
@@ -105,8 +106,8 @@ def test_files_reopen_with_octomap_open3d_and_plyfile(tmp_path: Path) -> None:
     np.testing.assert_allclose(v["occupancy"], vx.occupancy, atol=1e-6)
 
     legend = json.loads(paths["octree_classes"].read_text())
-    assert legend["classes"][CLASS_INDEX["floor"]] == {"index": 2, "name": "floor", "colour": [152, 223, 138]}
-    assert legend["occupied_voxels_per_class"]["wall"] == int((vx.labels == 1).sum())
+    assert legend["2"] == {"name": "floor", "colour": [152, 223, 138], "occupied_voxels": int((vx.labels == 2).sum())}
+    assert read_class_table(paths["octree_classes"])[31] == "person"  # what eval-map reads
 
 
 def test_corrected_poses_rebuild_the_octree_where_the_keyframes_moved(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ import pytest
 
 from semslam.config import MapsConfig
 from semslam.core import protocols, registry
+from semslam.eval.map_eval import read_class_table
 from semslam.io.ply import read_vertex_ply, xyz_of
 from semslam.reconstruction import voxels
 from semslam.reconstruction.classes import CLASS_COLOURS, CLASS_INDEX
@@ -68,7 +69,10 @@ def test_merge_voxels_means_and_majority() -> None:
 def test_file_reopens_with_open3d_and_plyfile(tmp_path: Path) -> None:
     b = _built()
     c = b.cloud()
-    path = b.finish(tmp_path)["semantic_cloud"]
+    paths = b.finish(tmp_path)
+    path = paths["semantic_cloud"]
+    table = read_class_table(paths["semantic_cloud_classes"])  # what eval-map reads
+    assert table[1] == "wall" and table[2] == "floor" and len(table) == len(CLASS_COLOURS)
     o3d = pytest.importorskip("open3d")
     pcd = o3d.io.read_point_cloud(str(path))
     assert len(pcd.points) == len(c.xyz)

@@ -21,6 +21,8 @@ magenta, which neither palette uses.
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -151,6 +153,22 @@ def _resample_nearest(img: NDArray[Any], shape: tuple[int, int]) -> NDArray[Any]
     return img[rows[:, None], cols[None, :]]
 
 
-def classes_table() -> list[dict[str, Any]]:
-    """The legend as JSON-ready rows: index, name, colour."""
-    return [{"index": i, "name": n, "colour": [int(c) for c in CLASS_COLOURS[i]]} for i, n in enumerate(CLASS_NAMES)]
+def classes_table(counts: dict[int, int] | None = None, count_key: str = "count") -> dict[str, dict[str, Any]]:
+    """The legend as JSON: ``{"index": {"name": ..., "colour": [r, g, b]}}`` for every class
+    (the layout ``semslam.eval.map_eval.read_class_table`` reads), with ``count_key`` where
+    ``counts`` gives how many voxels or points a map has of a class."""
+    table: dict[str, dict[str, Any]] = {}
+    for i, name in enumerate(CLASS_NAMES):
+        row: dict[str, Any] = {"name": name, "colour": [int(c) for c in CLASS_COLOURS[i]]}
+        if counts is not None:
+            row[count_key] = int(counts.get(i, 0))
+        table[str(i)] = row
+    return table
+
+
+def write_classes_json(path: Path, labels: NDArray[np.integer], count_key: str) -> Path:
+    """A map's legend next to it, with how many of its elements each class has."""
+    present, n = np.unique(np.asarray(labels, np.int64), return_counts=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(classes_table(dict(zip(present.tolist(), n.tolist())), count_key), indent=1))
+    return path

@@ -20,12 +20,12 @@ than 1 mm or 0.05° since it was inserted (otherwise the online octree is kept).
 Files (``finish``): ``octree.bt`` (OctoMap binary; octovis and ``octomap.OcTree(b"octree.bt")``
 open it), ``octree_semantic.ply`` (occupied leaf centres: float x y z, uchar red green blue =
 class colour, int ``label`` = global class index, float ``occupancy``; read it with
-``semslam.io.ply.read_vertex_ply``) and ``octree_classes.json`` (the legend).
+``semslam.io.ply.read_vertex_ply``) and ``octree_classes.json`` (the legend, ``{"index":
+{"name", "colour", "occupied_voxels"}}``).
 """
 
 from __future__ import annotations
 
-import json
 import os
 import threading
 import time
@@ -41,7 +41,7 @@ from semslam.core.protocols import KeyframeSnapshot
 from semslam.io.ply import write_vertex_ply
 from semslam.reconstruction import voxels
 from semslam.reconstruction.backproject import static_points, stride_for_voxel
-from semslam.reconstruction.classes import CLASS_COLOURS, CLASS_NAMES, UNKNOWN, classes_table
+from semslam.reconstruction.classes import CLASS_COLOURS, UNKNOWN, write_classes_json
 
 # A keyframe whose pose moved more than this since insertion makes ``finish`` rebuild.
 REBUILD_TRANSLATION_M = 1e-3
@@ -122,12 +122,7 @@ class SemanticOctree:
                                "z": found.centres[:, 2].astype(np.float32), "red": colours[:, 0],
                                "green": colours[:, 1], "blue": colours[:, 2],
                                "label": found.labels.astype(np.int32), "occupancy": found.occupancy.astype(np.float32)})
-        legend = out_dir / "octree_classes.json"
-        present, counts = np.unique(found.labels, return_counts=True)
-        legend.write_text(json.dumps({
-            "resolution_m": self.resolution, "label_field": "label", "classes": classes_table(),
-            "occupied_voxels_per_class": {CLASS_NAMES[int(i)]: int(n) for i, n in zip(present, counts)},
-        }, indent=1))
+        legend = write_classes_json(out_dir / "octree_classes.json", found.labels, "occupied_voxels")
         return {"octree": bt, "octree_semantic": ply, "octree_classes": legend}
 
     def close(self) -> None:

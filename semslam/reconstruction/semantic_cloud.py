@@ -10,7 +10,8 @@ majority class by count ("unknown" wins only a voxel without any class vote).
 ``semantic_cloud.ply`` (binary): float x y z, uchar red green blue = the observed colour (what
 Open3D and MeshLab show), int ``label`` = global class index (``classes.py``), uchar
 ``class_red class_green class_blue`` = the class colour and int ``count`` = samples merged
-(CloudCompare lists these as scalar fields; ``semslam.io.ply.read_vertex_ply`` reads all).
+(CloudCompare lists these as scalar fields; ``semslam.io.ply.read_vertex_ply`` reads all), and
+``semantic_cloud_classes.json``, the legend (``{"index": {"name", "colour", "points"}}``).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from semslam.core.protocols import KeyframeSnapshot
 from semslam.io.ply import write_vertex_ply
 from semslam.reconstruction import voxels
 from semslam.reconstruction.backproject import StaticPoints, static_points, stride_for_voxel
-from semslam.reconstruction.classes import CLASS_COLOURS, UNKNOWN
+from semslam.reconstruction.classes import CLASS_COLOURS, UNKNOWN, write_classes_json
 
 
 @dataclass
@@ -89,7 +90,8 @@ class SemanticCloud:
                                 "blue": c.rgb[:, 2], "label": c.labels.astype(np.int32),
                                 "class_red": cc[:, 0], "class_green": cc[:, 1], "class_blue": cc[:, 2],
                                 "count": c.counts.astype(np.int32)})
-        return {"semantic_cloud": path}
+        legend = write_classes_json(out_dir / "semantic_cloud_classes.json", c.labels, "points")
+        return {"semantic_cloud": path, "semantic_cloud_classes": legend}
 
     def close(self) -> None:
         with self._lock:
