@@ -41,6 +41,8 @@ PLUGINS: dict[str, dict[str, str]] = {
     },
     "map_builder": {
         "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",
+        "octree": "semslam.reconstruction.octree:SemanticOctree",
+        "cloud": "semslam.reconstruction.semantic_cloud:SemanticCloud",
     },
 }
 

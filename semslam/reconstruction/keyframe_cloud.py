@@ -1,6 +1,6 @@
 """The simplest dense map: every keyframe's depth back-projected with its final pose into one
 coloured point cloud (PLY, opened by Open3D, CloudCompare, MeshLab), leaving out the pixels
-the dynamic stage marked as moving so people leave no ghosts.
+the dynamic stage marked as moving so people leave no ghosts (``backproject.static_points``).
 
 It keeps each keyframe's points in camera coordinates and places them with the pose it was
 last told about, so loop closing and bundle adjustment move the cloud with the keyframes.
@@ -15,6 +15,8 @@ from numpy.typing import NDArray
 
 from semslam.config import MapsConfig
 from semslam.core.protocols import KeyframeSnapshot
+from semslam.io.ply import write_vertex_ply
+from semslam.reconstruction.backproject import static_points
 
 
 class KeyframeCloud:
@@ -29,17 +31,8 @@ class KeyframeCloud:
     def add_keyframe(self, snapshot: KeyframeSnapshot) -> None:
         if snapshot.depth is None:
             return
-        s = self.stride
-        depth = snapshot.depth[::s, ::s]
-        keep = (depth > 0) & (depth < self.max_depth_m) & np.isfinite(depth)
-        if snapshot.dynamic is not None:
-            keep &= ~snapshot.dynamic[::s, ::s]
-        v, u = np.nonzero(keep)
-        z = depth[v, u].astype(np.float64)
-        cam = snapshot.camera
-        xy = cam.undistort_points(np.stack([u * s, v * s], axis=1).astype(np.float64))
-        pts_c = cam.backproject(xy, z).astype(np.float32)
-        self._points[snapshot.keyframe_id] = (pts_c, snapshot.rgb[::s, ::s][v, u].copy())
+        sp = static_points(snapshot, self.stride, self.max_depth_m)
+        self._points[snapshot.keyframe_id] = (sp.points_c, sp.rgb)
         self._poses[snapshot.keyframe_id] = snapshot.T_wc.copy()
 
     def correct_poses(self, poses_wc: dict[int, NDArray[np.float64]]) -> None:
@@ -70,11 +63,7 @@ class KeyframeCloud:
 
 
 def write_ply(path: Path, xyz: NDArray[np.float64], rgb: NDArray[np.uint8]) -> None:
-    """Binary PLY with float x y z and uchar red green blue, through ``plyfile``."""
-    from plyfile import PlyData, PlyElement
-
-    rows = np.empty(len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    rows["x"], rows["y"], rows["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    PlyData([PlyElement.describe(rows, "vertex")]).write(str(path))
+    """Binary PLY with float x y z and uchar red green blue."""
+    write_vertex_ply(path, {"x": xyz[:, 0].astype(np.float32), "y": xyz[:, 1].astype(np.float32),
+                            "z": xyz[:, 2].astype(np.float32), "red": rgb[:, 0], "green": rgb[:, 1],
+                            "blue": rgb[:, 2]})
