@@ -21,6 +21,7 @@ from semslam.errors import DataError
 from semslam.eval.map_metrics import (class_accuracy, observed_surface, octree_scores, point_accuracy,
                                       transform_points)
 from semslam.eval.metrics import ate
+from semslam.io.ply import read_vertex_ply, xyz_of
 from semslam.io.trajectory import read_trajectory
 
 #: Metres between true-surface samples for the octree's recall, as a share of its resolution.
@@ -63,15 +64,8 @@ def true_class_names(ids: NDArray[np.int64]) -> NDArray[np.str_]:
 
 def read_labelled_ply(path: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
     """x y z (and the ``label`` field where there is one) of a PLY's vertices."""
-    from plyfile import PlyData
-
-    try:
-        v = PlyData.read(str(path))["vertex"]
-    except (OSError, ValueError, KeyError) as exc:
-        raise DataError(path, f"cannot read the PLY's vertices ({exc})") from None
-    xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
-    names = v.data.dtype.names or ()
-    return xyz, (np.asarray(v["label"], np.int64) if "label" in names else None)
+    v = read_vertex_ply(path)
+    return xyz_of(v), (np.asarray(v["label"], np.int64) if "label" in v else None)
 
 
 def read_class_table(path: Path) -> dict[int, str]:
