@@ -104,3 +104,19 @@ def test_semslam_map_names_what_is_missing(tmp_path: Path) -> None:
     from semslam.cli.main import main
 
     assert main(["map", str(tmp_path), "--quiet"]) == 2
+
+
+@pytest.mark.parametrize("mask_dynamic", [True, False])
+def test_dynamic_pixels_stay_out_of_the_maps_unless_told(tmp_path: Path, mask_dynamic: bool) -> None:
+    cfg = _cfg()
+    cfg.mask_dynamic = mask_dynamic
+    snap = _snapshots(1)[0]
+    snap.dynamic = np.zeros((24, 32), bool)
+    snap.dynamic[:, :16] = True  # the left half: a person
+    worker = MappingWorker(["keyframe_cloud"], cfg, threaded=False)
+    try:
+        worker.add_keyframe(snap)
+        n = len(_xyz(worker.finish(tmp_path)["keyframe_cloud"]))
+    finally:
+        worker.close()
+    assert n == (4 * 6 if mask_dynamic else 8 * 6)

@@ -242,6 +242,9 @@ class MapsConfig:
     mesh_voxel_m: float = 0.02
     # Depth beyond this is not integrated (Kinect-class noise grows with depth squared).
     max_depth_m: float = 4.0
+    # Leave the dynamic stage's pixels out of the maps (and inpaint them). false maps every
+    # pixel as seen - the baseline that shows the ghosts masking removes.
+    mask_dynamic: bool = True
     # A folder to write every tracked frame's inpainted RGB, depth and fill mask to
     # (``semslam run --save-inpainted DIR``); empty: none.
     save_inpainted: str = ""

@@ -18,7 +18,7 @@ import logging
 import multiprocessing as mp
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +44,7 @@ class _MapState:
     builders: list[MapBuilder]
     inpainter: Any | None
     inpainted_dir: Path | None
+    mask_dynamic: bool = True
     keyframe_ms: list[float] = field(default_factory=list)
     inpaint_ms: list[float] = field(default_factory=list)
     dynamic_px: int = 0
@@ -73,7 +74,8 @@ def _create_state(names: list[str], cfg: MapsConfig, inpainted_dir: Path | None,
         from semslam.reconstruction.inpainting import BackgroundInpainter
 
         inpainter = BackgroundInpainter(cfg.inpainting)
-    _STATE = _MapState([registry.create("map_builder", n, cfg) for n in names], inpainter, inpainted_dir)
+    _STATE = _MapState([registry.create("map_builder", n, cfg) for n in names], inpainter, inpainted_dir,
+                       cfg.mask_dynamic)
     return True
 
 
@@ -86,6 +88,8 @@ def _state() -> _MapState:
 def _add_keyframe(snapshot: KeyframeSnapshot) -> None:
     st = _state()
     t0 = time.perf_counter()
+    if not st.mask_dynamic:
+        snapshot = replace(snapshot, dynamic=None)
     if st.inpainter is not None:
         dynamic = snapshot.dynamic
         snapshot = st.inpainter.inpaint(snapshot)
