@@ -47,7 +47,8 @@ def register(app: typer.Typer) -> None:
                           "-" if o is None else f"{100 * o[1]:.1f} % of {o[0]}", "")
         table.add_row("octree precision / recall", "", f"{_pct(res.octree_precision)} / {_pct(res.octree_recall)}",
                       "")
-        table.add_row("ghost share (occupied voxels from movers)", "",
+        table.add_row("ghost share (points / occupied voxels from movers)",
+                      f"{_pct(res.cloud_ghost_share)} ({res.cloud_ghost_points})",
                       f"{_pct(res.octree_ghost_share)} ({res.octree_ghost_voxels})", "")
         console.print(table)
         if json_out is not None:

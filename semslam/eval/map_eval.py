@@ -40,6 +40,8 @@ class MapEval:
     cloud_point_accuracy: float | None = None
     cloud_class_accuracy: dict[str, tuple[int, float]] = field(default_factory=dict)
     cloud_mpa: float | None = None
+    cloud_ghost_points: int = 0
+    cloud_ghost_share: float | None = None
     octree_resolution_m: float | None = None
     octree_occupied: int = 0
     octree_point_accuracy: float | None = None
@@ -102,6 +104,8 @@ def evaluate_map(run_dir: Path, seq_dir: Path, tolerance_m: float = 0.05) -> Map
         dist, cls = truth.distance(xyz)
         res.cloud_points = len(xyz)
         res.cloud_point_accuracy = point_accuracy(dist, tolerance_m)
+        ghosts = truth.in_any_mover(xyz) & (dist > tolerance_m)
+        res.cloud_ghost_points, res.cloud_ghost_share = int(ghosts.sum()), float(np.mean(ghosts)) if len(xyz) else 0.0
         if labels is not None and table:
             near = dist <= tolerance_m  # class accuracy on points that lie on a surface
             ca = class_accuracy(true_class_names(cls[near]), _names(labels[near], table))
