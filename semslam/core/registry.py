@@ -41,6 +41,7 @@ PLUGINS: dict[str, dict[str, str]] = {
     },
     "map_builder": {
         "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",
+        "mesh": "semslam.reconstruction.tsdf_mesh:TsdfMesh",
     },
 }
 
