@@ -43,6 +43,10 @@ TRUNC_VOXELS = 4.0
 #: A keyframe whose pose moved by more than this since it was integrated triggers re-integration.
 MOVED_M = 1e-3
 MOVED_DEG = 0.05
+#: Voxels per block edge: 8 (16 cm blocks at 2 cm) keeps the voxels allocated around thin
+#: surfaces few; Open3D preallocates ``block_count`` blocks (1000 x 8^3 x 20 B = 10 MB) and
+#: grows the hash map as the scene does.
+BLOCK_RESOLUTION = 8
 
 
 # ---------------------------------------------------------------------------- pure helpers
@@ -181,10 +185,9 @@ class TsdfMesh:
         import open3d as o3d
         import open3d.core as o3c
 
-        # Block count is the hash map's initial capacity; it grows as the scene does.
         return o3d.t.geometry.VoxelBlockGrid(
             attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
-            attr_channels=((1), (1), (3)), voxel_size=self.voxel_m, block_resolution=16, block_count=4096,
+            attr_channels=((1), (1), (3)), voxel_size=self.voxel_m, block_resolution=BLOCK_RESOLUTION, block_count=1000,
             device=o3c.Device("CPU:0"))
 
     def _integrate(self, grid, kept: _Kept) -> None:
