@@ -80,13 +80,17 @@ def register(app: typer.Typer) -> None:
                                                                  "does; reports each frame's latency"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
         verbose: bool = typer.Option(False, "--verbose", "-v"),
+        # Rerun recording (semslam.viz.rerun_log)
+        rerun: Optional[Path] = typer.Option(None, "--rerun", help="record the run for the Rerun viewer "
+                                                                 "(FILE.rrd; open it with `rerun FILE.rrd`)"),
+        rerun_spawn: bool = typer.Option(False, "--rerun-spawn", help="stream the run to a Rerun viewer started now"),
     ) -> None:
         """Run SLAM on a sequence; write trajectory.txt, stats.json and report.html."""
         _setup_logging(verbose)
         cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only, realtime))
         seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
         print_summary(run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
-                               save_map=save_map, load_map=load_map))
+                               save_map=save_map, load_map=load_map, rerun=rerun, rerun_spawn=rerun_spawn))
 
     @app.command("demo")
     def demo(
