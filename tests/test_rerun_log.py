@@ -117,6 +117,33 @@ def test_semslam_run_records_every_frame(tum_folder: Path, tmp_path: Path) -> No
     assert _column(frames.read_all(), "frame") == list(range(stats["frames"])) == list(range(5))
 
 
+def test_an_interrupted_run_still_closes_the_recording(tum_folder: Path, tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C at the fourth frame: the run writes what it has and the recording is complete
+    with the three frames tracked before it (and the end-of-run entities)."""
+    from semslam.config import load_config
+    from semslam.io.sequence import open_sequence
+    from semslam.pipeline import run_slam
+    from semslam.slam.system import System
+
+    track = System.track
+
+    def interrupted(self: System, frame: object) -> object:
+        if len(self.results) == 3:
+            raise KeyboardInterrupt
+        return track(self, frame)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(System, "track", interrupted)
+    path = tmp_path / "run.rrd"
+    with pytest.raises(KeyboardInterrupt):
+        run_slam(open_sequence(tum_folder), load_config("f2kf"), tmp_path / "out", progress=False, report=False,
+                 rerun=path)
+    assert "KeyboardInterrupt" in (tmp_path / "out" / "stats.json").read_text()
+    recording = rr.dataframe.load_recording(str(path))
+    frames = recording.view(index="frame", contents="/world/camera/image").select().read_all()
+    assert _column(frames, "frame") == [0, 1, 2]
+
+
 @pytest.mark.slow
 def test_run_with_mesh_and_rerun_on_a_render(static_render: Path, tmp_path: Path) -> None:
     """ORB-SLAM on the rendered static sequence with the mesh and keyframe-cloud builders:
@@ -136,6 +163,27 @@ def test_run_with_mesh_and_rerun_on_a_render(static_render: Path, tmp_path: Path
     assert len(_column(static, "/world/map_points:Position3D")[0]) == stats["map_points"]
     mesh = o3d.io.read_triangle_mesh(str(out / "map" / "mesh.ply"))
     assert len(mesh.triangles) > 1000
+    # The mesh lies on the rendered surfaces: vertices moved into the renderer's world and
+    # projected into frame 45 agree with its exact depth where they are visible (the fused
+    # depth averages the Kinect-like noise out: better than one frame's noise).
+    from semslam.synth import SEQUENCES, Renderer
+    from tests.conftest import E2E_FRAMES
+
+    cfg = SEQUENCES["static_xyz"].replace(frames=E2E_FRAMES)
+    r = Renderer(cfg)
+    v = np.asarray(mesh.vertices)
+    T_gt0, T_cw = r.poses[0], np.linalg.inv(r.poses[45])
+    pc = (v @ T_gt0[:3, :3].T + T_gt0[:3, 3]) @ T_cw[:3, :3].T + T_cw[:3, 3]
+    cam = PinholeCamera(*cfg.intrinsics(), width=cfg.width, height=cfg.height)
+    front = pc[:, 2] > 0.1
+    uv = cam.project(pc[front])
+    inside = cam.in_image(uv)
+    u, vv = uv[inside].astype(int).T
+    exact = r.render(45).z.astype(np.float64)[vv, u]
+    z = pc[front][inside, 2]
+    ok = np.isfinite(exact) & (z <= exact + 0.05)  # vertices behind a nearer surface are not compared
+    err = np.abs(z[ok] - exact[ok])
+    assert ok.sum() > 5000 and np.median(err) < 0.01, (ok.sum(), np.median(err))
     html = (out / "report.html").read_text()
     assert "<h2>Map</h2>" in html and "keyframe_cloud.ply" in html and (out / "map" / "map_top.png").is_file()
 

@@ -119,7 +119,9 @@ class TsdfMesh:
         self.include_synthesized = include_synthesized
         self.min_weight = min_weight
         self._kept: dict[int, _Kept] = {}
-        self._grid = None  # open3d.t.geometry.VoxelBlockGrid, created with the first keyframe
+        # Open3D is imported (0.5-2 s) and the grid made now, when the System is built, not in
+        # the tracking thread at the first keyframe.
+        self._grid = self._new_grid()
         self.integrate_ms: list[float] = []
 
     # ------------------------------------------------------------------ MapBuilder contract
@@ -132,7 +134,7 @@ class TsdfMesh:
                      strided_intrinsics(snapshot.camera, stride), None, snapshot.T_wc.copy())
         self._kept[snapshot.keyframe_id] = kept
         t0 = time.perf_counter()
-        if self._grid is None:
+        if self._grid is None:  # closed
             self._grid = self._new_grid()
         self._integrate(self._grid, kept)
         kept.T_wc_integrated = kept.T_wc

@@ -100,6 +100,7 @@ class Tracking:
         t0 = time.perf_counter()
         self._dropped = None  # set by _remove_moving
         kps = self.extractor.extract(frame.gray, mask)
+        packet.keypoints_xy = kps.xy
         depth = self.depth.depth(frame)
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
@@ -151,7 +152,6 @@ class Tracking:
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
         if dynamic is not None:
             packet.dynamic = dynamic  # the final mask (semantic + moving regions) for map builders
-        packet.keypoints_xy = kps.xy
         packet.keypoint_static = ~self._dropped if self._dropped is not None else np.ones(len(kps), bool)
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
