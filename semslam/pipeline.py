@@ -13,7 +13,7 @@ import time
 from collections.abc import Generator, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from semslam.core.types import Frame, RunResult, TrackResult
 from semslam.errors import ConfigError, DataError, EvalError
 from semslam.io.trajectory import Trajectory, read_trajectory, write_tum
 from semslam.slam.system import System
+
+if TYPE_CHECKING:
+    from semslam.viz.rerun_log import RerunRecorder
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -74,12 +77,17 @@ def run_slam(
     report: bool = True,
     save_map: str | Path | None = None,
     load_map: str | Path | None = None,
+    rerun: str | Path | None = None,
+    rerun_spawn: bool = False,
 ) -> RunResult:
     """Track every frame of ``sequence``, write outputs, evaluate against ground truth.
 
     Whatever happens (a failed worker thread, an exception while tracking), the trajectory
     so far, ``keyframes.txt`` and ``stats.json`` (with ``error``) are written before the
     exception propagates; every thread and process the run started is stopped.
+
+    ``rerun`` (an ``.rrd`` path) / ``rerun_spawn`` record the run for the Rerun viewer
+    (``viz.rerun_log``); the recording is closed, complete, on every path too.
     """
     out = Path(out_dir)
     if config.sensor == "rgbd" and not sequence.has_depth:
@@ -89,12 +97,13 @@ def run_slam(
     if save_map and not system.has_map:  # before any frame, not after the whole run
         system.close()
         raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+    recorder = _open_recorder(rerun, rerun_spawn, system)
     out.mkdir(parents=True, exist_ok=True)
     n_total = len(sequence) if max_frames is None else min(max_frames, len(sequence))
     timing = _RunTiming()
     error: BaseException | None = None
     try:
-        _track_all(system, sequence, config, n_total, timing, progress)
+        _track_all(system, sequence, config, n_total, timing, progress, recorder)
     except BaseException as exc:
         error = exc
     finally:
@@ -102,9 +111,15 @@ def run_slam(
             system.shutdown()
         except BaseException as exc:  # a worker that failed on the last keyframes
             error = error or exc
-    if save_map and error is None:
-        system.save_map(Path(save_map))
-    result = _write_outputs(system, sequence, config, out, timing, report, error)
+    try:
+        if save_map and error is None:
+            system.save_map(Path(save_map))
+        result = _write_outputs(system, sequence, config, out, timing, report, error)
+        if recorder is not None:
+            _log_run_end(recorder, system, out / "map")
+    finally:
+        if recorder is not None:
+            recorder.close()
     if error is not None:
         raise error
     return result
@@ -129,8 +144,37 @@ class _RunTiming:
             self.stage_ms.setdefault(stage, []).append(v)
 
 
+def _open_recorder(path: str | Path | None, spawn: bool, system: System) -> "RerunRecorder | None":
+    """The Rerun recorder asked for, if any (the system is closed if it cannot be made)."""
+    if path is None and not spawn:
+        return None
+    from semslam.viz.rerun_log import RerunRecorder
+
+    try:
+        return RerunRecorder("semslam", path=path, spawn=spawn)
+    except BaseException:
+        system.close()
+        raise
+
+
+def _log_frame(recorder: "RerunRecorder", packet: FramePacket, result: TrackResult, sequence: Sequence) -> None:
+    frame = packet.frame
+    dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
+    recorder.log_frame(frame.index, frame.timestamp, frame.rgb, dynamic, packet.keypoints_xy, packet.keypoint_static,
+                       result.pose_wc, sequence.camera)
+
+
+def _log_run_end(recorder: "RerunRecorder", system: System, map_dir: Path) -> None:
+    """The final trajectory, the map points and the semantic cloud (if the maps wrote one)."""
+    recorder.log_trajectory(system.trajectory().positions)
+    points = system.map_points()
+    if len(points):
+        recorder.log_map_points(points)
+    recorder.log_map_dir(map_dir)
+
+
 def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total: int, timing: _RunTiming,
-               progress: bool) -> None:
+               progress: bool, recorder: "RerunRecorder | None" = None) -> None:
     # The reader thread hands each decoded frame to the system at once (segmentation starts),
     # at the camera's rate with slam.realtime.
     realtime = config.slam.realtime
@@ -152,6 +196,8 @@ def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total
             timing.add((done - t0) * 1e3, result)
             if realtime:
                 timing.latency_ms.append((done - t_arrived) * 1e3)
+            if recorder is not None:
+                _log_frame(recorder, packet, result, sequence)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(state=result.state.value, inl=result.n_inliers, kf=system.n_keyframes, refresh=False)
@@ -222,5 +268,6 @@ def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, 
                  "lost": result.lost_frames, "keyframes": result.keyframes,
                  "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
         write_report(out / "report.html", gt, traj, ate_res, rpe_res,
-                     title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra)
+                     title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra,
+                     map_dir=out / "map")
         result.paths["report"] = str(out / "report.html")

@@ -91,6 +91,10 @@ def register(app: typer.Typer) -> None:
         save_inpainted: Optional[Path] = typer.Option(None, "--save-inpainted",
                                                       help="write every tracked frame's inpainted RGB, depth and "
                                                            "fill mask to this folder"),
+        # Rerun recording (semslam.viz.rerun_log)
+        rerun: Optional[Path] = typer.Option(None, "--rerun", help="record the run for the Rerun viewer "
+                                                                 "(FILE.rrd; open it with `rerun FILE.rrd`)"),
+        rerun_spawn: bool = typer.Option(False, "--rerun-spawn", help="stream the run to a Rerun viewer started now"),
     ) -> None:
         """Run SLAM on a sequence; write trajectory.txt, stats.json, report.html and the maps (OUT/map/)."""
         _setup_logging(verbose)
@@ -98,7 +102,7 @@ def register(app: typer.Typer) -> None:
                                                 maps, save_inpainted))
         seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
         print_summary(run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
-                               save_map=save_map, load_map=load_map))
+                               save_map=save_map, load_map=load_map, rerun=rerun, rerun_spawn=rerun_spawn))
 
     @app.command("demo")
     def demo(

@@ -49,6 +49,11 @@ class FramePacket:
     dynamic: BoolImage | Future[BoolImage] | None = None
     labels: LabelMap | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    #: Set by the tracker, for viewers (``viz.rerun_log``): the keypoints extracted (pixels as
+    #: detected) and, per keypoint, False where it was removed as dynamic (moving regions).
+    #: On the packet, not on TrackResult, so a run does not keep them for every frame.
+    keypoints_xy: NDArray[np.float32] | None = None
+    keypoint_static: NDArray[np.bool_] | None = None
 
 
 @dataclass
@@ -226,6 +231,10 @@ class Tracker(Protocol):
         ...
 
     def keyframe_trajectory(self) -> "Trajectory": ...
+
+    def map_points(self) -> NDArray[np.float64]:
+        """World positions (N, 3) of the map's points now ((0, 3) for a tracker without a map)."""
+        ...
 
     def stats(self) -> dict[str, Any]: ...
 

@@ -43,6 +43,7 @@ PLUGINS: dict[str, dict[str, str]] = {
         "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",
         "octree": "semslam.reconstruction.octree:SemanticOctree",
         "cloud": "semslam.reconstruction.semantic_cloud:SemanticCloud",
+        "mesh": "semslam.reconstruction.tsdf_mesh:TsdfMesh",
     },
 }
 

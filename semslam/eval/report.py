@@ -10,6 +10,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import logging
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -18,10 +19,13 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from semslam.errors import EvalError
+from semslam.errors import DataError, EvalError
 from semslam.eval.metrics import STAT_NAMES, AteResult, RpeResult
 from semslam.geometry.alignment import apply_sim3
 from semslam.io.trajectory import Trajectory
+from semslam.viz.map_views import find_cloud, write_views
+
+log = logging.getLogger(__name__)
 
 _CSS = """
 body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; margin: 2em;
@@ -118,6 +122,24 @@ def _stats_table(rows: list[tuple[str, dict[str, float], str]]) -> str:
     )
 
 
+def _map_section(map_dir: Path) -> list[str]:
+    """Views of the map's cloud (semantic, else keyframe cloud), also written as PNGs next
+    to it; nothing when the run wrote no cloud, a note when the cloud cannot be read."""
+    cloud = find_cloud(map_dir)
+    if cloud is None:
+        return []
+    try:
+        views = write_views(cloud)
+    except DataError as exc:
+        log.warning("map views skipped: %s", exc)
+        return ["<h2>Map</h2>", f'<p class="meta">map views skipped: {html.escape(str(exc))}</p>']
+    parts = ["<h2>Map</h2>", f'<p class="meta">{html.escape(cloud.name)}; views also in '
+             f'{html.escape(", ".join(p.name for p in views.values()))} beside it</p>']
+    for name, png in views.items():
+        parts.append(_img(base64.b64encode(png.read_bytes()).decode("ascii"), f"{name} ({png.name})"))
+    return parts
+
+
 def write_report(
     path: str | Path,
     gt: Trajectory,
@@ -126,12 +148,14 @@ def write_report(
     rpe_result: RpeResult | None = None,
     title: str = "",
     extra: Mapping[str, Any] | None = None,
+    map_dir: str | Path | None = None,
 ) -> Path:
     """Write an HTML report comparing ``est`` with ``gt`` and return its path.
 
     Contents: a summary table (ATE and RPE statistics, alignment, ``extra`` key/values
     such as fps), top-down plots (x-y and x-z) of the ground truth and the whole estimate
-    mapped by the ATE alignment, ATE over time and RPE over time.
+    mapped by the ATE alignment, ATE over time and RPE over time; with ``map_dir``, views
+    of the map's point cloud when the run wrote one (``viz.map_views``).
     """
     path = Path(path)
     title = title or "Trajectory evaluation"
@@ -178,6 +202,8 @@ def write_report(
     if rpe_result is not None:
         parts += ["<h2>RPE over time</h2>",
                   _img(_rpe_plot(rpe_result, float(ate_result.timestamps[0])), "RPE over time")]
+    if map_dir is not None:
+        parts += _map_section(Path(map_dir))
     parts.append(
         '<p class="meta">ATE: translation part after alignment; RPE: relative motion error '
         "(translation in m, rotation in degrees); statistics as in evo.</p></body></html>"

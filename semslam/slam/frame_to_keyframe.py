@@ -128,6 +128,7 @@ class FrameToKeyframeTracker:
         t0 = time.perf_counter()
         kps = self.extractor.extract(frame.gray)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
+        packet.keypoints_xy = kps.xy  # for viewers; this tracker removes nothing as dynamic
 
         if self.keyframe is None:
             pose = np.eye(4)
@@ -171,6 +172,10 @@ class FrameToKeyframeTracker:
 
     def keyframe_trajectory(self) -> Trajectory:
         return Trajectory.from_poses(self._keyframe_poses)
+
+    def map_points(self) -> NDArray[np.float64]:
+        """No map: only the current keyframe's points, which are not a map."""
+        return np.zeros((0, 3))
 
     def stats(self) -> dict[str, object]:
         return {}

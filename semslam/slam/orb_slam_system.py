@@ -211,6 +211,12 @@ class OrbSlamSystem:
     def keyframe_trajectory(self) -> Trajectory:
         return Trajectory.from_poses([(k.timestamp, k.T_wc) for k in self.map.all_keyframes()])
 
+    def map_points(self) -> np.ndarray:
+        """World positions of the map's points now (a copy, taken under the map lock)."""
+        with self.map.lock:
+            rows = np.fromiter((p.row for p in self.map.points.values()), np.intp, len(self.map.points))
+            return self.map.store.pos[rows].copy()
+
     def stats(self) -> dict[str, Any]:
         mapper, closer = self.mapper, self.closer
         lba = mapper.stats["local_ba_ms"]

@@ -10,6 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from semslam.config import SystemConfig
 from semslam.core import registry
 from semslam.core.protocols import DepthSource, FramePacket, MapBuilder, Tracker, TrackerInputs
@@ -77,6 +80,10 @@ class System:
 
     def keyframe_trajectory(self) -> Trajectory:
         return self.tracker.keyframe_trajectory()
+
+    def map_points(self) -> NDArray[np.float64]:
+        """World positions (N, 3) of the tracker's map points ((0, 3) without a map)."""
+        return self.tracker.map_points()
 
     def counts(self) -> dict[str, int]:
         states = [r.state for r in self.results]

@@ -69,6 +69,7 @@ class Tracking:
         self.n_relocalisations = 0
         self.n_matches_inliers = 0
         self.n_culled_dynamic_points = 0
+        self._dropped: NDArray[np.bool_] | None = None  # keypoints removed as moving, this frame
         self.last_dynamic_ratio = 0.0
         # Per tracked frame: (timestamp, reference keyframe, T_c_ref) for the trajectory.
         # Lost frames have no pose and are not recorded (ORB-SLAM's SaveTrajectoryTUM skips them).
@@ -97,7 +98,9 @@ class Tracking:
             if dynamic is not None:
                 timings["semantic_wait"] = wait_ms
         t0 = time.perf_counter()
+        self._dropped = None  # set by _remove_moving
         kps = self.extractor.extract(frame.gray, mask)
+        packet.keypoints_xy = kps.xy
         depth = self.depth.depth(frame)
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
@@ -149,6 +152,7 @@ class Tracking:
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
         if dynamic is not None:
             packet.dynamic = dynamic  # the final mask (semantic + moving regions) for map builders
+        packet.keypoint_static = ~self._dropped if self._dropped is not None else np.ones(len(kps), bool)
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
                            timings=timings)
@@ -177,6 +181,7 @@ class Tracking:
         if regions is None:
             return dynamic
         drop = keypoints_in_mask(cur.keypoints.xy, regions.drop)
+        self._dropped = drop
         if drop.any():
             # A map point matched inside a region found moving is on the mover: it was
             # mapped while the object stood still and would keep pulling the pose.
