@@ -12,7 +12,7 @@ from semslam.core.types import LabelMap
 from semslam.geometry.camera import PinholeCamera
 from semslam.reconstruction import voxels
 from semslam.reconstruction.backproject import static_points, stride_for_voxel, usable_pixels
-from semslam.reconstruction.classes import (
+from semslam.core.map_classes import (
     CLASS_COLOURS,
     CLASS_INDEX,
     CLASS_NAMES,

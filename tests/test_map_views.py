@@ -22,7 +22,7 @@ from semslam.reconstruction.keyframe_cloud import write_ply
 from semslam.viz.map_views import Cloud, find_cloud, perspective_png, read_cloud, top_down_png, write_views
 from semslam.viz.palette import class_colour, class_name
 
-FLOOR, TABLE = 101 + 1, 100 + 7  # synthetic ids of NYU "floor" and "table"
+FLOOR, TABLE = 2, 7  # the maps' class indices (core.map_classes: NYU-40 ids) of "floor" and "table"
 FLOOR_RGB, TABLE_RGB = (30, 60, 220), (230, 30, 30)
 
 

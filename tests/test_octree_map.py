@@ -15,7 +15,7 @@ from semslam.core import protocols, registry
 from semslam.eval.map_eval import read_class_table
 from semslam.io.ply import read_vertex_ply, xyz_of
 from semslam.reconstruction import voxels
-from semslam.reconstruction.classes import CLASS_COLOURS, CLASS_INDEX
+from semslam.core.map_classes import CLASS_COLOURS, CLASS_INDEX
 from semslam.reconstruction.octree import SemanticOctree, occupied_leaves, pose_moved
 from tests import map_scene as scene
 

@@ -44,7 +44,7 @@ def _record(path: Path, n: int = 4) -> None:
                       pose, CAM, depth=np.full((H, W), 1.5, np.float32) if k == 0 else None)
     rec.log_trajectory(np.array([_pose(k)[:3, 3] for k in range(n)]))
     rec.log_map_points(np.arange(30, dtype=float).reshape(10, 3))
-    labels = np.array([0, 15, 15, 105, 105, 105])
+    labels = np.array([0, 31, 31, 5, 5, 5])  # map class indices: unknown, person, chair
     rec.log_semantic_cloud(np.random.default_rng(0).random((6, 3)), np.zeros((6, 3), np.uint8), labels,
                            class_table(labels))
     rec.close()
@@ -91,12 +91,12 @@ def test_frames_read_back_from_the_rrd(tmp_path: Path) -> None:
     strip = _column(static, "/world/trajectory:LineStrip3D")[0][0]
     assert np.allclose(strip, [_pose(k)[:3, 3] for k in range(4)], atol=1e-6)
     assert len(_column(static, "/world/map_points:Position3D")[0]) == 10
-    assert _column(static, "/world/semantic_cloud/classes:ClassId")[0] == [0, 15, 15, 105, 105, 105]
+    assert _column(static, "/world/semantic_cloud/classes:ClassId")[0] == [0, 31, 31, 5, 5, 5]
     context = _column(static, "/world/semantic_cloud/classes:AnnotationContext")[0][0]  # one row, one context
     names = {c["class_id"]: c["class_description"]["info"]["label"] for c in context}
-    assert names == {0: "background", 15: "person", 105: "chair"}
-    r, g, b = class_colour(105)
-    assert {c["class_id"]: c["class_description"]["info"]["color"] for c in context}[105] == rgba((r, g, b))
+    assert names == {0: "unknown", 31: "person", 5: "chair"}
+    r, g, b = class_colour(5)
+    assert {c["class_id"]: c["class_description"]["info"]["color"] for c in context}[5] == rgba((r, g, b))
 
 
 def test_recorder_refuses_clearly(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -14,7 +14,7 @@ from semslam.core import protocols, registry
 from semslam.eval.map_eval import read_class_table
 from semslam.io.ply import read_vertex_ply, xyz_of
 from semslam.reconstruction import voxels
-from semslam.reconstruction.classes import CLASS_COLOURS, CLASS_INDEX
+from semslam.core.map_classes import CLASS_COLOURS, CLASS_INDEX
 from semslam.reconstruction.semantic_cloud import SemanticCloud, merge_voxels
 from tests import map_scene as scene
 

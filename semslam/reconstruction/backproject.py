@@ -28,14 +28,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.core.protocols import KeyframeSnapshot
-from semslam.reconstruction.classes import class_image, confidence_image
+from semslam.core.map_classes import class_image, confidence_image
 
 
 @dataclass(frozen=True)
 class StaticPoints:
     """The usable pixels of one snapshot as 3D points, row-aligned arrays of length N.
 
-    ``class_ids`` are global class indices (``semslam.reconstruction.classes``; 0 = unknown,
+    ``class_ids`` are global class indices (``semslam.core.map_classes``; 0 = unknown,
     also for every pixel when the snapshot has no labels); ``confidence`` is the segmenter's
     score of that label, None when it gives none. ``v``, ``u`` are the full-resolution pixels.
     """

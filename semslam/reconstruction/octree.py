@@ -41,7 +41,7 @@ from semslam.core.protocols import KeyframeSnapshot
 from semslam.io.ply import write_vertex_ply
 from semslam.reconstruction import voxels
 from semslam.reconstruction.backproject import static_points, stride_for_voxel
-from semslam.reconstruction.classes import CLASS_COLOURS, UNKNOWN, write_classes_json
+from semslam.core.map_classes import CLASS_COLOURS, UNKNOWN, write_classes_json
 
 # A keyframe whose pose moved more than this since insertion makes ``finish`` rebuild.
 REBUILD_TRANSLATION_M = 1e-3

@@ -28,7 +28,7 @@ from semslam.core.protocols import KeyframeSnapshot
 from semslam.io.ply import write_vertex_ply
 from semslam.reconstruction import voxels
 from semslam.reconstruction.backproject import StaticPoints, static_points, stride_for_voxel
-from semslam.reconstruction.classes import CLASS_COLOURS, UNKNOWN, write_classes_json
+from semslam.core.map_classes import CLASS_COLOURS, UNKNOWN, write_classes_json
 
 
 @dataclass
