@@ -9,7 +9,10 @@ snapshots carry them: back-projection undistorts the source pixels with the came
 
 Only source points that can land on the target's dynamic pixels are projected: points are
 grouped by image tile with a 3D box per tile, and a tile is skipped when its box projects
-away from the dynamic pixels' bounding rectangle (15 sources at 640x480: 85 ms -> 25 ms).
+away from the dynamic pixels (``DynamicCover``). ``warp_static`` runs the per-point work in
+a compiled kernel (``splat_kernel``); ``warp_static_numpy`` is the numpy reference. With 15
+sources at 640x480 (a loaded 2-core machine, CPU time): a person on 13 % of the image 34 ms
+(numpy 75 ms), two people on 39 % 87 ms (numpy 156 ms).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from numpy.typing import NDArray
 
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
+from semslam.reconstruction import splat_kernel
 
 BoolImage = NDArray[np.bool_]
 
@@ -32,6 +36,8 @@ BoolImage = NDArray[np.bool_]
 MIN_Z_M = 0.05
 #: Side of the image tiles source points are grouped by for culling (pixels).
 TILE_PX = 16
+#: Cell of the coarse grid of the target's dynamic pixels tiles are culled against (pixels).
+COVER_CELL_PX = 4
 #: The depth-consistency tolerance grows by this share of the depth (Kinect noise grows with it).
 REL_TOLERANCE = 0.02
 
@@ -127,17 +133,55 @@ def make_source(T_wc: NDArray[np.float64], rgb: NDArray[np.uint8], depth: NDArra
         T_wc=np.array(T_wc, np.float64), camera=camera, shape=(h, w), flat=flat, pts_c=pts,
         rgb=rgb.reshape(-1, 3)[flat], labels=None if labels is None else labels.ravel()[flat],
         confidence=None if confidence is None else confidence.ravel()[flat].astype(np.float32),
-        tile_ptr=np.append(starts, len(flat)), tile_lo=lo, tile_hi=hi)
+        tile_ptr=np.append(starts, len(flat)).astype(np.int64), tile_lo=lo, tile_hi=hi)
 
 
-def tile_rows(src: SourcePoints, T_ts: NDArray[np.float64], box: tuple[float, float, float, float]
-              ) -> NDArray[np.intp]:
-    """Rows of ``src.pts_c`` in tiles whose projection into a target camera (``T_ts``: source
-    to target frame) can meet ``box``, a rectangle (x0, x1, y0, y1) in the target's
-    normalised (undistorted) coordinates. Conservative: a box wholly in front of the camera
-    projects inside its corners' projections (a convex set); one that is not is kept."""
+@dataclass(frozen=True)
+class DynamicCover:
+    """Where a target's dynamic pixels are, coarsely, in undistorted normalised coordinates: a
+    grid of ``COVER_CELL_PX`` cells holding dynamic pixels, grown by one cell (rounding to a
+    pixel, the 2x2 splat), with a summed-area table so a rectangle is tested in O(1)."""
+
+    box: tuple[float, float, float, float]  # x0, x1, y0, y1 of the grid
+    cell: tuple[float, float]
+    sat: NDArray[np.int32]  # (ny + 1, nx + 1), zero first row and column
+
+    @classmethod
+    def of(cls, camera: PinholeCamera, mask: BoolImage) -> DynamicCover:
+        h, w = mask.shape
+        rays = pixel_rays(camera, h, w)[np.flatnonzero(mask)]
+        cx, cy = COVER_CELL_PX / camera.fx, COVER_CELL_PX / camera.fy
+        x0, y0 = float(rays[:, 0].min()) - 1.5 * cx, float(rays[:, 1].min()) - 1.5 * cy
+        nx = int((rays[:, 0].max() - x0) / cx) + 3
+        ny = int((rays[:, 1].max() - y0) / cy) + 3
+        grid = np.zeros((ny, nx), np.uint8)
+        grid[((rays[:, 1] - y0) / cy).astype(np.intp), ((rays[:, 0] - x0) / cx).astype(np.intp)] = 1
+        grid = cv2.dilate(grid, np.ones((3, 3), np.uint8))
+        sat = np.zeros((ny + 1, nx + 1), np.int32)
+        sat[1:, 1:] = grid.cumsum(0, dtype=np.int32).cumsum(1, dtype=np.int32)
+        return cls(box=(x0, x0 + nx * cx, y0, y0 + ny * cy), cell=(cx, cy), sat=sat)
+
+    def meets(self, x_lo: NDArray[np.floating], x_hi: NDArray[np.floating], y_lo: NDArray[np.floating],
+              y_hi: NDArray[np.floating]) -> NDArray[np.bool_]:
+        """Whether each rectangle holds a covered cell."""
+        ny, nx = self.sat.shape[0] - 1, self.sat.shape[1] - 1
+        x0, _, y0, _ = self.box
+        with np.errstate(invalid="ignore"):
+            i0 = np.clip(np.floor((x_lo - x0) / self.cell[0]), 0, nx).astype(np.intp)
+            i1 = np.clip(np.floor((x_hi - x0) / self.cell[0]) + 1, 0, nx).astype(np.intp)
+            j0 = np.clip(np.floor((y_lo - y0) / self.cell[1]), 0, ny).astype(np.intp)
+            j1 = np.clip(np.floor((y_hi - y0) / self.cell[1]) + 1, 0, ny).astype(np.intp)
+        s = self.sat
+        return (s[j1, i1] - s[j0, i1] - s[j1, i0] + s[j0, i0]) > 0
+
+
+def tiles_towards(src: SourcePoints, T_ts: NDArray[np.float64], cover: DynamicCover) -> NDArray[np.int64]:
+    """The tiles of ``src`` whose projection into a target camera (``T_ts``: source to target
+    frame) can meet the target's dynamic pixels (``cover``). Conservative: a box wholly in
+    front of the camera projects inside its corners' projections (a convex set); one that is
+    not is kept."""
     if len(src.tile_lo) == 0:
-        return np.zeros(0, np.intp)
+        return np.zeros(0, np.int64)
     lh = (src.tile_lo, src.tile_hi)
     corners = np.stack([np.stack([lh[i][:, 0], lh[j][:, 1], lh[k][:, 2]], axis=1)
                         for i in (0, 1) for j in (0, 1) for k in (0, 1)], axis=1)  # (K, 8, 3)
@@ -146,21 +190,15 @@ def tile_rows(src: SourcePoints, T_ts: NDArray[np.float64], box: tuple[float, fl
     front = (z > MIN_Z_M).all(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         x, y = q[..., 0] / z, q[..., 1] / z
-    x0, x1, y0, y1 = box
-    meets = (x.max(axis=1) >= x0) & (x.min(axis=1) <= x1) & (y.max(axis=1) >= y0) & (y.min(axis=1) <= y1)
-    keep = ~front | meets
+    keep = ~front | cover.meets(x.min(axis=1), x.max(axis=1), y.min(axis=1), y.max(axis=1))
+    return np.flatnonzero(keep).astype(np.int64)
+
+
+def tile_rows(src: SourcePoints, tiles: NDArray[np.int64]) -> NDArray[np.intp]:
+    """The rows of ``src``'s points in ``tiles``."""
+    keep = np.zeros(len(src.tile_lo), bool)
+    keep[tiles] = True
     return np.flatnonzero(np.repeat(keep, np.diff(src.tile_ptr)))
-
-
-def normalised_box(camera: PinholeCamera, mask: BoolImage, margin_px: float = 2.0
-                   ) -> tuple[float, float, float, float]:
-    """Bounding rectangle of ``mask``'s pixels in undistorted normalised coordinates, grown by
-    ``margin_px`` (rounding to a pixel, the 2x2 splat)."""
-    h, w = mask.shape
-    rays = pixel_rays(camera, h, w)[np.flatnonzero(mask)]
-    mx, my = margin_px / camera.fx, margin_px / camera.fy
-    return (float(rays[:, 0].min()) - mx, float(rays[:, 0].max()) + mx,
-            float(rays[:, 1].min()) - my, float(rays[:, 1].max()) + my)
 
 
 def project_to_image(camera: PinholeCamera, pts_c: NDArray[np.float32], height: int, width: int,
@@ -237,19 +275,11 @@ def _footprint(u: NDArray[np.float32], v: NDArray[np.float32], height: int, widt
         raise ValueError(f"unknown splat footprint {splat!r} (point, quad)")
 
 
-def warp_static(camera: PinholeCamera, T_wc: NDArray[np.float64], depth: NDArray[np.float32] | None,
-                dynamic: BoolImage, sources: Sequence[SourcePoints], depth_tolerance_m: float,
-                splat: str = "point", fill_cracks: bool = True) -> WarpResult:
-    """Fill the target's ``dynamic`` pixels with the nearest static surface the sources saw.
-
-    A candidate that lies in front of what the target itself observes there (its ``depth``,
-    the moving object's) by more than the tolerance is rejected before the z-buffer: a static
-    surface cannot be in front of a visible person, and such a point (a mislabelled source
-    pixel, a pose error) must not hide the true background behind it. ``splat``: ``point``
-    rounds each projection to its nearest pixel, ``quad`` covers the 2x2 pixels around it;
-    ``fill_cracks`` closes one-pixel gaps between two samples of one surface (see
-    ``close_cracks``).
-    """
+def warp_static_numpy(camera: PinholeCamera, T_wc: NDArray[np.float64], depth: NDArray[np.float32] | None,
+                      dynamic: BoolImage, sources: Sequence[SourcePoints], depth_tolerance_m: float,
+                      splat: str = "point", fill_cracks: bool = True, average: bool = True) -> WarpResult:
+    """``warp_static`` in numpy, the reference the compiled kernel is tested against (the
+    same candidates; pixel rounding may differ where float32 and float64 disagree)."""
     h, w = dynamic.shape
     n_pix = h * w
     dyn_flat = dynamic.ravel()
@@ -262,10 +292,10 @@ def warp_static(camera: PinholeCamera, T_wc: NDArray[np.float64], depth: NDArray
     seen = np.zeros(n_pix, bool)
     parts: list[_Candidates] = []
     if dyn_flat.any():
-        box = normalised_box(camera, dynamic)
+        cover = DynamicCover.of(camera, dynamic)
         for src in sources:
             T_ts = T_cw @ src.T_wc
-            near = tile_rows(src, T_ts, box)
+            near = tile_rows(src, tiles_towards(src, T_ts, cover))
             rows, u, v, z = project_to_image(camera, src.pts_c[near], h, w, T_ts)
             rows = near[rows]
             for idx, sel in _footprint(u, v, h, w, splat):
@@ -283,12 +313,92 @@ def warp_static(camera: PinholeCamera, T_wc: NDArray[np.float64], depth: NDArray
                 if has_conf:
                     conf = src.confidence[r] if src.confidence is not None else np.full(len(r), np.nan, np.float32)
                 parts.append(_Candidates(idx, zz, src.rgb[r], lab, conf))
-    return _zbuffer(parts, dynamic, obs, depth_tolerance_m, seen.reshape(h, w), has_labels, has_conf, fill_cracks)
+    return _zbuffer(parts, dynamic, obs, depth_tolerance_m, seen, has_labels, has_conf, fill_cracks,
+                    average)
+
+
+def warp_static(camera: PinholeCamera, T_wc: NDArray[np.float64], depth: NDArray[np.float32] | None,
+                dynamic: BoolImage, sources: Sequence[SourcePoints], depth_tolerance_m: float,
+                splat: str = "point", fill_cracks: bool = True, average: bool = True) -> WarpResult:
+    """Fill the target's ``dynamic`` pixels with the nearest static surface the sources saw.
+
+    A candidate that lies in front of what the target itself observes there (its ``depth``,
+    the moving object's) by more than the tolerance is rejected before the z-buffer: a static
+    surface cannot be in front of a visible person, and such a point (a mislabelled source
+    pixel, a pose error) must not hide the true background behind it. ``splat``: ``point``
+    rounds each projection to its nearest pixel, ``quad`` covers the 2x2 pixels around it;
+    ``fill_cracks`` closes one-pixel gaps between two samples of one surface (see
+    ``close_cracks``). ``average``: the candidates of the nearest surface (within the
+    tolerance of the nearest candidate) are averaged; the nearest alone would be the most
+    negative of several noisy samples, a bias towards the camera that grows with the number
+    of sources (synthetic sequence with Kinect-like noise, 13 mm median error per
+    observation: nearest 13 -> 30 mm as the history fills, average 3-5 mm).
+    """
+    if splat not in ("point", "quad"):
+        raise ValueError(f"unknown splat footprint {splat!r} (point, quad)")
+    h, w = dynamic.shape
+    n_pix = h * w
+    at = np.flatnonzero(dynamic)  # the buffers below hold the dynamic pixels only
+    slot = np.full(n_pix, -1, np.int32)
+    slot[at] = np.arange(len(at), dtype=np.int32)
+    obs = None
+    if depth is not None:
+        obs = np.where(valid_depth(depth), depth, np.float32(0)).astype(np.float32).ravel()
+    obs_at = np.zeros(len(at), np.float32) if obs is None else obs[at]
+    zbuf_at = np.full(len(at), np.inf, np.float32)
+    seen_at = np.zeros(len(at), bool)
+    win = np.full(len(at), -1, np.int64)
+    acc = np.zeros((len(at) if average else 0, 5), np.float32)
+    if len(at) and sources:
+        cover = DynamicCover.of(camera, dynamic)
+        box = np.asarray(cover.box, np.float64)
+        T_cw = invert(T_wc)
+        todo = []
+        for src in sources:
+            T_ts = T_cw @ src.T_wc
+            todo.append((src, tiles_towards(src, T_ts, cover), np.ascontiguousarray(T_ts)))
+        intr = np.array([camera.fx, camera.fy, camera.cx, camera.cy], np.float64)
+        listed = []
+        for i, (src, tiles, T_ts) in enumerate(todo):
+            room = int((src.tile_ptr[tiles + 1] - src.tile_ptr[tiles]).sum()) * (4 if splat == "quad" else 1)
+            cand = (np.empty(room, np.int32), np.empty(room, np.float32), np.empty(room, np.int32))
+            n = splat_kernel.splat_source(
+                src.pts_c, src.tile_ptr, tiles, T_ts, intr, camera.dist_coeffs, box, h, w, splat == "quad", MIN_Z_M,
+                slot, obs_at, depth_tolerance_m, REL_TOLERANCE, i, zbuf_at, seen_at, win, *cand)
+            listed.append((src, [c[:n] for c in cand]))
+        if average:
+            for src, cand in listed:
+                splat_kernel.accumulate(*cand, src.rgb, zbuf_at, depth_tolerance_m, REL_TOLERANCE, acc)
+    has_labels = any(s.labels is not None for s in sources)
+    has_conf = any(s.confidence is not None for s in sources)
+    zbuf = np.full(n_pix, np.inf, np.float32)
+    rgb = np.zeros((n_pix, 3), np.uint8)
+    labels = np.zeros(n_pix, np.uint8) if has_labels else None
+    conf = np.full(n_pix, np.nan, np.float32) if has_conf else None
+    seen = np.zeros(n_pix, bool)
+    seen[at] = seen_at
+    hit = np.flatnonzero(win >= 0)
+    src_of, row_of = win[hit] >> splat_kernel.ROW_BITS, win[hit] & ((1 << splat_kernel.ROW_BITS) - 1)
+    for i, src in enumerate(sources):
+        mine = src_of == i
+        pix, rows = at[hit[mine]], row_of[mine]
+        rgb[pix] = src.rgb[rows]
+        if labels is not None and src.labels is not None:
+            labels[pix] = src.labels[rows]
+        if conf is not None and src.confidence is not None:
+            conf[pix] = src.confidence[rows]
+    zbuf[at] = zbuf_at
+    if average and len(hit):
+        a = acc[hit]  # count >= 1: the nearest candidate is within the tolerance of itself
+        zbuf[at[hit]] = a[:, 1] / a[:, 0]
+        rgb[at[hit]] = np.rint(a[:, 2:] / a[:, :1]).astype(np.uint8)
+    return _finish(zbuf, rgb, labels, conf, seen, dynamic, obs, depth_tolerance_m, fill_cracks)
 
 
 def _zbuffer(parts: list[_Candidates], dynamic: BoolImage, obs: NDArray[np.float32] | None, depth_tolerance_m: float,
-             seen: BoolImage, has_labels: bool, has_conf: bool, fill_cracks: bool) -> WarpResult:
-    """Keep per pixel the candidate nearest to the target camera."""
+             seen: BoolImage, has_labels: bool, has_conf: bool, fill_cracks: bool, average: bool) -> WarpResult:
+    """Keep per pixel the nearest surface: the candidates within the tolerance of the nearest
+    one, averaged (depth, colour) when ``average``; labels from the nearest candidate."""
     h, w = dynamic.shape
     n_pix = h * w
     zbuf = np.full(n_pix, np.inf, np.float32)
@@ -298,22 +408,42 @@ def _zbuffer(parts: list[_Candidates], dynamic: BoolImage, obs: NDArray[np.float
     if parts:
         idx = np.concatenate([p.idx for p in parts])
         z = np.concatenate([p.z for p in parts])
+        colours = np.concatenate([p.rgb for p in parts])
         np.minimum.at(zbuf, idx, z)
-        win = np.flatnonzero(z == zbuf[idx])  # ties have the same depth; any of them will do
-        rgb[idx[win]] = np.concatenate([p.rgb for p in parts])[win]
+        nearest = zbuf[idx]
+        win = np.flatnonzero(z == nearest)  # ties have the same depth; any of them will do
+        rgb[idx[win]] = colours[win]
         if labels is not None:
             labels[idx[win]] = np.concatenate([p.labels for p in parts])[win]
         if conf is not None:
             conf[idx[win]] = np.concatenate([p.confidence for p in parts])[win]
+        if average:
+            same = np.flatnonzero(z <= nearest + tolerance(nearest, depth_tolerance_m))
+            at = idx[same]
+            count = np.bincount(at, minlength=n_pix)
+            many = np.flatnonzero(count > 1)
+            n = count[many]
+            zbuf[many] = (np.bincount(at, weights=z[same], minlength=n_pix)[many] / n).astype(np.float32)
+            for c in range(3):
+                total = np.bincount(at, weights=colours[same, c], minlength=n_pix)[many]
+                rgb[many, c] = np.rint(total / n).astype(np.uint8)
+    return _finish(zbuf, rgb, labels, conf, seen, dynamic, obs, depth_tolerance_m, fill_cracks)
+
+
+def _finish(zbuf: NDArray[np.float32], rgb: NDArray[np.uint8], labels: NDArray[np.uint8] | None,
+            conf: NDArray[np.float32] | None, seen: NDArray[np.bool_], dynamic: BoolImage,
+            obs: NDArray[np.float32] | None, depth_tolerance_m: float, fill_cracks: bool) -> WarpResult:
+    """Flat z-buffer -> images, then the one-pixel cracks closed."""
+    h, w = dynamic.shape
     filled = np.isfinite(zbuf).reshape(h, w)
     depth = np.where(filled, zbuf.reshape(h, w), np.float32(0)).astype(np.float32)
     rgb = rgb.reshape(h, w, 3)
     labels = None if labels is None else labels.reshape(h, w)
     conf = None if conf is None else conf.reshape(h, w)
     if fill_cracks:
-        obs_img = None if obs is None else obs.reshape(h, w)
-        close_cracks(depth, rgb, labels, conf, filled, dynamic, obs_img, depth_tolerance_m)
-    return WarpResult(rgb=rgb, depth=depth, labels=labels, confidence=conf, filled=filled, seen=seen)
+        close_cracks(depth, rgb, labels, conf, filled, dynamic, None if obs is None else obs.reshape(h, w),
+                     depth_tolerance_m)
+    return WarpResult(rgb=rgb, depth=depth, labels=labels, confidence=conf, filled=filled, seen=seen.reshape(h, w))
 
 
 # Opposite neighbour pairs (dv, du): a crack pixel lies between the two samples of a pair.
@@ -364,3 +494,13 @@ def close_cracks(depth: NDArray[np.float32], rgb: NDArray[np.uint8], labels: NDA
         confidence[cv, cu] = confidence[av, au]
     filled[cv, cu] = True
     return int(crack.sum())
+
+
+def warm_up() -> None:
+    """Compile the splat kernel (or load it from numba's disk cache) on a tiny input, so the
+    first keyframe does not pay for it (seconds cold, ~0.2 s from the cache)."""
+    cam = PinholeCamera(fx=2.0, fy=2.0, cx=1.5, cy=1.5, width=4, height=4)
+    depth = np.ones((4, 4), np.float32)
+    everywhere = np.ones((4, 4), bool)
+    src = make_source(np.eye(4), np.zeros((4, 4, 3), np.uint8), depth, everywhere, cam)
+    warp_static(cam, np.eye(4), depth, everywhere, [src], 0.03)
