@@ -59,33 +59,45 @@ def _eval_map(out: Path, seq: Path) -> dict[str, Any]:
 
 def _inpainting(run: Path, seq: Path) -> dict[str, Any]:
     """Replay the run's keyframes through the inpainter; errors against the background renders."""
-    from semslam.io.depth import read_depth_png
-    from semslam.io.images import read_rgb
+    from semslam.io.images import read_depth, read_rgb
     from semslam.offline_maps import keyframe_snapshots, load_run
-    from semslam.reconstruction.inpainting import BackgroundInpainter, fill_stats
+    from semslam.reconstruction.inpainting import BackgroundInpainter, seen_by_sources
 
-    cfg, stats = load_run(run)
-    inpainter = BackgroundInpainter(cfg.maps.inpainting)
-    rows = []
+    cfg, _ = load_run(run)
+    icfg = cfg.maps.inpainting
+    inpainter = BackgroundInpainter(icfg)
+    n_kf = dyn_px = seen_px = filled_px = filled_seen_px = 0
+    depth_err: list[np.ndarray] = []
+    rgb_err: list[np.ndarray] = []
     for snap, _, _ in keyframe_snapshots(run, cfg, seq):
+        if snap.dynamic is None or not snap.dynamic.any():
+            inpainter.inpaint(snap)
+            continue
         stamp = f"{snap.timestamp:.6f}"
         true_rgb = read_rgb(seq / "background" / "rgb" / f"{stamp}.png")
-        true_depth = read_depth_png(seq / "background" / "depth" / f"{stamp}.png", cfg.depth_scale)
-        seen = inpainter.seen_mask(snap, true_depth)
+        true_depth = read_depth(seq / "background" / "depth" / f"{stamp}.png", cfg.depth_scale)
+        seen = seen_by_sources(snap.camera, snap.T_wc, true_depth, snap.dynamic, inpainter.sources(),
+                               icfg.depth_tolerance_m)
         out = inpainter.inpaint(snap)
-        if snap.dynamic is None or not snap.dynamic.any():
-            continue
-        rows.append(fill_stats(out, snap.dynamic, true_rgb, true_depth, seen))
-    if not rows:
+        filled = out.filled if out.filled is not None else np.zeros_like(snap.dynamic)
+        n_kf += 1
+        dyn_px += int(snap.dynamic.sum())
+        seen_px += int(seen.sum())
+        filled_px += int(filled.sum())
+        filled_seen_px += int((filled & seen).sum())
+        ok = filled & (true_depth > 0) & (out.depth > 0)
+        depth_err.append(np.abs(out.depth[ok] - true_depth[ok]))
+        rgb_err.append(np.abs(out.rgb[filled].astype(np.float32) - true_rgb[filled].astype(np.float32)).ravel())
+    if not n_kf:
         return {"keyframes_with_dynamic_pixels": 0}
-    seen_px = sum(r["seen_px"] for r in rows)
+    d = np.concatenate(depth_err)
     return {
-        "keyframes_with_dynamic_pixels": len(rows),
-        "dynamic_px": sum(r["dynamic_px"] for r in rows),
-        "filled_share": sum(r["filled_px"] for r in rows) / max(1, sum(r["dynamic_px"] for r in rows)),
-        "filled_share_of_seen": sum(r["filled_seen_px"] for r in rows) / max(1, seen_px),
-        "depth_err_median_cm": 100 * float(np.median(np.concatenate([r["depth_err"] for r in rows]))),
-        "rgb_err_mean": float(np.mean(np.concatenate([r["rgb_err"] for r in rows]))),
+        "keyframes_with_dynamic_pixels": n_kf, "dynamic_px": dyn_px, "seen_px": seen_px,
+        "filled_share": filled_px / max(1, dyn_px),
+        "filled_share_of_seen": filled_seen_px / max(1, seen_px),
+        "depth_err_median_cm": 100 * float(np.median(d)) if d.size else float("nan"),
+        "depth_err_p90_cm": 100 * float(np.percentile(d, 90)) if d.size else float("nan"),
+        "rgb_err_mean": float(np.mean(np.concatenate(rgb_err))) if filled_px else float("nan"),
     }
 
 

@@ -218,16 +218,17 @@ class BackgroundInpainter:
         return inpaint_image(camera, T_wc, rgb, depth, dynamic, self.sources(), self.cfg, labels,
                              self.splat, self.fill_cracks)
 
-    def inpaint(self, snapshot: KeyframeSnapshot) -> KeyframeSnapshot:
+    def inpaint(self, snapshot: KeyframeSnapshot, remember: bool = True) -> KeyframeSnapshot:
         """A new snapshot with the dynamic pixels filled (``filled``, ``synthesized``;
-        ``dynamic`` = what stays unknown); then the keyframe joins the history."""
+        ``dynamic`` = what stays unknown); then the keyframe joins the history (unless
+        ``remember`` is false: a frame that is not a keyframe, ``--save-inpainted``)."""
         out = snapshot
         if self.cfg.enabled and snapshot.dynamic is not None and snapshot.dynamic.any():
             res = self.fill_pixels(snapshot.rgb, snapshot.depth, snapshot.dynamic, snapshot.T_wc, snapshot.camera,
                                    snapshot.labels)
             out = replace(snapshot, rgb=res.rgb, depth=res.depth, labels=res.labels, filled=res.filled,
                           synthesized=res.synthesized, dynamic=res.dynamic)
-        if self.cfg.enabled:
+        if self.cfg.enabled and remember:
             self.add(snapshot)
         return out
 
