@@ -68,8 +68,8 @@ def test_backends_implement_their_contracts(static_seq: Path) -> None:
 def test_registry_errors_name_the_key() -> None:
     with pytest.raises(ConfigError, match=r"tracking\.method: unknown tracker 'nope' \(known: frame_to_keyframe, orb_slam\)"):
         System(load_config("orb", ["tracking.method=nope"]), CAM)
-    with pytest.raises(ConfigError, match=r"maps\.builders: unknown map_builder 'octree'"):
-        System(load_config("orb", ["maps.builders=[octree]"]), CAM)
+    with pytest.raises(ConfigError, match=r"maps\.builders: unknown map_builder 'octopus' \(known: cloud, "):
+        System(load_config("orb", ["maps.builders=[octopus]"]), CAM)
     with pytest.raises(ConfigError, match=r"sensor: unknown sensor 'stereo'"):
         load_config("orb", ["sensor=stereo"])
 
