@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -45,6 +46,7 @@ class _MapState:
     inpainter: Any | None
     inpainted_dir: Path | None
     mask_dynamic: bool = True
+    margin_px: int = 0
     keyframe_ms: list[float] = field(default_factory=list)
     inpaint_ms: list[float] = field(default_factory=list)
     dynamic_px: int = 0
@@ -75,7 +77,7 @@ def _create_state(names: list[str], cfg: MapsConfig, inpainted_dir: Path | None,
 
         inpainter = BackgroundInpainter(cfg.inpainting)
     _STATE = _MapState([registry.create("map_builder", n, cfg) for n in names], inpainter, inpainted_dir,
-                       cfg.mask_dynamic)
+                       cfg.mask_dynamic, cfg.dynamic_margin_px)
     return True
 
 
@@ -90,6 +92,10 @@ def _add_keyframe(snapshot: KeyframeSnapshot) -> None:
     t0 = time.perf_counter()
     if not st.mask_dynamic:
         snapshot = replace(snapshot, dynamic=None)
+    elif st.margin_px > 0 and snapshot.dynamic is not None and snapshot.dynamic.any():
+        k = 2 * st.margin_px + 1
+        grown = cv2.dilate(snapshot.dynamic.view(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
+        snapshot = replace(snapshot, dynamic=grown)
     if st.inpainter is not None:
         dynamic = snapshot.dynamic
         snapshot = st.inpainter.inpaint(snapshot)

@@ -87,7 +87,8 @@ class SemanticOctree:
         self.max_depth_m = float(cfg.max_depth_m)
         self.stride = stride  # None: SAMPLES_PER_VOXEL per voxel at each keyframe's median depth
         self._octomap = octomap
-        self._tree = octomap.OcTree(self.resolution)
+        self._sensor = (cfg.octree_prob_hit, cfg.octree_prob_miss, cfg.octree_clamping_max)
+        self._tree = self._new_tree()
         self._keyframes: dict[int, _Keyframe] = {}
         self._lock = threading.Lock()
         self.insert_seconds: list[float] = []  # per keyframe, for the run's stats
@@ -157,8 +158,17 @@ class SemanticOctree:
         kf.vote_keys = voxels.pack(voxels.voxel_coords(world, self.resolution))
         self.insert_seconds.append(time.perf_counter() - t0)
 
+    def _new_tree(self) -> Any:
+        """An empty OctoMap tree with the config's sensor model (hit / miss probabilities, upper clamp)."""
+        tree = self._octomap.OcTree(self.resolution)
+        hit, miss, clamp = self._sensor
+        tree.setProbHit(hit)
+        tree.setProbMiss(miss)
+        tree.setClampingThresMax(clamp)
+        return tree
+
     def _rebuild(self) -> None:
-        self._tree = self._octomap.OcTree(self.resolution)
+        self._tree = self._new_tree()
         for kf in self._keyframes.values():  # insertion order: the online order
             self._insert(kf)
 
