@@ -114,7 +114,8 @@ def run_slam(
     try:
         if save_map and error is None:
             system.save_map(Path(save_map))
-        result = _write_outputs(system, sequence, config, out, timing, report, error)
+        result, map_error = _write_outputs(system, sequence, config, out, timing, report, error)
+        error = error or map_error
         if recorder is not None:
             _log_run_end(recorder, system, out / "map")
     finally:
@@ -209,7 +210,8 @@ def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total
 
 
 def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out: Path, timing: _RunTiming,
-                   report: bool, error: BaseException | None) -> RunResult:
+                   report: bool, error: BaseException | None) -> tuple[RunResult, BaseException | None]:
+    """Write every output; returns the result and the maps' failure, if they failed."""
     traj = system.trajectory()
     write_tum(out / "trajectory.txt", traj)
     paths = {"trajectory": str(out / "trajectory.txt"), "stats": str(out / "stats.json"),
@@ -218,7 +220,12 @@ def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out
     if len(kf_traj):
         write_tum(out / "keyframes.txt", kf_traj)
         paths["keyframes"] = str(out / "keyframes.txt")
-    paths.update({name: str(p) for name, p in system.write_maps(out / "map").items()})
+    map_error: BaseException | None = None
+    try:  # a failed map still leaves the trajectory and stats.json (with the error) behind
+        paths.update({name: str(p) for name, p in system.write_maps(out / "map").items()})
+    except Exception as exc:  # noqa: BLE001 - reported in stats.json, then raised by run_slam
+        map_error = exc
+        error = error or exc
     n = len(timing.frame_ms)
     cam = sequence.camera
     result = RunResult(
@@ -242,7 +249,7 @@ def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out
         _evaluate(sequence.groundtruth_path, traj, config, out, result, report)
     (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
     (out / "config.json").write_text(json.dumps(config_to_dict(config), indent=2))
-    return result
+    return result, map_error
 
 
 def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, result: RunResult,

@@ -120,3 +120,40 @@ def test_dynamic_pixels_stay_out_of_the_maps_unless_told(tmp_path: Path, mask_dy
     finally:
         worker.close()
     assert n == (4 * 6 if mask_dynamic else 8 * 6)
+
+
+class Boom:
+    """A map builder that fails on its second keyframe."""
+
+    def __init__(self, cfg: MapsConfig) -> None:
+        self.n = 0
+
+    def add_keyframe(self, snapshot: KeyframeSnapshot) -> None:
+        self.n += 1
+        if self.n == 2:
+            raise RuntimeError("disk full")
+
+    def correct_poses(self, poses_wc: dict) -> None: ...
+
+    def finish(self, out_dir: Path) -> dict[str, Path]:
+        return {}
+
+    def close(self) -> None: ...
+
+
+@pytest.mark.slow
+def test_a_failed_map_still_leaves_the_trajectory_and_stats(static_render: Path, tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    import json
+
+    from semslam.cli.main import main
+    from semslam.core import registry
+
+    monkeypatch.setitem(registry.PLUGINS["map_builder"], "boom", "tests.test_mapping_worker:Boom")
+    out = tmp_path / "run"
+    rc = main(["run", str(static_render), "--out", str(out), "--quiet", "--no-report", "--preset", "orb",
+               "--sequential", "--max-frames", "30", "--map", "boom"])
+    assert rc == 2  # one line, no traceback
+    stats = json.loads((out / "stats.json").read_text())
+    assert "disk full" in stats["error"] and stats["tracked_frames"] == 30
+    assert (out / "trajectory.txt").read_text().count("\n") >= 30

@@ -202,7 +202,7 @@ class MappingWorker:
     def finish(self, out_dir: Path) -> dict[str, Path]:
         self._drain()
         if self._pool is None:
-            paths, self.stats_ = _finish(out_dir)
+            paths, self.stats_ = self._inline(_finish, out_dir)
         else:
             paths, self.stats_ = self._wait(self._pool.submit(_finish, out_dir))
         self.stats_["map_queue_max"] = self.queue_max
@@ -224,8 +224,13 @@ class MappingWorker:
 
     # ------------------------------------------------------------------ queue
     def _call(self, fn: Any, *args: Any) -> None:
-        if self._pool is None:
-            fn(*args)
+        if self._pool is None:  # inline: a failure stops the maps, not tracking (as the worker's)
+            if self._error is None:
+                try:
+                    fn(*args)
+                except Exception as exc:  # noqa: BLE001 - raised as WorkerFailed at finish
+                    self._error = exc
+                    log.error("mapping failed: %s", exc)
             return
         self._pending = [f for f in self._pending if not f.done() or self._check(f)]
         self._pending.append(self._pool.submit(fn, *args))
@@ -246,6 +251,12 @@ class MappingWorker:
         if self._error is not None:
             raise WorkerFailed(f"mapping worker failed: {type(self._error).__name__}: {self._error}") \
                 from self._error
+
+    def _inline(self, fn: Any, *args: Any) -> Any:
+        try:
+            return fn(*args)
+        except Exception as exc:
+            raise WorkerFailed(f"mapping failed: {type(exc).__name__}: {exc}") from exc
 
     def _wait(self, fut: Future[Any]) -> Any:
         try:
