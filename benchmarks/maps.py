@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
 
     doc: dict[str, Any] = {"machine": {**machine(), "loadavg_before": os.getloadavg()}, "runs": {},
                            "inpainting": {}, "targets": []}
-    for name in args.sequences.split(","):
+    for name in [n for n in args.sequences.split(",") if n]:
         seq = args.data / name
         ensure_rendered(replace(SEQUENCES[name], frames=args.frames, background=True), seq)
         for preset, flags in RUNS.items():
@@ -165,15 +165,19 @@ def main(argv: list[str] | None = None) -> int:
         without = _run(seq, args.out / "long_nomaps", "default", ["--realtime", "--map", "none"])
         doc["long"] = {"frames": args.long_frames, "keyframes": with_maps["keyframes"],
                        "map_queue_max": with_maps.get("map_queue_max"),
+                       **{k: with_maps.get(k) for k in ("map_queue_first_third_max", "map_queue_last_third_max",
+                                                        "map_queue_end", "map_keyframe_ms_median",
+                                                        "inpaint_ms_median")},
                        "ms_median_with_maps": with_maps["ms_per_frame"]["median"],
                        "ms_median_without_maps": without["ms_per_frame"]["median"],
                        "map_finish_s": with_maps.get("map_finish_s")}
         cost = doc["long"]["ms_median_with_maps"] - doc["long"]["ms_median_without_maps"]
         doc["targets"].append({"target": "maps cost tracking <= 2 ms median (900 frames)", "value": cost,
                                "met": cost <= 2.0})
-        q = with_maps.get("map_queue_max") or 0
-        doc["targets"].append({"target": "mapping keeps pace: queue max <= 5 keyframes (900 frames)", "value": q,
-                               "met": q <= 5})
+        first, last = with_maps.get("map_queue_first_third_max") or 0, with_maps.get("map_queue_last_third_max") or 0
+        doc["targets"].append({"target": "mapping keeps pace: the queue's max over the last third of the keyframes "
+                                         "<= over the first (900 frames)", "value": f"{last} vs {first}",
+                               "met": last <= first})
     doc["machine"]["loadavg_after"] = os.getloadavg()
 
     print(json.dumps(doc, indent=2, default=str))
