@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from semslam.experiments.bench import machine
+from semslam.experiments.bench import machine, targets_table
 from semslam.synth import SEQUENCES, ensure_rendered
 
 WALKING = ["walking_xyz", "walking_halfsphere", "walking_box"]
@@ -205,11 +205,7 @@ def main(argv: list[str] | None = None) -> int:
             if "filled_share" in r:
                 print(f"| {name} | {r['keyframes_with_dynamic_pixels']} | {pct(r['filled_share'])} | "
                       f"{pct(r['filled_share_of_seen'])} | {r['depth_err_median_cm']:.2f} | {r['rgb_err_mean']:.1f} |")
-    print("\n| target | measured | met |\n|---|---|---|")
-    for t in doc["targets"]:
-        v = t["value"]
-        print(f"| {t['target']} | {v:.2f} | {'yes' if t['met'] else 'no'} |" if isinstance(v, float)
-              else f"| {t['target']} | {v} | {'yes' if t['met'] else 'no'} |")
+    print("\n" + targets_table(doc["targets"], digits=2))
     print(f"\nload average before / after: {doc['machine']['loadavg_before']} / {doc['machine']['loadavg_after']}")
     return 0
 

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from semslam.core.types import RunResult
-from semslam.experiments.bench import machine
+from semslam.experiments.bench import machine, targets_table
 from semslam.synth import SEQUENCES, ensure_rendered
 
 PRESETS = ["orb", "default", "stdc", "ddl"]
@@ -170,11 +170,7 @@ def main(argv: list[str] | None = None) -> int:
                   + (f"{r['latency_ms']['median']:.1f} / {r['latency_ms']['p95']:.1f} | {r['late_frames']} |"
                      if r["latency_ms"] else "- | - |")
                   + " " + ", ".join(f"{x['ms_median']:.1f}" for x in r["repeats"]) + " |")
-    print("\n| target | measured | met |\n|---|---|---|")
-    for t in doc["targets"]:
-        v = t["value"]
-        print(f"| {t['target']} | {v:.1f} | {'yes' if t['met'] else 'no'} |" if isinstance(v, float)
-              else f"| {t['target']} | {v} | {'yes' if t['met'] else 'no'} |")
+    print("\n" + targets_table(doc["targets"], digits=1))
     print(f"\nload average before / after: {doc['machine']['loadavg_before']} / {doc['machine']['loadavg_after']}")
     return 0
 

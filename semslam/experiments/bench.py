@@ -110,6 +110,17 @@ def machine() -> dict[str, Any]:
             "cores": os.cpu_count()}
 
 
+def targets_table(targets: list[dict[str, Any]], digits: int = 1) -> str:
+    """The benchmarks' closing table: each target (``{"target", "value", "met"}``), what was
+    measured and whether it is met."""
+    lines = ["| target | measured | met |", "|---|---|---|"]
+    for t in targets:
+        v = t["value"]
+        lines.append(f"| {t['target']} | {v:.{digits}f} | {'yes' if t['met'] else 'no'} |" if isinstance(v, float)
+                     else f"| {t['target']} | {v} | {'yes' if t['met'] else 'no'} |")
+    return "\n".join(lines)
+
+
 def document(rows: list[BenchRow], sequences: list[str]) -> dict[str, Any]:
     """The JSON document ``semslam bench`` prints."""
     return {"machine": machine(), "results": [r.to_dict() for r in rows],
