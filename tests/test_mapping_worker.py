@@ -157,3 +157,43 @@ def test_a_failed_map_still_leaves_the_trajectory_and_stats(static_render: Path,
     stats = json.loads((out / "stats.json").read_text())
     assert "disk full" in stats["error"] and stats["tracked_frames"] == 30
     assert (out / "trajectory.txt").read_text().count("\n") >= 30
+
+
+class HalfPerson:
+    """A segmenter that sees a person in the left half of every image."""
+
+    name = "half_person"
+    names = {0: "background", 15: "person"}
+
+    def __init__(self, cfg: object) -> None: ...
+
+    def segment(self, rgb: np.ndarray, frame: object = None) -> "LabelMap":
+        from semslam.core.types import LabelMap
+
+        labels = np.zeros(rgb.shape[:2], np.uint8)
+        labels[:, : rgb.shape[1] // 2] = 15
+        return LabelMap(labels, dict(self.names))
+
+    def close(self) -> None: ...
+
+
+def test_keyframes_tracking_did_not_segment_are_segmented_for_the_maps(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    from semslam.config import SemanticsConfig
+    from semslam.core import registry
+    from semslam.core.types import LabelMap
+
+    monkeypatch.setitem(registry.PLUGINS["segmenter"], "half_person", "tests.test_mapping_worker:HalfPerson")
+    worker = MappingWorker(["keyframe_cloud"], _cfg(), threaded=False,
+                           semantics=SemanticsConfig(backend="half_person"))
+    try:
+        warped, own = _snapshots(2)
+        warped.dynamic = np.zeros((24, 32), bool)  # its mask came warped: no labels of its own
+        own.labels = LabelMap(np.zeros((24, 32), np.uint8), {0: "background"})  # segmented: nobody there
+        worker.add_keyframe(warped)
+        worker.add_keyframe(own)
+        n = len(_xyz(worker.finish(tmp_path)["keyframe_cloud"]))
+        assert worker.stats()["map_segmented_keyframes"] == 1
+    finally:
+        worker.close()
+    assert n == 4 * 6 + 8 * 6  # the left half of the first keyframe left out, all of the second kept

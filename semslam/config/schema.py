@@ -254,6 +254,9 @@ class MapsConfig:
     # Leave the dynamic stage's pixels out of the maps (and inpaint them). false maps every
     # pixel as seen - the baseline that shows the ghosts masking removes.
     mask_dynamic: bool = True
+    # Keyframes whose mask tracking took warped from an earlier frame (semantics.schedule:
+    # latest, stride) are segmented again in the maps' worker, off the tracking path.
+    segment_keyframes: bool = True
     # Grow the dynamic mask by this many pixels before inpainting and mapping: a mask's edge
     # (segmentation, SRM, a warped mask on frames not segmented) misses the mover's outline.
     dynamic_margin_px: int = 0

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.config import MapsConfig
+from semslam.config import MapsConfig, SemanticsConfig
 from semslam.core import registry
 from semslam.core.protocols import KeyframeSnapshot, MapBuilder
 from semslam.errors import WorkerFailed
@@ -50,6 +50,9 @@ class _MapState:
     inpainted_dir: Path | None
     mask_dynamic: bool = True
     margin_px: int = 0
+    segmenter: Any | None = None
+    dynamic_classes: list[str] = field(default_factory=list)
+    segmented_keyframes: int = 0
     keyframe_ms: list[float] = field(default_factory=list)
     inpaint_ms: list[float] = field(default_factory=list)
     dynamic_px: int = 0
@@ -61,8 +64,9 @@ class _MapState:
 _STATE: _MapState | None = None
 
 
-def _create_state(names: list[str], cfg: MapsConfig, inpainted_dir: Path | None, lower_priority: bool) -> bool:
-    """Build the builders and the inpainter (in the worker when there is one)."""
+def _create_state(names: list[str], cfg: MapsConfig, inpainted_dir: Path | None, lower_priority: bool,
+                  semantics: SemanticsConfig | None = None) -> bool:
+    """Build the builders, the inpainter and the keyframe segmenter (in the worker when there is one)."""
     global _STATE
     if lower_priority:
         import os
@@ -79,8 +83,14 @@ def _create_state(names: list[str], cfg: MapsConfig, inpainted_dir: Path | None,
         from semslam.reconstruction.inpainting import BackgroundInpainter
 
         inpainter = BackgroundInpainter(cfg.inpainting)
+    segmenter = None
+    if semantics is not None:
+        from semslam.semantics.base import create_segmenter
+
+        segmenter = create_segmenter(semantics)
     _STATE = _MapState([registry.create("map_builder", n, cfg) for n in names], inpainter, inpainted_dir,
-                       cfg.mask_dynamic, cfg.dynamic_margin_px)
+                       cfg.mask_dynamic, cfg.dynamic_margin_px, segmenter,
+                       list(semantics.dynamic_classes) if semantics is not None else [])
     return True
 
 
@@ -93,6 +103,8 @@ def _state() -> _MapState:
 def _add_keyframe(snapshot: KeyframeSnapshot) -> None:
     st = _state()
     t0 = time.perf_counter()
+    if st.segmenter is not None and snapshot.labels is None and st.mask_dynamic:
+        snapshot = _segment(st, snapshot)
     if not st.mask_dynamic:
         snapshot = replace(snapshot, dynamic=None)
     elif st.margin_px > 0 and snapshot.dynamic is not None and snapshot.dynamic.any():
@@ -113,6 +125,18 @@ def _add_keyframe(snapshot: KeyframeSnapshot) -> None:
     for builder in st.builders:
         builder.add_keyframe(snapshot)
     st.keyframe_ms.append((time.perf_counter() - t0) * 1e3)
+
+
+def _segment(st: _MapState, snapshot: KeyframeSnapshot) -> KeyframeSnapshot:
+    """A keyframe tracking did not wait to segment (``semantics.schedule: latest`` and
+    ``stride``: its mask was warped from an earlier frame) is segmented here, off the
+    tracking path; its classes join the mask tracking used (which holds the moving regions)."""
+    from semslam.semantics.base import dynamic_mask
+
+    labels = st.segmenter.segment(snapshot.rgb)
+    own = dynamic_mask(labels, st.dynamic_classes)
+    st.segmented_keyframes += 1
+    return replace(snapshot, labels=labels, dynamic=own if snapshot.dynamic is None else own | snapshot.dynamic)
 
 
 def _add_frame(snapshot: KeyframeSnapshot) -> None:
@@ -147,6 +171,7 @@ def _finish(out_dir: Path) -> tuple[dict[str, Path], dict[str, float]]:
         paths.update(builder.finish(out_dir))
     stats: dict[str, float] = {
         "map_keyframes": len(st.keyframe_ms),
+        "map_segmented_keyframes": st.segmented_keyframes,
         "map_keyframe_ms_median": float(np.median(st.keyframe_ms)) if st.keyframe_ms else 0.0,
         "map_finish_s": time.perf_counter() - t0,
     }
@@ -164,6 +189,8 @@ def _close() -> None:
     if _STATE is not None:
         for builder in _STATE.builders:
             builder.close()
+        if _STATE.segmenter is not None:
+            _STATE.segmenter.close()
         _STATE = None
 
 
@@ -187,7 +214,7 @@ class MappingWorker:
     """
 
     def __init__(self, names: list[str], cfg: MapsConfig, threaded: bool,
-                 inpainted_dir: Path | None = None) -> None:
+                 inpainted_dir: Path | None = None, semantics: SemanticsConfig | None = None) -> None:
         for name in names:
             registry.resolve("map_builder", name)  # a typo fails here, before any frame
         self.names = list(names)
@@ -200,9 +227,9 @@ class MappingWorker:
         self.stats_: dict[str, float] = {}
         if threaded:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
-            self._pending.append(self._pool.submit(_create_state, self.names, cfg, inpainted_dir, True))
+            self._pending.append(self._pool.submit(_create_state, self.names, cfg, inpainted_dir, True, semantics))
         else:
-            _create_state(self.names, cfg, inpainted_dir, False)
+            _create_state(self.names, cfg, inpainted_dir, False, semantics)
 
     # ------------------------------------------------------------------ MapBuilder contract
     def add_keyframe(self, snapshot: KeyframeSnapshot) -> None:

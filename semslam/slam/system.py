@@ -38,9 +38,14 @@ class System:
         if config.maps.builders:  # inpainting + every builder in the maps' own worker
             from semslam.reconstruction.mapping_worker import MappingWorker
 
+            # The worker segments keyframes tracking did not (a backend that reads its labels
+            # from the sequence, ground_truth, needs the frame's files: not from a snapshot).
+            segment = (config.maps.segment_keyframes and config.dynamics.semantic
+                       and config.semantics.backend != "ground_truth")
             builders.append(MappingWorker(config.maps.builders, config.maps, threaded=not config.slam.sequential,
                                           inpainted_dir=Path(config.maps.save_inpainted)
-                                          if config.maps.save_inpainted else None))
+                                          if config.maps.save_inpainted else None,
+                                          semantics=config.semantics if segment else None))
         self.dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
                                              threaded=not config.slam.sequential)
         self.inputs = TrackerInputs(depth, self.dynamics, builders)
