@@ -12,6 +12,7 @@ from plyfile import PlyData
 
 from semslam.config import MapsConfig
 from semslam.core.protocols import KeyframeSnapshot
+from semslam.core.types import LabelMap
 from semslam.errors import ConfigError, WorkerFailed
 from semslam.geometry.camera import PinholeCamera
 from semslam.reconstruction.mapping_worker import MappingWorker
@@ -167,9 +168,7 @@ class HalfPerson:
 
     def __init__(self, cfg: object) -> None: ...
 
-    def segment(self, rgb: np.ndarray, frame: object = None) -> "LabelMap":
-        from semslam.core.types import LabelMap
-
+    def segment(self, rgb: np.ndarray, frame: object = None) -> LabelMap:
         labels = np.zeros(rgb.shape[:2], np.uint8)
         labels[:, : rgb.shape[1] // 2] = 15
         return LabelMap(labels, dict(self.names))
@@ -181,7 +180,6 @@ def test_keyframes_tracking_did_not_segment_are_segmented_for_the_maps(tmp_path:
                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     from semslam.config import SemanticsConfig
     from semslam.core import registry
-    from semslam.core.types import LabelMap
 
     monkeypatch.setitem(registry.PLUGINS["segmenter"], "half_person", "tests.test_mapping_worker:HalfPerson")
     worker = MappingWorker(["keyframe_cloud"], _cfg(), threaded=False,
