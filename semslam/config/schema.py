@@ -255,8 +255,11 @@ class MapsConfig:
     # pixel as seen - the baseline that shows the ghosts masking removes.
     mask_dynamic: bool = True
     # Keyframes whose mask tracking took warped from an earlier frame (semantics.schedule:
-    # latest, stride) are segmented again in the maps' worker, off the tracking path.
-    segment_keyframes: bool = True
+    # latest, stride) are segmented again in the maps' worker, off the tracking path. Off:
+    # measured on walking_halfsphere (300 frames) ghost voxels 134 without against 98 and
+    # 245 with (run-to-run spread larger than the effect), and at camera rate (900 frames)
+    # the worker no longer kept pace (queue 23 in the first third, 31 at the end).
+    segment_keyframes: bool = False
     # Grow the dynamic mask by this many pixels before inpainting and mapping: a mask's edge
     # (segmentation, SRM, a warped mask on frames not segmented) misses the mover's outline.
     dynamic_margin_px: int = 0
