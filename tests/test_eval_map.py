@@ -53,3 +53,15 @@ def test_masking_keeps_people_out_of_the_maps(walking_render: Path, tmp_path: Pa
 def _eval_run(seq: Path, out: Path, extra: list[str]) -> dict:
     run_cli(seq, out, *GT_SEG, *extra)
     return _eval(out, seq)
+
+
+def test_eval_map_names_what_is_missing(tmp_path: Path, tum_folder: Path) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    assert main(["eval-map", str(run), str(tum_folder)]) == 2  # no trajectory.txt
+    for name in ("trajectory.txt", "keyframes.txt"):
+        (run / name).write_text((tum_folder / "groundtruth.txt").read_text())
+    assert main(["eval-map", str(run), str(tum_folder)]) == 2  # no maps
+    (run / "map").mkdir()
+    (run / "map" / "mesh.ply").write_bytes(b"ply\n")
+    assert main(["eval-map", str(run), str(tum_folder)]) == 2  # not a synthetic sequence: no scene.json

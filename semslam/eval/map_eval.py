@@ -89,12 +89,15 @@ def evaluate_map(run_dir: Path, seq_dir: Path, tolerance_m: float = 0.05) -> Map
     gt_path = seq_dir / "groundtruth.txt"
     if not gt_path.is_file():
         raise DataError(gt_path, "not found: eval-map needs the sequence's ground truth")
+    maps = run_dir / "map"
+    if not any((maps / f).is_file() for f in ("semantic_cloud.ply", "octree_semantic.ply", "mesh.ply")):
+        raise DataError(maps, "no semantic_cloud.ply, octree_semantic.ply or mesh.ply: run with --map "
+                              "octree,cloud,mesh (or rebuild them with `semslam map`)")
     truth = _Truth(load_static_geometry(seq_dir), load_movers(seq_dir))
     gt = read_trajectory(gt_path)
     a = ate(gt, read_trajectory(run_dir / "trajectory.txt"), align="se3")
     to_truth = a.transform
     res = MapEval(str(run_dir), str(seq_dir), tolerance_m, 100 * a.rmse)
-    maps = run_dir / "map"
     table = _class_table(maps)
 
     cloud = maps / "semantic_cloud.ply"
