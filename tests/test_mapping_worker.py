@@ -195,3 +195,24 @@ def test_keyframes_tracking_did_not_segment_are_segmented_for_the_maps(tmp_path:
     finally:
         worker.close()
     assert n == 4 * 6 + 8 * 6  # the left half of the first keyframe left out, all of the second kept
+
+
+def test_a_dead_worker_process_does_not_stop_tracking(tmp_path: Path) -> None:
+    """The maps' process killed mid-run: later keyframes are dropped, finish says why."""
+    import os
+    import signal
+
+    worker = MappingWorker(["keyframe_cloud"], _cfg(), threaded=True)
+    try:
+        snaps = _snapshots(3)
+        worker.add_keyframe(snaps[0])
+        pool = worker._pool
+        assert pool is not None
+        pid = pool.submit(os.getpid).result()
+        os.kill(pid, signal.SIGKILL)
+        for s in snaps[1:]:
+            worker.add_keyframe(s)  # must not raise
+        with pytest.raises(WorkerFailed, match="mapping worker failed"):
+            worker.finish(tmp_path)
+    finally:
+        worker.close()

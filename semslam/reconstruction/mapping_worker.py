@@ -277,7 +277,14 @@ class MappingWorker:
                     log.error("mapping failed: %s", exc)
             return
         self._pending = [f for f in self._pending if not f.done() or self._check(f)]
-        self._pending.append(self._pool.submit(fn, *args))
+        if self._error is not None:  # the maps failed (or their process died): tracking goes on
+            return
+        try:
+            self._pending.append(self._pool.submit(fn, *args))
+        except Exception as exc:  # noqa: BLE001 - BrokenProcessPool: raised as WorkerFailed at finish
+            self._error = exc
+            log.error("mapping worker failed: %s", exc)
+            return
         self.queue_max = max(self.queue_max, len(self._pending))
 
     def _check(self, fut: Future[Any]) -> bool:
