@@ -167,3 +167,24 @@ def test_occupied_leaves_expand_pruned_nodes_like_octomap() -> None:
     reference, _ = tree.extractPointCloud()  # the library's own expansion
     assert len(coords) == 65 and (occupancy > 0.5).all()
     np.testing.assert_array_equal(np.sort(voxels.pack(coords)), np.sort(voxels.pack(voxels.voxel_coords(reference, RES))))
+
+
+@pytest.mark.parametrize("appear_free_below", [0.0, 0.3])
+def test_a_mover_appearing_in_known_free_space_is_not_inserted(appear_free_below: float) -> None:
+    """The keyframes first see the empty room (rays through where the person will stand),
+    then the person walks in, unmasked: with the rule on, none of them enter the octree."""
+    cfg = MapsConfig(octree_resolution_m=RES, octree_appear_free_below=appear_free_below)
+    b = SemanticOctree(cfg)
+    poses = scene.poses()
+    for i, T in enumerate(poses):
+        b.add_keyframe(scene.snapshot(i, T, person=False))
+    for i, T in enumerate(poses):
+        b.add_keyframe(scene.snapshot(len(poses) + i, T, person=True, mask_person=False))
+    vx = b.voxels()
+    ghosts = int(_in_person_box(vx.centres).sum())
+    if appear_free_below > 0:
+        assert ghosts <= 5, ghosts
+        static = _built(person=False).voxels()  # the room itself is all there
+        assert len(vx.centres) >= 0.97 * len(static.centres)
+    else:
+        assert ghosts > 150

@@ -71,7 +71,13 @@ class _Keyframe:
     weights: NDArray[np.float32] | None
     T_wc: NDArray[np.float64]  # the latest pose told
     T_inserted: NDArray[np.float64] | None = None  # the pose the octree holds it with
-    vote_keys: NDArray[np.int64] | None = None  # packed voxel of each sample at T_inserted
+    vote_keys: NDArray[np.int64] | None = None  # packed voxel of each inserted sample at T_inserted
+    keep: NDArray[np.bool_] | None = None  # which samples were inserted (None: all)
+
+    def votes(self) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        """Class and weight of each inserted sample (aligned with ``vote_keys``)."""
+        w = self.weights if self.weights is not None else np.ones(len(self.classes), np.float32)
+        return (self.classes, w) if self.keep is None else (self.classes[self.keep], w[self.keep])
 
 
 class SemanticOctree:
@@ -88,6 +94,7 @@ class SemanticOctree:
         self.stride = stride  # None: SAMPLES_PER_VOXEL per voxel at each keyframe's median depth
         self._octomap = octomap
         self._sensor = (cfg.octree_prob_hit, cfg.octree_prob_miss, cfg.octree_clamping_max)
+        self.appear_free_below = float(cfg.octree_appear_free_below)
         self._tree = self._new_tree()
         self._keyframes: dict[int, _Keyframe] = {}
         self._lock = threading.Lock()
@@ -151,12 +158,32 @@ class SemanticOctree:
         t0 = time.perf_counter()
         T = kf.T_wc.copy()
         world = np.ascontiguousarray(kf.points_c.astype(np.float64) @ T[:3, :3].T + T[:3, 3])
+        kf.keep = None
+        if self.appear_free_below > 0 and len(world):
+            kf.keep = self._not_in_known_free_space(world)
+            world = np.ascontiguousarray(world[kf.keep])
         if len(world):
             self._tree.insertPointCloud(world, np.ascontiguousarray(T[:3, 3]), maxrange=self.max_depth_m,
                                         discretize=True)
         kf.T_inserted = T
         kf.vote_keys = voxels.pack(voxels.voxel_coords(world, self.resolution))
         self.insert_seconds.append(time.perf_counter() - t0)
+
+    def _not_in_known_free_space(self, world: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """False for samples that land in a voxel the tree already holds as free (occupancy
+        below ``appear_free_below``): something appeared where earlier rays passed through,
+        which a static surface cannot do (rays stop at it) and a mover the masks missed does."""
+        coords = voxels.voxel_coords(world, self.resolution)
+        uniq, inverse = np.unique(coords, axis=0, return_inverse=True)
+        centres = voxels.voxel_centres(uniq, self.resolution)
+        free = np.zeros(len(uniq), bool)
+        for i, c in enumerate(centres):
+            node = self._tree.search(c)
+            try:
+                free[i] = node.getOccupancy() < self.appear_free_below
+            except Exception:  # noqa: BLE001 - unknown space: octomap-python raises on a missing node
+                pass
+        return ~free[inverse.reshape(-1)]
 
     def _new_tree(self) -> Any:
         """An empty OctoMap tree with the config's sensor model (hit / miss probabilities, upper clamp)."""
@@ -178,12 +205,10 @@ class SemanticOctree:
         labels = np.full(len(keys), UNKNOWN, np.int64)
         kfs = [kf for kf in self._keyframes.values() if kf.vote_keys is not None and len(kf.vote_keys)]
         if kfs and len(keys):
+            votes = [kf.votes() for kf in kfs]
             vote_keys, vote_classes = voxels.majority(
                 np.concatenate([kf.vote_keys for kf in kfs]),  # type: ignore[misc]
-                np.concatenate([kf.classes for kf in kfs]),
-                np.concatenate([kf.weights if kf.weights is not None else np.ones(len(kf.classes), np.float32)
-                                for kf in kfs]),
-                unknown=UNKNOWN)
+                np.concatenate([c for c, _ in votes]), np.concatenate([w for _, w in votes]), unknown=UNKNOWN)
             at = np.clip(np.searchsorted(vote_keys, keys), 0, len(vote_keys) - 1)
             hit = vote_keys[at] == keys
             labels[hit] = vote_classes[at[hit]]
