@@ -95,6 +95,7 @@ class SemanticOctree:
         self._octomap = octomap
         self._sensor = (cfg.octree_prob_hit, cfg.octree_prob_miss, cfg.octree_clamping_max)
         self.appear_free_below = float(cfg.octree_appear_free_below)
+        self._hit_keys = np.zeros(0, np.int64)  # voxels some inserted sample landed in
         self._tree = self._new_tree()
         self._keyframes: dict[int, _Keyframe] = {}
         self._lock = threading.Lock()
@@ -167,17 +168,21 @@ class SemanticOctree:
                                         discretize=True)
         kf.T_inserted = T
         kf.vote_keys = voxels.pack(voxels.voxel_coords(world, self.resolution))
+        if self.appear_free_below > 0:
+            self._hit_keys = np.union1d(self._hit_keys, kf.vote_keys)
         self.insert_seconds.append(time.perf_counter() - t0)
 
     def _not_in_known_free_space(self, world: NDArray[np.float64]) -> NDArray[np.bool_]:
         """False for samples that land in a voxel the tree already holds as free (occupancy
         below ``appear_free_below``): something appeared where earlier rays passed through,
         which a static surface cannot do (rays stop at it) and a mover the masks missed does."""
-        coords = voxels.voxel_coords(world, self.resolution)
-        uniq, inverse = np.unique(coords, axis=0, return_inverse=True)
-        centres = voxels.voxel_centres(uniq, self.resolution)
+        keys = voxels.pack(voxels.voxel_coords(world, self.resolution))
+        uniq, inverse = np.unique(keys, return_inverse=True)
         free = np.zeros(len(uniq), bool)
-        for i, c in enumerate(centres):
+        # Only voxels no earlier keyframe put a sample in are looked up (OctoMap has no batch
+        # query; most samples of a static scene land where earlier ones did).
+        ask = np.flatnonzero(~np.isin(uniq, self._hit_keys, assume_unique=True))
+        for i, c in zip(ask, voxels.voxel_centres(voxels.unpack(uniq[ask]), self.resolution)):
             node = self._tree.search(c)
             try:
                 free[i] = node.getOccupancy() < self.appear_free_below
@@ -196,6 +201,7 @@ class SemanticOctree:
 
     def _rebuild(self) -> None:
         self._tree = self._new_tree()
+        self._hit_keys = np.zeros(0, np.int64)
         for kf in self._keyframes.values():  # insertion order: the online order
             self._insert(kf)
 
