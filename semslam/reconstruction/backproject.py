@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from semslam.core.protocols import KeyframeSnapshot
 from semslam.core.map_classes import class_image, confidence_image
+from semslam.geometry.se3 import rotation_angle
 
 
 @dataclass(frozen=True)
@@ -109,3 +110,17 @@ def stride_for_voxel(snapshot: KeyframeSnapshot, voxel_m: float, max_depth_m: fl
     z = float(np.median(snapshot.depth[::8, ::8][coarse]))
     f = max(snapshot.camera.fx, snapshot.camera.fy)
     return max(1, int(voxel_m * f / z))
+
+
+#: A keyframe whose pose moved more than this since a map integrated it makes the map rebuild
+#: from the final poses (loop closing and BA move keyframes by far more; noise by far less).
+REBUILD_TRANSLATION_M = 1e-3
+REBUILD_ROTATION_DEG = 0.05
+
+
+def pose_moved(T_a: NDArray[np.float64], T_b: NDArray[np.float64], translation_m: float = REBUILD_TRANSLATION_M,
+               rotation_deg: float = REBUILD_ROTATION_DEG) -> bool:
+    """Whether two poses differ by more than ``translation_m`` or ``rotation_deg``."""
+    if np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]) > translation_m:
+        return True
+    return bool(np.degrees(rotation_angle(T_a[:3, :3].T @ T_b[:3, :3])) > rotation_deg)

@@ -40,12 +40,9 @@ from semslam.config import MapsConfig
 from semslam.core.protocols import KeyframeSnapshot
 from semslam.io.ply import write_vertex_ply
 from semslam.reconstruction import voxels
-from semslam.reconstruction.backproject import static_points, stride_for_voxel
+from semslam.reconstruction.backproject import pose_moved, static_points, stride_for_voxel
 from semslam.core.map_classes import CLASS_COLOURS, UNKNOWN, write_classes_json
 
-# A keyframe whose pose moved more than this since insertion makes ``finish`` rebuild.
-REBUILD_TRANSLATION_M = 1e-3
-REBUILD_ROTATION_DEG = 0.05
 # Samples per voxel edge at the keyframe's median depth. With discretize=True OctoMap casts
 # one ray per end voxel, so two samples cost little more than one but cover grazing floors
 # and far walls better. Measured on 20 keyframes of 640x480 at 5 cm (one CPU thread): one
@@ -244,12 +241,3 @@ def occupied_leaves(tree: Any) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     if not coords:
         return np.zeros((0, 3), np.int64), np.zeros(0)
     return np.concatenate(coords), np.repeat(np.array(occ), counts)
-
-
-def pose_moved(T_a: NDArray[np.float64], T_b: NDArray[np.float64],
-               translation_m: float = REBUILD_TRANSLATION_M, rotation_deg: float = REBUILD_ROTATION_DEG) -> bool:
-    """Whether two poses differ by more than ``translation_m`` or ``rotation_deg``."""
-    if np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]) > translation_m:
-        return True
-    cos = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
-    return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > rotation_deg)

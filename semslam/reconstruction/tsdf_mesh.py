@@ -35,14 +35,12 @@ from numpy.typing import NDArray
 from semslam.config import MapsConfig
 from semslam.core.protocols import KeyframeSnapshot
 from semslam.geometry.camera import PinholeCamera
+from semslam.reconstruction.backproject import pose_moved
 
 log = logging.getLogger(__name__)
 
 #: Truncation distance in voxels (the config says: 4 voxels).
 TRUNC_VOXELS = 4.0
-#: A keyframe whose pose moved by more than this since it was integrated triggers re-integration.
-MOVED_M = 1e-3
-MOVED_DEG = 0.05
 #: Voxels per block edge: 8 (16 cm blocks at 2 cm) keeps the voxels allocated around thin
 #: surfaces few; Open3D preallocates ``block_count`` blocks (1000 x 8^3 x 20 B = 10 MB) and
 #: grows the hash map as the scene does.
@@ -78,15 +76,6 @@ def masked_depth_mm(snapshot: KeyframeSnapshot, stride: int, max_depth_m: float,
     mm = np.zeros(depth.shape, np.uint16)
     mm[keep] = np.round(depth[keep] * 1000.0).astype(np.uint16)
     return mm
-
-
-def pose_moved(T_a: NDArray[np.float64], T_b: NDArray[np.float64], max_m: float = MOVED_M,
-               max_deg: float = MOVED_DEG) -> bool:
-    """Whether two poses differ by more than ``max_m`` in translation or ``max_deg`` in rotation."""
-    dt = float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
-    cos = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
-    angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    return dt > max_m or angle > max_deg
 
 
 # ---------------------------------------------------------------------------- the builder
