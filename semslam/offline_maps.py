@@ -24,6 +24,7 @@ from semslam.core.protocols import FramePacket, KeyframeSnapshot
 from semslam.core.types import Frame
 from semslam.dynamics.stage import create_dynamic_stage
 from semslam.errors import ConfigError, DataError
+from semslam.io.association import match_timestamps
 from semslam.io.sequence import open_sequence
 from semslam.io.trajectory import read_trajectory
 from semslam.reconstruction.mapping_worker import MappingWorker
@@ -90,14 +91,13 @@ def keyframe_snapshots(run_dir: Path, cfg: SystemConfig, sequence_dir: Path
 
 
 def _frame_indices(seq_stamps: NDArray[np.float64], kf_stamps: NDArray[np.float64], where: Path) -> NDArray[np.intp]:
-    idx = np.clip(np.searchsorted(seq_stamps, kf_stamps), 0, len(seq_stamps) - 1)
-    prev = np.clip(idx - 1, 0, len(seq_stamps) - 1)
-    idx = np.where(np.abs(seq_stamps[prev] - kf_stamps) < np.abs(seq_stamps[idx] - kf_stamps), prev, idx)
-    far = np.abs(seq_stamps[idx] - kf_stamps) > 1e-3
-    if far.any():
-        raise DataError(where, f"{int(far.sum())} keyframe timestamps are not frames of the sequence "
-                               f"(first {kf_stamps[far][0]:.6f}): is it the sequence this run read?")
-    return idx
+    """The sequence frame of each keyframe (the same stamp: keyframes.txt keeps 6 decimals)."""
+    i_kf, i_seq = match_timestamps(kf_stamps, seq_stamps, max_diff=1e-3)
+    if len(i_kf) != len(kf_stamps):
+        missing = np.setdiff1d(np.arange(len(kf_stamps)), i_kf)
+        raise DataError(where, f"{len(missing)} keyframe timestamps are not frames of the sequence "
+                               f"(first {kf_stamps[missing[0]]:.6f}): is it the sequence this run read?")
+    return i_seq[np.argsort(i_kf)]
 
 
 def _snapshot(k: int, frame: Frame, T_wc: NDArray[np.float64], dynamics: Any, refs: list[Any],
