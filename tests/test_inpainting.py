@@ -243,6 +243,39 @@ def test_point_in_front_of_the_observed_person_is_rejected(scene):
     assert np.abs(accepted.depth[shrink(on_board, 1) & dyn] - 1.0).max() < 0.01
 
 
+def test_a_mover_another_keyframe_saw_through_does_not_fill(scene):
+    """Source A failed to mask a mover (a board at 2.0 m, behind where the target sees the
+    person, so the z-buffer's depth test lets it in); source B, at another time, saw the wall
+    through that place. With ``reject_seen_through`` the board's points stay unknown; the
+    wall the sources agree on still fills at its true depth."""
+    ghost = Rect((0.0, 0.0, 2.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-0.25, 0.05, -0.3, 0.4), WALL_ID)
+    a_pose, b_pose = SOURCE_POSES[0], SOURCE_POSES[1]
+    rgb, depth, labels = render(a_pose, STATIC + (ghost,))
+    src_a = make_source(a_pose, rgb, depth, np.ones_like(depth, bool), CAM, labels)
+    rgb, depth, labels = render(b_pose, STATIC)
+    src_b = make_source(b_pose, rgb, depth, np.ones_like(depth, bool), CAM, labels)
+    dyn, bg_depth = scene["dynamic"], scene["bg_depth"]
+    filled = {}
+    for reject in (False, True):
+        cfg = InpaintingConfig(depth_tolerance_m=0.03, reject_seen_through=reject)
+        res = inpaint_image(CAM, T_TARGET, scene["rgb"], scene["depth"], dyn, [src_a, src_b], cfg)
+        filled[reject] = res
+    on_ghost = filled[False].filled & (np.abs(filled[False].depth - 2.0) < 0.05)
+    assert on_ghost.sum() > 200  # without the check the board is pasted into the background
+    kept = filled[True]
+    assert not (kept.filled & on_ghost).any()
+    assert np.abs(kept.depth[kept.filled] - bg_depth[kept.filled]).max() < 0.05
+    # Everywhere else the check changes nothing: the wall is not seen through by anyone.
+    assert (filled[False].filled & ~grow(on_ghost, 1) & ~kept.filled).sum() == 0
+
+
+def test_consistent_sources_lose_nothing_to_the_seen_through_check(scene):
+    runs = [inpaint_image(CAM, T_TARGET, scene["rgb"], scene["depth"], scene["dynamic"], scene["sources"],
+                          InpaintingConfig(depth_tolerance_m=0.03, reject_seen_through=r)) for r in (False, True)]
+    lost = runs[0].filled & ~runs[1].filled
+    assert lost.sum() <= 0.01 * runs[0].filled.sum()
+
+
 @pytest.mark.parametrize("splat,cracks,average", [("point", True, True), ("point", False, False),
                                                    ("quad", False, True)])
 def test_kernel_matches_numpy_reference(scene, splat, cracks, average):

@@ -223,6 +223,11 @@ class InpaintingConfig:
     # A projected source pixel fills a target pixel only if the source's depth agrees with
     # the z-buffer there within this (metres, plus 2 % of the depth for sensor noise).
     depth_tolerance_m: float = 0.03
+    # Reject a filled pixel that another remembered keyframe saw through: its point lies in
+    # space that keyframe observed as free (its static depth there, the least of a 3x3
+    # window, is farther by more than the tolerance). Background cannot be seen through; a
+    # mover the masks missed in one keyframe, which another keyframe saw past, can.
+    reject_seen_through: bool = True
     # Second stage (DDL-SLAM's future work): holes no keyframe saw, up to this radius in
     # pixels, are filled by OpenCV's image inpainting and marked synthesised (0 = off).
     hole_fill_px: int = 0

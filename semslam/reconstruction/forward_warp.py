@@ -70,6 +70,9 @@ class SourcePoints:
     tile_ptr: NDArray[np.int64]
     tile_lo: NDArray[np.float32]
     tile_hi: NDArray[np.float32]
+    #: The least observed static depth of each 3x3 window, -inf where the window holds none
+    #: (no evidence): what ``seen_through`` compares with.
+    nearest_static: NDArray[np.float32]
 
     def __len__(self) -> int:
         return len(self.flat)
@@ -79,6 +82,30 @@ class SourcePoints:
         img = np.zeros(self.shape[0] * self.shape[1], np.float32)
         img[self.flat] = self.pts_c[:, 2]
         return img.reshape(self.shape)
+
+def seen_through(camera: PinholeCamera, T_wc: NDArray[np.float64], depth: NDArray[np.float32],
+                 candidates: BoolImage, sources: Sequence[SourcePoints], depth_tolerance_m: float) -> BoolImage:
+    """Candidate pixels (with ``depth``) whose 3D point some source saw through: it projects
+    into the source in front of the source's observed static depth, the least of a 3x3 window
+    (so a point beside a source's depth edge is not condemned), by more than the tolerance.
+    A static surface stops every ray that reaches it, so only a transient point - a mover
+    some keyframe did not mask - can lie where another keyframe saw farther."""
+    h, w = candidates.shape
+    flat = np.flatnonzero(candidates & valid_depth(depth))
+    out = np.zeros(h * w, bool)
+    if not len(flat):
+        return out.reshape(h, w)
+    z = depth.ravel()[flat].astype(np.float32)
+    rays = pixel_rays(camera, h, w)[flat]
+    pts_c = np.stack([rays[:, 0] * z, rays[:, 1] * z, z], axis=1)
+    pts_w = (pts_c @ T_wc[:3, :3].T + T_wc[:3, 3]).astype(np.float32)
+    for src in sources:
+        sh, sw = src.shape
+        rows, u, v, zz = project_to_image(src.camera, pts_w, sh, sw, invert(src.T_wc))
+        near = src.nearest_static.ravel()[
+            (v + np.float32(0.5)).astype(np.int64) * sw + (u + np.float32(0.5)).astype(np.int64)]
+        out[flat[rows[near > zz + tolerance(zz, depth_tolerance_m)]]] = True  # -inf: nothing seen there
+    return out.reshape(h, w)
 
 
 @lru_cache(maxsize=8)
@@ -129,8 +156,12 @@ def make_source(T_wc: NDArray[np.float64], rgb: NDArray[np.uint8], depth: NDArra
     starts = np.flatnonzero(np.diff(tile.astype(np.int32), prepend=-1))
     lo = np.minimum.reduceat(pts, starts, axis=0) if len(pts) else np.zeros((0, 3), np.float32)
     hi = np.maximum.reduceat(pts, starts, axis=0) if len(pts) else np.zeros((0, 3), np.float32)
+    nearest = np.full(h * w, np.inf, np.float32)
+    nearest[flat] = z
+    nearest = cv2.erode(nearest.reshape(h, w), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    nearest[np.isinf(nearest)] = -np.inf
     return SourcePoints(
-        T_wc=np.array(T_wc, np.float64), camera=camera, shape=(h, w), flat=flat, pts_c=pts,
+        T_wc=np.array(T_wc, np.float64), camera=camera, shape=(h, w), flat=flat, pts_c=pts, nearest_static=nearest,
         rgb=rgb.reshape(-1, 3)[flat], labels=None if labels is None else labels.ravel()[flat],
         confidence=None if confidence is None else confidence.ravel()[flat].astype(np.float32),
         tile_ptr=np.append(starts, len(flat)).astype(np.int64), tile_lo=lo, tile_hi=hi)

@@ -37,6 +37,7 @@ from semslam.reconstruction.forward_warp import (
     make_source,
     pixel_rays,
     project_to_image,
+    seen_through,
     tolerance,
     valid_depth,
     warm_up,
@@ -140,6 +141,9 @@ def inpaint_image(camera: PinholeCamera, T_wc: NDArray[np.float64], rgb: NDArray
     """Fill ``dynamic`` from ``sources`` (first stage), then small holes (second stage)."""
     warp = warp_static(camera, T_wc, depth, dynamic, sources, cfg.depth_tolerance_m, splat, fill_cracks)
     filled = warp.filled & dynamic
+    if cfg.reject_seen_through and filled.any():
+        filled &= ~seen_through(camera, T_wc, np.where(filled, warp.depth, 0).astype(np.float32), filled, sources,
+                                cfg.depth_tolerance_m)
     out_rgb = rgb.copy()
     out_rgb[filled] = warp.rgb[filled]
     out_depth = None
