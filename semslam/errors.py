@@ -40,3 +40,8 @@ class ConfigError(SemslamError):
 class WorkerFailed(SemslamError):
     """A background worker (local mapping, loop closing, the maps' worker) raised; the run
     stops after writing what it has."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """The run was asked to stop (Ctrl-C, SIGTERM) and has written what it had; the CLI
+    exits with 130, as a shell does for an interrupted command."""

@@ -20,8 +20,9 @@ import numpy as np
 from semslam.config import SystemConfig, config_to_dict
 from semslam.core.protocols import FramePacket, SequenceSource as Sequence
 from semslam.core.types import Frame, RunResult, TrackResult
-from semslam.errors import ConfigError, DataError, EvalError
+from semslam.errors import ConfigError, DataError, EvalError, RunInterrupted
 from semslam.io.trajectory import Trajectory, read_trajectory, write_tum
+from semslam.runtime import stop_requested
 from semslam.slam.system import System
 
 if TYPE_CHECKING:
@@ -84,7 +85,12 @@ def run_slam(
 
     Whatever happens (a failed worker thread, an exception while tracking), the trajectory
     so far, ``keyframes.txt`` and ``stats.json`` (with ``error``) are written before the
-    exception propagates; every thread and process the run started is stopped.
+    exception propagates; every thread and process the run started is stopped. A stop asked
+    for (``runtime.request_stop``: Ctrl-C or SIGTERM under ``runtime.StopOnSignals``) ends
+    tracking after the current frame; the outputs are written as usual (``"interrupted":
+    true``, and ``--save-map``'s map) except the maps of ``maps.builders``, whose final
+    integration takes seconds (``semslam map OUT`` builds them from the keyframes); then
+    ``RunInterrupted`` is raised.
 
     ``rerun`` (an ``.rrd`` path) / ``rerun_spawn`` record the run for the Rerun viewer
     (``viz.rerun_log``); the recording is closed, complete, on every path too.
@@ -116,6 +122,9 @@ def run_slam(
             system.save_map(Path(save_map))
         result, map_error = _write_outputs(system, sequence, config, out, timing, report, error)
         error = error or map_error
+        if timing.interrupted and error is None:
+            maps = " (maps not written: `semslam map OUT` builds them)" if config.maps.builders else ""
+            error = RunInterrupted(f"stopped after {len(timing.frame_ms)} of {n_total} frames; outputs in {out}{maps}")
         if recorder is not None:
             _log_run_end(recorder, system, out / "map")
     finally:
@@ -135,6 +144,7 @@ class _RunTiming:
         self.stage_ms: dict[str, list[float]] = {}
         self.latency_ms: list[float] = []
         self.late_frames = 0
+        self.interrupted = False
         self.t_start = time.perf_counter()
         self.wall_s = 0.0
 
@@ -189,6 +199,9 @@ def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total
     try:
         done = -np.inf
         for packet, t_arrived in packets:
+            if stop_requested():
+                timing.interrupted = True
+                break
             if realtime:  # the previous frame was still being tracked when this one arrived
                 timing.late_frames += int(done > t_arrived)
             t0 = time.perf_counter()
@@ -221,11 +234,14 @@ def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out
         write_tum(out / "keyframes.txt", kf_traj)
         paths["keyframes"] = str(out / "keyframes.txt")
     map_error: BaseException | None = None
-    try:  # a failed map still leaves the trajectory and stats.json (with the error) behind
-        paths.update({name: str(p) for name, p in system.write_maps(out / "map").items()})
-    except Exception as exc:  # noqa: BLE001 - reported in stats.json, then raised by run_slam
-        map_error = exc
-        error = error or exc
+    if timing.interrupted:  # stop fast: finishing the maps takes seconds; `semslam map OUT` rebuilds them
+        system.close()
+    else:
+        try:  # a failed map still leaves the trajectory and stats.json (with the error) behind
+            paths.update({name: str(p) for name, p in system.write_maps(out / "map").items()})
+        except Exception as exc:  # noqa: BLE001 - reported in stats.json, then raised by run_slam
+            map_error = exc
+            error = error or exc
     n = len(timing.frame_ms)
     cam = sequence.camera
     result = RunResult(
@@ -242,11 +258,12 @@ def _write_outputs(system: System, sequence: Sequence, config: SystemConfig, out
         tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,
         camera={"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width, "height": cam.height,
                 "dist": list(cam.dist), "source": cam.source},
-        tracker=system.stats(), paths=paths,
+        tracker=system.stats(), paths=paths, interrupted=timing.interrupted or isinstance(error, KeyboardInterrupt),
         error=None if error is None else f"{type(error).__name__}: {error}",
     )
     if sequence.groundtruth_path is not None and len(traj) >= 3:
-        _evaluate(sequence.groundtruth_path, traj, config, out, result, report)
+        # Interrupted: ATE into stats.json, but no report (its plots take a second or more).
+        _evaluate(sequence.groundtruth_path, traj, config, out, result, report and not timing.interrupted)
     (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
     (out / "config.json").write_text(json.dumps(config_to_dict(config), indent=2))
     return result, map_error
@@ -261,12 +278,17 @@ def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, 
     align = "se3" if config.sensor == "rgbd" else "sim3"
     try:
         ate_res = ate(gt, traj, align=align)
-        rpe_res = rpe(gt, traj, delta=1.0, delta_unit="seconds", align="none")
     except EvalError as exc:
         log.warning("evaluation skipped: %s", exc)
         result.eval_error = str(exc)
         return
     result.ate, result.ate_alignment = ate_res.stats, align
+    try:  # a run shorter than a second (one stopped early) has an ATE but no 1 s RPE
+        rpe_res = rpe(gt, traj, delta=1.0, delta_unit="seconds", align="none")
+    except EvalError as exc:
+        log.warning("RPE skipped: %s", exc)
+        result.eval_error = str(exc)
+        return
     result.rpe_trans_1s, result.rpe_rot_deg_1s = rpe_res.trans_stats, rpe_res.rot_stats
     if report:
         from semslam.eval.report import write_report

@@ -65,3 +65,86 @@ def lower_thread_priority(increment: int | None = None) -> bool:
     except OSError:
         return False
     return True
+
+
+# ---------------------------------------------------------------------------- stopping
+#: Seconds between a worker process's checks that the process that started it still lives.
+PARENT_POLL_S = 0.5
+
+_stop_requested = False
+
+
+def request_stop() -> None:
+    """Ask the run in progress to stop after the current frame (what Ctrl-C / SIGTERM do)."""
+    global _stop_requested
+    _stop_requested = True
+
+
+def stop_requested() -> bool:
+    """Whether a stop was asked for since the last ``clear_stop``."""
+    return _stop_requested
+
+
+def clear_stop() -> None:
+    global _stop_requested
+    _stop_requested = False
+
+
+class StopOnSignals:
+    """While active (``with StopOnSignals():`` in the main thread), the first SIGINT or
+    SIGTERM asks the run to stop after the current frame, so it shuts its threads and
+    processes down and writes what it has; a second one exits at once (code 130), for a
+    user who will not wait. The previous handlers come back on exit."""
+
+    SIGNALS = ("SIGINT", "SIGTERM")
+
+    def __init__(self) -> None:
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> "StopOnSignals":
+        import signal
+        import threading
+
+        clear_stop()
+        if threading.current_thread() is threading.main_thread():  # handlers live in the main thread only
+            for name in self.SIGNALS:
+                sig = getattr(signal, name)
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)  # type: ignore[arg-type]
+        self._previous.clear()
+
+    @staticmethod
+    def _handle(signum: int, frame: object) -> None:
+        import sys
+
+        if stop_requested():
+            sys.stderr.write("\nsemslam: stopped at once (second interrupt); outputs not written\n")
+            sys.stderr.flush()
+            os._exit(130)
+        request_stop()
+        sys.stderr.write("\nsemslam: stopping after this frame and writing what exists (interrupt again to abort)\n")
+        sys.stderr.flush()
+
+
+def exit_with_parent(poll_s: float = PARENT_POLL_S) -> None:
+    """In a worker process: a daemon thread ends this process when the process that started
+    it dies (SIGKILL, out of memory), which no pipe or queue tells a worker blocked waiting
+    for its next job. Polls the parent's pid: an orphan is re-parented, its ``getppid`` changes."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(poll_s)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
 from semslam.backend.pose_graph import optimize_pose_graph
-from semslam.runtime import lower_thread_priority
+from semslam.runtime import exit_with_parent, lower_thread_priority
 
 
 def _warm() -> bool:
@@ -45,7 +45,10 @@ class BundleAdjustmentRunner:
     def start(self, use_process: bool) -> None:
         warm_up()
         if use_process and self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
+            # exit_with_parent: a worker blocked waiting for its next job would outlive a
+            # SIGKILLed run (one stayed 25 min); it now ends within PARENT_POLL_S.
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
+                                             initializer=exit_with_parent)
             self._pool.submit(_warm)
 
     def run(self, problem: BAProblem, **kwargs: Any) -> BAResult:
@@ -59,7 +62,9 @@ class BundleAdjustmentRunner:
             return optimize_pose_graph(*args, **kwargs)
         return self._pool.submit(optimize_pose_graph, *args, **kwargs).result()
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
+        """End the worker process; ``wait=False`` returns at once and lets it exit while the
+        caller writes its outputs (the interpreter still joins it before exiting)."""
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool.shutdown(wait=wait, cancel_futures=True)
             self._pool = None

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
@@ -13,9 +15,24 @@ from rich.table import Table
 from semslam.config import load_config
 from semslam.io.sequence import open_sequence
 from semslam.core.types import RunResult
+from semslam.errors import RunInterrupted
 from semslam.pipeline import run_slam
+from semslam.runtime import StopOnSignals
 
 console = Console()
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """The first Ctrl-C / SIGTERM stops the run after the current frame (it writes what it
+    has); the command then says so and exits 130, as shells report an interrupted command.
+    (Click would turn a KeyboardInterrupt into "Aborted!" and exit 1.)"""
+    try:
+        with StopOnSignals():
+            yield
+    except RunInterrupted as exc:
+        typer.secho(f"interrupted: {exc}", fg=typer.colors.YELLOW, err=True)
+        raise typer.Exit(130) from None
 
 
 def _setup_logging(verbose: bool) -> None:
@@ -101,8 +118,10 @@ def register(app: typer.Typer) -> None:
         cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only, realtime,
                                                 maps, save_inpainted))
         seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
-        print_summary(run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
-                               save_map=save_map, load_map=load_map, rerun=rerun, rerun_spawn=rerun_spawn))
+        with stop_on_signals():  # Ctrl-C / SIGTERM: stop after this frame, write what exists, exit 130
+            result = run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
+                              save_map=save_map, load_map=load_map, rerun=rerun, rerun_spawn=rerun_spawn)
+        print_summary(result)
 
     @app.command("demo")
     def demo(
@@ -130,7 +149,8 @@ def register(app: typer.Typer) -> None:
         else:
             console.print(f"reusing rendered sequence {seq_dir}")
         cfg = load_config(preset)
-        result = run_slam(open_sequence(seq_dir), cfg, out / "run", progress=not quiet)
+        with stop_on_signals():
+            result = run_slam(open_sequence(seq_dir), cfg, out / "run", progress=not quiet)
         print_summary(result)
         if result.ate_rmse is not None:
             console.print(f"[bold]ATE RMSE {result.ate_rmse * 100:.2f} cm, {result.tracking_fps:.1f} fps tracking "

@@ -225,6 +225,9 @@ class RunResult:
     rpe_rot_deg_1s: dict[str, float] | None = None
     eval_error: str | None = None
     error: str | None = None
+    # Stopped before the last frame by Ctrl-C / SIGTERM (runtime.request_stop): the outputs
+    # hold the frames tracked so far.
+    interrupted: bool = False
     paths: dict[str, str] = field(default_factory=dict)
 
     @property

@@ -9,6 +9,11 @@ filled pixels add no observation, they copy older keyframes' data with the poses
 that time. Feeding them back would carry a wrong fill (a pose error, a mislabelled source
 pixel) forward from keyframe to keyframe, keep data alive beyond the 15-keyframe window, and
 stay misplaced after a loop closure corrects the poses of the keyframes they came from.
+
+A mover the masks missed in one keyframe is "static" there and would be pasted into later
+keyframes' backgrounds (the z-buffer only asks that a fill lie behind what the target sees).
+With ``cfg.reject_seen_through`` a filled point that another remembered keyframe saw through
+(``forward_warp.seen_through``) stays unknown: background stops rays, a transient does not.
 """
 
 from __future__ import annotations

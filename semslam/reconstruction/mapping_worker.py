@@ -30,6 +30,7 @@ from semslam.config import MapsConfig, SemanticsConfig
 from semslam.core import registry
 from semslam.core.protocols import KeyframeSnapshot, MapBuilder
 from semslam.errors import WorkerFailed
+from semslam.runtime import exit_with_parent
 
 log = logging.getLogger(__name__)
 
@@ -226,7 +227,8 @@ class MappingWorker:
         self.wants_frames = inpainted_dir is not None and cfg.inpainting.enabled
         self.stats_: dict[str, float] = {}
         if threaded:
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
+                                             initializer=exit_with_parent)  # no orphan if the run is killed
             self._pending.append(self._pool.submit(_create_state, self.names, cfg, inpainted_dir, True, semantics))
         else:
             _create_state(self.names, cfg, inpainted_dir, False, semantics)
@@ -256,12 +258,16 @@ class MappingWorker:
         return dict(self.stats_)
 
     def close(self) -> None:
+        """Free the worker without writing anything: queued keyframes are dropped (a run
+        stopping early does not wait for them), then the process ends."""
+        for fut in self._pending:
+            fut.cancel()
         if self._pool is not None:
             pool, self._pool = self._pool, None
-            try:
-                pool.submit(_close).result(timeout=60)
-            except Exception:  # noqa: BLE001 - closing after a failure: the first error is what matters
-                pass
+            # Ended, not asked: a keyframe in hand would take its full time (seconds on a
+            # loaded machine) and nothing of it is wanted. Its exit frees the builders.
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
             pool.shutdown(wait=True, cancel_futures=True)
         else:
             _close()
