@@ -130,3 +130,24 @@ def test_workers_exit_when_the_run_is_killed(walking_render: Path, tmp_path: Pat
     t0 = time.monotonic()
     assert not wait_gone(kids), "orphaned worker processes"
     print(f"workers gone {time.monotonic() - t0:.1f} s after SIGKILL")
+
+
+def _loaded(pid: int, library: str) -> bool:
+    try:
+        return library in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+def test_the_run_goes_on_when_its_ba_worker_is_killed(walking_render: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    run = Run(walking_render, out)
+    run.wait_for_frames(10)
+    ba = [p for p in run.children() if _loaded(p, "gtsam") and not _loaded(p, "octomap")]
+    assert len(ba) == 1, "the BA worker (GTSAM loaded, no OctoMap) is found"
+    os.kill(ba[0], signal.SIGKILL)
+    rc, _ = run.wait(timeout=300)
+    assert rc == 0, run.err[-2000:]
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["frames"] == stats["tracked_frames"] == FRAMES
+    assert stats["ba_worker_restarts"] in (0, 1)  # 1 if a pose graph was solved after the kill

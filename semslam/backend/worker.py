@@ -10,9 +10,13 @@ system is threaded.  A problem is a handful of numpy arrays, cheap to send there
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
+import threading
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +24,9 @@ from numpy.typing import NDArray
 from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
 from semslam.backend.pose_graph import optimize_pose_graph
 from semslam.runtime import exit_with_parent, lower_thread_priority
+
+log = logging.getLogger(__name__)
+R = TypeVar("R")
 
 
 def _warm() -> bool:
@@ -41,30 +48,66 @@ class BundleAdjustmentRunner:
 
     def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()  # local mapping and loop closing share the worker
+        #: Times the worker process died (killed, out of memory) and was started again.
+        self.restarts = 0
 
     def start(self, use_process: bool) -> None:
         warm_up()
         if use_process and self._pool is None:
-            # exit_with_parent: a worker blocked waiting for its next job would outlive a
-            # SIGKILLed run (one stayed 25 min); it now ends within PARENT_POLL_S.
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
-                                             initializer=exit_with_parent)
-            self._pool.submit(_warm)
+            self._pool = self._new_pool()
+
+    @staticmethod
+    def _new_pool() -> ProcessPoolExecutor:
+        # exit_with_parent: a worker blocked waiting for its next job would outlive a
+        # SIGKILLed run (one stayed 25 min); it now ends within PARENT_POLL_S.
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"), initializer=exit_with_parent)
+        pool.submit(_warm)
+        return pool
 
     def run(self, problem: BAProblem, **kwargs: Any) -> BAResult:
         if self._pool is None or kwargs.get("solver", "schur") == "schur":
             return bundle_adjust(problem, **kwargs)
-        return self._pool.submit(bundle_adjust, problem, **kwargs).result()
+        return self._in_worker(bundle_adjust, problem, **kwargs)
 
     def run_pose_graph(self, *args: Any, **kwargs: Any) -> NDArray[np.float64]:
         """``pose_graph.optimize_pose_graph`` in the worker (raises its ``PoseGraphFailed``)."""
         if self._pool is None:
             return optimize_pose_graph(*args, **kwargs)
-        return self._pool.submit(optimize_pose_graph, *args, **kwargs).result()
+        return self._in_worker(optimize_pose_graph, *args, **kwargs)
+
+    def _in_worker(self, fn: Callable[..., R], *args: Any, **kwargs: Any) -> R:
+        """``fn`` in the worker process; if the process died (killed, out of memory), a new
+        one is started and the solve redone once, with a warning (``restarts`` counts)."""
+        for attempt in (1, 2):
+            with self._lock:
+                pool = self._pool
+            if pool is None:  # closed meanwhile (shutdown): solve here
+                return fn(*args, **kwargs)
+            try:
+                return pool.submit(fn, *args, **kwargs).result()
+            except BrokenProcessPool:
+                with self._lock:
+                    if self._pool is pool:  # not already restarted by the other thread
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        self._pool = self._new_pool()
+                        self.restarts += 1
+                        log.warning("the BA worker process died; started a new one (restart %d), %s",
+                                    self.restarts, "redoing the solve" if attempt == 1 else "giving up")
+                if attempt == 2:
+                    raise
+        raise AssertionError("unreachable")
+
+    def worker_pids(self) -> list[int]:
+        """Pids of the worker process (none when solves run in the caller's thread)."""
+        with self._lock:
+            pool = self._pool
+        return [] if pool is None else [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
 
     def close(self, wait: bool = True) -> None:
         """End the worker process; ``wait=False`` returns at once and lets it exit while the
         caller writes its outputs (the interpreter still joins it before exiting)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=wait, cancel_futures=True)
-            self._pool = None
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=wait, cancel_futures=True)
