@@ -66,6 +66,19 @@ def synth_command(
         help="Also render every frame without people and movers into background/rgb and "
         "background/depth (exact depth), the truth for inpainting (default: off).",
     ),
+    exposure_ms: float | None = typer.Option(
+        None, "--exposure-ms", help="Exposure time: motion blur (default: 0, sharp)."
+    ),
+    rolling_shutter_ms: float | None = typer.Option(
+        None, "--rolling-shutter-ms", help="Row readout time, top to bottom (default: 0, global shutter)."
+    ),
+    gain_swing: float | None = typer.Option(
+        None, "--gain-swing", help="Auto-exposure swings of up to +- this share, e.g. 0.4 (default: 0)."
+    ),
+    depth_delay_ms: float | None = typer.Option(
+        None, "--depth-delay-ms", help="Depth captured up to this long after RGB, 35-100 %% of it per frame "
+        "(default: 0)."
+    ),
     workers: int = typer.Option(2, "--workers", help="Frames rendered in parallel (threads)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -93,6 +106,10 @@ def synth_command(
         height=height,
         people_dir=str(people_dir) if people_dir is not None else None,
         background=background,
+        exposure_ms=exposure_ms,
+        rolling_shutter_ms=rolling_shutter_ms,
+        gain_swing=gain_swing,
+        depth_delay_ms=depth_delay_ms,
     ).validate()
     start = time.perf_counter()
     path = render_sequence(cfg, out, progress=not quiet, workers=workers)

@@ -22,6 +22,13 @@ BASE_TARGET = np.array([3.0, 4.75, 0.95])
 MAX_SPEED = 0.6  # m/s
 MAX_ANGULAR_SPEED = np.deg2rad(45.0)  # rad/s
 
+#: ``fast_turns``: every FAST_TURN_PERIOD_S the camera snaps FAST_TURN_DEG to one side in
+#: FAST_TURN_S and back half a period later, a handheld glance: raised-cosine steps whose
+#: peak rate is deg * pi / (2 s) = 202 deg/s (issue 13's "up to 200 deg/s").
+FAST_TURN_DEG = 35.0
+FAST_TURN_S = 0.27
+FAST_TURN_PERIOD_S = 4.0
+
 
 def _warp(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
     """Warped time whose rate rises smoothly from 0 to 1 over the first 1.5 s (or quarter).
@@ -52,6 +59,7 @@ def camera_trajectory(
         "halfsphere": _halfsphere,
         "loop": _loop,
         "room_loop": _room_loop,
+        "fast_turns": _fast_turns,
     }[motion]
     return fn(t, duration)
 
@@ -105,6 +113,31 @@ def _xyz(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
         [np.sin(2 * np.pi * t / 6.0), np.sin(2 * np.pi * t / 8.0), np.zeros_like(t)], axis=1
     )
     return _offset_poses(t, tr, rv)
+
+
+def _turn_steps(t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """0 -> 1 -> 0 per FAST_TURN_PERIOD_S: raised-cosine steps of FAST_TURN_S at a quarter
+    and three quarters of each period (C1; the rate peaks mid-step)."""
+    phase = np.mod(t, FAST_TURN_PERIOD_S)
+
+    def step(start: float) -> NDArray[np.float64]:
+        x = np.clip((phase - start) / FAST_TURN_S, 0.0, 1.0)
+        return 0.5 - 0.5 * np.cos(np.pi * x)
+
+    return step(0.25 * FAST_TURN_PERIOD_S) - step(0.75 * FAST_TURN_PERIOD_S)
+
+
+def _fast_turns(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """The xyz motion plus fast glances (yaw, with some pitch) up to ~200 deg/s: the
+    hard-imaging sequences' motion, where motion blur and rolling shutter are strongest."""
+    base = _xyz(t, duration)
+    steps = _turn_steps(np.asarray(t, np.float64))
+    sign = np.where(np.mod(np.floor(np.asarray(t) / FAST_TURN_PERIOD_S), 2) == 0, 1.0, -1.0)
+    rv = np.deg2rad(FAST_TURN_DEG) * steps[:, None] * sign[:, None] * np.array([0.25, 1.0, 0.0])
+    out = base.copy()
+    for i in range(len(out)):
+        out[i, :3, :3] = base[i, :3, :3] @ so3_exp(rv[i])
+    return out
 
 
 def _rpy(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import semslam
-from semslam.synth import writer
+from semslam.synth import imaging, writer
 from semslam.synth.atlas import Atlas, build_atlas
 from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
@@ -44,7 +44,7 @@ from semslam.synth.sequences import SynthConfig
 from semslam.synth.static_geometry import MOVERS_FILE, SCENE_FILE, movers_json, scene_json
 
 #: SynthConfig fields added after renders were first cached (absent there = default).
-_ADDED_FIELDS = ("box_carrier", "background")
+_ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -105,10 +105,42 @@ class Renderer:
         The background has the same RGB (same blur, vignette and noise draw, so it equals
         the frame wherever no mover is near) but exact depth: no noise and no holes, only
         the range limits and the 0.2 mm PNG step, because it is the truth for inpainting.
+        It is rendered without the hard-imaging effects (``synth/imaging.py``).
         """
         cfg = self.cfg
         t = float(self.times[i])
         pose = self.poses[i]
+        buf, rgb8, static = self._scene(t, pose, background)
+        if self._hard:
+            rgb8 = self._integrated_rgb(t, rgb8)
+            delay = imaging.depth_delay_s(cfg.seed, i, cfg.depth_delay_ms / 1e3)
+            if delay > 0:  # depth (and only depth) captured later, from where the camera is then
+                later = self._pose_at(t + delay)
+                depth_buf, _, _ = self._scene(t + delay, later, False)
+                buf.z, buf.cos = depth_buf.z, depth_buf.cos
+        gain = imaging.exposure_gain(cfg.seed, t, cfg.gain_swing)
+        img, rng, depth_noise = self._sensor_rgb(rgb8, i, gain)
+        depth = kinect_depth(buf.z, buf.cos, rng, depth_noise)
+        frame = Frame(img, depth, buf.label, buf.z)
+        if static is None:
+            return frame, None
+        bg_img, _, _ = self._sensor_rgb(sample_atlas(self.atlas.levels, static), i)
+        bg_depth = kinect_depth(static.z, static.cos, None)
+        return frame, Frame(bg_img, bg_depth, static.label, static.z)
+
+    @property
+    def _hard(self) -> bool:
+        cfg = self.cfg
+        return cfg.exposure_ms > 0 or cfg.rolling_shutter_ms > 0 or cfg.depth_delay_ms > 0
+
+    def _pose_at(self, t: float) -> NDArray[np.float64]:
+        return camera_trajectory(self.cfg.motion, np.array([t]), self.cfg.duration)[0]
+
+    def _scene(self, t: float, pose: NDArray[np.float64], background: bool
+               ) -> tuple[Buffers, NDArray[np.uint8], Buffers | None]:
+        """Everything at time ``t`` seen from ``pose``: the buffers (depth, labels), the
+        textured RGB with people, and a copy of the static scene alone if asked."""
+        cfg = self.cfg
         buf = Buffers(cfg.height, cfg.width)
         for box, table, ppm in zip(self.boxes, self.atlas.tables, self.atlas.ppm):
             cast_box(buf, self.cam, pose, box, table, ppm)
@@ -121,22 +153,29 @@ class Renderer:
         rgb8 = sample_atlas(self.atlas.levels, buf)
         for bb in self.people.billboards(t, pose[:3, 3]):
             cast_billboard(buf, rgb8, self.cam, pose, bb)
-        img, rng, depth_noise = self._sensor_rgb(rgb8, i)
-        depth = kinect_depth(buf.z, buf.cos, rng, depth_noise)
-        frame = Frame(img, depth, buf.label, buf.z)
-        if static is None:
-            return frame, None
-        bg_img, _, _ = self._sensor_rgb(sample_atlas(self.atlas.levels, static), i)
-        bg_depth = kinect_depth(static.z, static.cos, None)
-        return frame, Frame(bg_img, bg_depth, static.label, static.z)
+        return buf, rgb8, static
+
+    def _integrated_rgb(self, t: float, centre_rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """The RGB image exposed with the config's exposure and rolling-shutter readout."""
+        cfg = self.cfg
+        exposure, readout = cfg.exposure_ms / 1e3, cfg.rolling_shutter_ms / 1e3
+        offsets = imaging.sub_frame_offsets(exposure, readout)
+        if len(offsets) == 1:
+            return centre_rgb
+        poses = camera_trajectory(cfg.motion, t + offsets, cfg.duration)
+        images = [self._scene(t + o, p, False)[1] for o, p in zip(offsets, poses)]
+        return imaging.blend_rows(images, imaging.row_weights(offsets, cfg.height, exposure, readout))
 
     def _sensor_rgb(
-        self, rgb8: NDArray[np.uint8], i: int
+        self, rgb8: NDArray[np.uint8], i: int, gain: float = 1.0
     ) -> tuple[NDArray[np.uint8], np.random.Generator | None, NDArray[np.float32] | None]:
-        """Optics and sensor noise of frame ``i``: (RGB, the frame's random stream after the
-        noise windows were drawn, the depth noise window); the same for any content."""
+        """Optics, exposure ``gain`` and sensor noise of frame ``i``: (RGB, the frame's random
+        stream after the noise windows were drawn, the depth noise window); the same for any
+        content."""
         rgb = cv2.GaussianBlur(rgb8, (0, 0), BLUR_SIGMA).astype(np.float32)
         rgb *= self.vignette
+        if gain != 1.0:
+            rgb *= np.float32(gain)
         rng = np.random.default_rng([self.cfg.seed, i, 5]) if self.cfg.noise else None
         depth_noise = None
         if rng is not None:  # read noise + shot noise
@@ -244,7 +283,10 @@ def render_sequence(
             "intrinsics": list(cfg.intrinsics()),
             "depth_scale": DEPTH_SCALE,
             "depth_range_m": [Z_MIN, Z_MAX],
-            "depth_rendered_at": "rgb timestamp (registered to the RGB camera)",
+            "depth_rendered_at": (
+                f"rgb timestamp + {imaging.DELAY_MIN_SHARE:.0%}-100 % of {cfg.depth_delay_ms} ms, seeded "
+                "per frame (depth.txt stamps do not say so: an uncalibrated depth-colour offset)"
+                if cfg.depth_delay_ms > 0 else "rgb timestamp (registered to the RGB camera)"),
             "labels": writer.LABELS,
             **(
                 {"background_depth": "exact: no noise, no holes (range limits, 0.2 mm steps)"}

@@ -13,7 +13,7 @@ from typing import Any
 
 from semslam.errors import ConfigError
 
-MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop")
+MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop", "fast_turns")
 PEOPLE_MODES = ("walking", "idle")
 
 #: TUM freiburg3 RGB intrinsics at 640x480 (fx, fy, cx, cy); fr3 images are undistorted.
@@ -49,6 +49,16 @@ class SynthConfig:
     people_dir: str | None = None
     start_time: float = DEFAULT_START_TIME
     background: bool = False
+    # Hard imaging (issue 13; synth/imaging.py), all off by default. Exposure time: the RGB
+    # image integrates the scene over it (motion blur).
+    exposure_ms: float = 0.0
+    # Rolling shutter: rows are read out top to bottom over this time.
+    rolling_shutter_ms: float = 0.0
+    # Auto-exposure: the gain swings smoothly by up to +- this share (0.4 = +-40 %).
+    gain_swing: float = 0.0
+    # Depth is captured this long after the RGB image at most (seeded per frame between
+    # 35 % and 100 % of it: 20 gives 7-20 ms), the depth-colour offset of a Kinect.
+    depth_delay_ms: float = 0.0
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""
@@ -71,6 +81,12 @@ class SynthConfig:
             raise ConfigError(f"synth: image size {self.width}x{self.height} out of range")
         if self.seed < 0:
             raise ConfigError(f"synth: seed must be >= 0, got {self.seed}")
+        for name in ("exposure_ms", "rolling_shutter_ms", "depth_delay_ms"):
+            if not 0.0 <= getattr(self, name) <= 1000.0 / self.fps:
+                raise ConfigError(f"synth: {name} must be between 0 and one frame period "
+                                  f"({1000.0 / self.fps:.1f} ms), got {getattr(self, name)}")
+        if not 0.0 <= self.gain_swing < 1.0:
+            raise ConfigError(f"synth: gain_swing must be in [0, 1), got {self.gain_swing}")
         return self
 
     def intrinsics(self) -> tuple[float, float, float, float]:
@@ -112,6 +128,12 @@ SEQUENCES: dict[str, SynthConfig] = {
     # A person pushes a large carton (no person, label 21) across the view, lifts it and
     # carries it up to the camera (up to ~60 % of the image); 10 s period.
     "walking_box": SynthConfig(motion="xyz", frames=450, people=0, box_carrier=True, seed=11),
+    # Issue 13's hard imaging: two people walking, fast glances up to ~200 deg/s, 16 ms
+    # exposure (motion blur), 30 ms rolling-shutter readout, +-40 % auto-exposure swings and
+    # a 7-20 ms depth-colour offset. `walking_turns` is the same scene and motion, clean.
+    "walking_hard": SynthConfig(motion="fast_turns", frames=744, people=2, seed=12, exposure_ms=16.0,
+                                rolling_shutter_ms=30.0, gain_swing=0.4, depth_delay_ms=20.0),
+    "walking_turns": SynthConfig(motion="fast_turns", frames=744, people=2, seed=12),
 }
 
 
