@@ -13,21 +13,25 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-#: Spacing of the sub-frame renders (seconds) and their most per frame: at 200 deg/s the
-#: view turns 0.4 deg (~4 px at 640x480) between two, below the blur's own extent.
-SUB_FRAME_S = 0.002
+#: Sub-frame renders are spaced so that the image moves about MAX_STEP_PX between two
+#: (finer than the blur itself, so no discrete copies show), at least MIN_SUB_FRAME_S apart
+#: and at most MAX_SUB_FRAMES per frame: at 200 deg/s (~1900 px/s at 640x480) about 1 ms.
+MAX_STEP_PX = 2.0
+MIN_SUB_FRAME_S = 0.001
 MAX_SUB_FRAMES = 33
 #: The depth-colour offset of a frame is drawn in [DELAY_MIN_SHARE, 1] x depth_delay_ms.
 DELAY_MIN_SHARE = 0.35
 
 
-def sub_frame_offsets(exposure_s: float, readout_s: float) -> NDArray[np.float64]:
-    """Times (relative to the frame's timestamp) of the sub-frames a frame is built from."""
+def sub_frame_offsets(exposure_s: float, readout_s: float, image_speed_px_s: float = 1e4) -> NDArray[np.float64]:
+    """Times (relative to the frame's timestamp) of the sub-frames a frame is built from, for
+    an image moving at up to ``image_speed_px_s``; an odd count, so one is the timestamp."""
     span = exposure_s + readout_s
     if span <= 0:
         return np.zeros(1)
-    k = int(min(MAX_SUB_FRAMES, np.ceil(span / SUB_FRAME_S) + 1))
-    k += 1 - k % 2  # odd: one sub-frame at the timestamp itself (the middle row's time)
+    step = max(MIN_SUB_FRAME_S, MAX_STEP_PX / max(image_speed_px_s, 1e-6))
+    k = int(min(MAX_SUB_FRAMES, np.ceil(span / step) + 1))
+    k = max(3, k + 1 - k % 2)  # odd, and the window's ends are rendered
     return np.linspace(-span / 2, span / 2, k)
 
 

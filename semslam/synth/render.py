@@ -155,11 +155,22 @@ class Renderer:
             cast_billboard(buf, rgb8, self.cam, pose, bb)
         return buf, rgb8, static
 
+    def _image_speed(self, t: float, span: float) -> float:
+        """How fast the image moves around ``t`` (pixels per second, an upper estimate): the
+        camera's rotation and its translation against a surface 1 m away over the window,
+        and people walking (~1.4 m/s, 2 m away) when there are any."""
+        a, b = camera_trajectory(self.cfg.motion, np.array([t - span / 2, t + span / 2]), self.cfg.duration)
+        rel = np.linalg.inv(a) @ b
+        angle = float(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        f = max(self.cam.fx, self.cam.fy)
+        speed = f * (angle + float(np.linalg.norm(rel[:3, 3]))) / max(span, 1e-6)
+        return max(speed, f * 0.7 if self.cfg.people or self.cfg.box_carrier or self.cfg.mover else 0.0)
+
     def _integrated_rgb(self, t: float, centre_rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
         """The RGB image exposed with the config's exposure and rolling-shutter readout."""
         cfg = self.cfg
         exposure, readout = cfg.exposure_ms / 1e3, cfg.rolling_shutter_ms / 1e3
-        offsets = imaging.sub_frame_offsets(exposure, readout)
+        offsets = imaging.sub_frame_offsets(exposure, readout, self._image_speed(t, exposure + readout))
         if len(offsets) == 1:
             return centre_rgb
         poses = camera_trajectory(cfg.motion, t + offsets, cfg.duration)
