@@ -9,7 +9,6 @@ synth`` renders, or NYU-40 label folders). The command that made the shipped wei
 from __future__ import annotations
 
 import shlex
-import sys
 from pathlib import Path
 
 import typer
@@ -20,6 +19,7 @@ from semslam.errors import ConfigError
 
 
 def sdfcnn_command(
+    ctx: typer.Context,
     out: Path = typer.Option(..., "--out", "-o", help="Checkpoint to write (.pt)."),
     data: list[Path] = typer.Option([], "--data", help="TUM-layout folder with depth and semantic/ (training); "
                                                       "repeatable."),
@@ -47,7 +47,7 @@ def sdfcnn_command(
     cfg = SdfTrainConfig(out=out, data=list(data), val=list(val), epochs=epochs, batch=batch,
                          size=_size(size, "--size"), width=width, lr=lr, lam=lam, every=every, seed=seed,
                          threads=threads, minutes=minutes, half=not fp32, init=init,
-                         command=shlex.join(["semslam", *sys.argv[1:]]))
+                         command=command_line(ctx))
     say = (lambda msg: None) if quiet else (lambda msg: typer.echo(msg, err=True))
     meta = train_sdfcnn(cfg, progress=not quiet, say=say)
     v = meta["val"]
@@ -56,6 +56,21 @@ def sdfcnn_command(
         f"{meta['steps']} steps in {meta['train_seconds']:.0f} s; val MPA {v['mpa']:.3f} MIoU {v['miou']:.3f} "
         f"RMS {v['rms']:.3f} m REL {v['rel']:.3f} delta1 {v['delta1']:.3f}; {out.stat().st_size / 1e6:.2f} MB"
     )
+
+
+def command_line(ctx: typer.Context) -> str:
+    """The command as run, rebuilt from its parsed options (also right when called as a function)."""
+    args = ["semslam", "train", "sdfcnn"]
+    for param in ctx.command.params:
+        value = ctx.params.get(param.name or "")
+        flag = param.opts[0]
+        if value is None or value is False or value == []:
+            continue
+        if value is True:
+            args.append(flag)
+        else:
+            args += [x for v in (value if isinstance(value, (list, tuple)) else [value]) for x in (flag, str(v))]
+    return shlex.join(args)
 
 
 def register(app: typer.Typer) -> None:

@@ -187,12 +187,14 @@ class SDFCNN(nn.Module):
         self._init_weights()
 
     def _init_weights(self) -> None:
+        """Kaiming for the encoder's convs (each followed by BatchNorm); PyTorch's default for the
+        decoder's and heads' plain convs, as Light-Weight RefineNet's code: with no BatchNorm
+        between its summed stages, Kaiming scaling would blow the activations up ~1000x."""
         for m in self.modules():
-            if isinstance(m, nn.Conv2d):
-                nn.init.kaiming_normal_(m.weight, mode="fan_out")
-                if m.bias is not None:
-                    nn.init.zeros_(m.bias)
+            if isinstance(m, ConvBnRelu):
+                nn.init.kaiming_normal_(m[0].weight, mode="fan_out")
         nn.init.normal_(self.seg1.weight, std=1e-2)  # start near uniform class scores
+        nn.init.zeros_(self.seg1.bias)
         nn.init.normal_(self.depth1.weight, std=1e-3)
         nn.init.constant_(self.depth1.bias, 2.0)  # start near indoor depths (metres)
 
