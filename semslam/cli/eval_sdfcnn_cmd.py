@@ -6,6 +6,10 @@ Frames go through the ``sdfcnn`` backends' predictor exactly as a run uses them 
 frame in; depth and NYU-40 labels out at the frame's size), so the timing covers the
 network, Layer 0's resize and the output layer. Truth labels are mapped to NYU-40 as for
 training (``nets.sdf_dataset``: synthetic people are NYU "person", movers ignored).
+
+Next to the network, a baseline that knows no image: each frame's depth predicted as one
+constant, the median of that frame's true depth. In a room seen from its middle this
+already scores high deltas, so a depth net's numbers mean something only next to it.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ def evaluate_sequences(paths: list[Path], weights: Path | None, every: int = 1, 
     n = len(NYU40_CLASSES)
     total_conf = np.zeros((n, n), np.int64)
     total_depth = DepthErrors()
+    total_base = DepthErrors()
     all_ms: list[float] = []
     rows = []
     for path in paths:
@@ -45,6 +50,7 @@ def evaluate_sequences(paths: list[Path], weights: Path | None, every: int = 1, 
         lut = label_lut(path)
         conf = np.zeros((n, n), np.int64)
         depth_err = DepthErrors()
+        base = DepthErrors()
         ms: list[float] = []
         indices = list(range(0, len(seq), every))[: limit or None]
         for k in indices:
@@ -57,10 +63,15 @@ def evaluate_sequences(paths: list[Path], weights: Path | None, every: int = 1, 
             ms.append(1e3 * (time.perf_counter() - t0))
             conf += confusion(truth, labels.astype(np.int64) - 1, n)  # NYU id k -> index k - 1
             depth_err.add(depth, frame.depth)
+            valid = frame.depth[frame.depth > 0]
+            if valid.size:
+                base.add(np.full_like(frame.depth, float(np.median(valid))), frame.depth)
         total_conf += conf
         total_depth.merge(depth_err)
+        total_base.merge(base)
         all_ms += ms
         rows.append(_row(str(path), len(indices), conf, depth_err, ms, mean_pixel_accuracy, mean_iou))
+        rows[-1]["constant_depth_baseline"] = base.result()
     params = predictor.parameter_count()
     iou = class_iou(total_conf)
     names = [NYU40_CLASSES[i + 1] for i in range(n)]
@@ -71,6 +82,7 @@ def evaluate_sequences(paths: list[Path], weights: Path | None, every: int = 1, 
         "sequences": rows,
         "all": _row("all", sum(r["frames"] for r in rows), total_conf, total_depth, all_ms, mean_pixel_accuracy,
                     mean_iou),
+        "constant_depth_baseline": total_base.result(),
         "class_iou": {nm: round(float(v), 4) for nm, v in zip(names, iou) if not np.isnan(v)},
     }
 
@@ -111,7 +123,10 @@ def register(app: typer.Typer) -> None:
             table.add_row(Path(r["sequence"]).name, str(r["frames"]), f"{r['mpa']:.3f}", f"{r['miou']:.3f}",
                           f"{r['rms']:.3f}", f"{r['rel']:.3f}", f"{r['delta1']:.3f}", f"{r['delta2']:.3f}",
                           f"{r['delta3']:.3f}", f"{r['ms_per_frame_median']:.1f}")
-        Console().print(table)
+        Console(width=max(140, Console().width)).print(table)
+        b = res["constant_depth_baseline"]
+        typer.echo(f"baseline (each frame's median true depth everywhere, no image): RMS {b['rms']:.3f} m "
+                   f"REL {b['rel']:.3f} delta {b['delta1']:.3f}/{b['delta2']:.3f}/{b['delta3']:.3f}")
         if json_out is not None:
             json_out.parent.mkdir(parents=True, exist_ok=True)
             json_out.write_text(json.dumps(res, indent=2))

@@ -313,7 +313,7 @@ def parameter_report(width: float = 1.0, n_classes: int = N_CLASSES) -> str:
              f"{PAPER_PARAMETERS / 1e6:.1f} M",
              f"  Table 13's weight shapes summed literally: {table13_parameter_count(n_classes) / 1e6:.2f} M",
              f"  this model as float32 (weights + BN statistics): {float32_mebibytes(model):.1f} MiB "
-             "(the paper's 11.8 M matches the full-width float32 size in MiB, not a count)"]
+             "(the paper's 11.8 M is near the full-width float32 size in MiB: most likely a file size, not a count)"]
     return "\n".join(lines)
 
 
@@ -345,3 +345,10 @@ def sdfcnn_loss(outputs: dict[str, Tensor], labels: Tensor, depth: Tensor, lam: 
     reg = berhu(pred[valid] - depth[valid]) if valid.any() else pred.sum() * 0.0
     total = lam * ce + (1 - lam) * reg
     return total, {"ce": float(ce.detach()), "depth": float(reg.detach())}
+
+
+if __name__ == "__main__":  # python -m semslam.nets.sdfcnn [WIDTH ...]: counts next to the paper's 11.8 M
+    import sys
+
+    for arg in sys.argv[1:] or ["1.0"]:
+        print(parameter_report(float(arg)))
