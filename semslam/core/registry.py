@@ -35,9 +35,11 @@ PLUGINS: dict[str, dict[str, str]] = {
         "ground_truth": "semslam.semantics.ground_truth:create_segmenter",
         "stdc": "semslam.semantics.nets_backend:create_stdc",
         "dunet": "semslam.semantics.nets_backend:create_dunet",
+        "sdfcnn": "semslam.semantics.sdfcnn_backend:create_segmenter",
     },
     "depth_source": {
         "sensor": "semslam.io.depth:SensorDepth",
+        "sdfcnn": "semslam.semantics.sdfcnn_backend:create_depth",
     },
     "map_builder": {
         "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",

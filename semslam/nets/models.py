@@ -20,9 +20,9 @@ from torch import nn
 from semslam.errors import DataError
 
 FORMAT = "semslam-net-1"
-ARCHS = ("stdc1", "dunet")
+ARCHS = ("stdc1", "dunet", "sdfcnn")
 #: Parameter-name prefixes used only in training (dropped from shipped weights).
-TRAINING_ONLY = {"stdc1": ("conv_out16.", "conv_out32.", "detail_head."), "dunet": ()}
+TRAINING_ONLY = {"stdc1": ("conv_out16.", "conv_out32.", "detail_head."), "dunet": (), "sdfcnn": ()}
 
 
 def build_model(arch: str, n_classes: int, width: float, **options: Any) -> nn.Module:
@@ -36,6 +36,10 @@ def build_model(arch: str, n_classes: int, width: float, **options: Any) -> nn.M
         from semslam.nets.dunet import DUNet
 
         return DUNet(n_classes, width, **options)
+    if arch == "sdfcnn":  # SDF-SLAM's joint depth + segmentation net; options: input_size, output_size
+        from semslam.nets.sdfcnn import SDFCNN
+
+        return SDFCNN(n_classes, width, **options)
     raise ValueError(f"unknown architecture {arch!r} (choose from {', '.join(ARCHS)})")
 
 
