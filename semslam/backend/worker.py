@@ -104,10 +104,9 @@ class BundleAdjustmentRunner:
             pool = self._pool
         return [] if pool is None else [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
 
-    def close(self, wait: bool = True) -> None:
-        """End the worker process; ``wait=False`` returns at once and lets it exit while the
-        caller writes its outputs (the interpreter still joins it before exiting)."""
+    def close(self) -> None:
+        """End the worker process (and wait for it: no process of a run outlives it)."""
         with self._lock:
             pool, self._pool = self._pool, None
         if pool is not None:
-            pool.shutdown(wait=wait, cancel_futures=True)
+            pool.shutdown(wait=True, cancel_futures=True)

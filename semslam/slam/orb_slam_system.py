@@ -196,7 +196,7 @@ class OrbSlamSystem:
             for worker in (self.mapper, self.closer):
                 worker.stop()
         finally:
-            self.ba_runner.close(wait=False)  # the threads that used it have ended
+            self.ba_runner.close()
         if self.map_builders:
             poses = self.final_keyframe_poses()
             for builder in self.map_builders:
