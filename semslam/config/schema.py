@@ -69,6 +69,10 @@ class SlamConfig:
 
     # Virtual stereo baseline x fx (ORB-SLAM TUM yaml Camera.bf = 40): ur = u - bf / z.
     bf: float = 40.0
+    # Rolling shutter readout (top row to bottom row, ms; 0 = global shutter), a camera
+    # calibration value: keypoints are moved to the middle row's time with the motion
+    # model's velocity before tracking (geometry/rolling_shutter.py).
+    rolling_shutter_ms: float = 0.0
     # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
     th_depth: float = 40.0
     # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).

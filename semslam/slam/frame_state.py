@@ -46,6 +46,18 @@ class FrameState:
     def __len__(self) -> int:
         return len(self.keypoints)
 
+    def to_middle_row(self, velocity_cw: NDArray[np.float64], frame_dt_s: float, readout_s: float,
+                      camera: PinholeCamera, bf: float) -> None:
+        """Move the keypoints (and their depths) to the middle row's capture time, for a
+        rolling-shutter camera moving at ``velocity_cw`` per ``frame_dt_s``."""
+        from semslam.geometry.rolling_shutter import row_time_fraction, to_middle_row
+
+        frac = row_time_fraction(self.keypoints.xy[:, 1], int(round(camera.image_size[1])), readout_s, frame_dt_s)
+        xy, z = to_middle_row(self.xy, self.depth, frac, velocity_cw, camera)
+        self.xy, self.depth = xy, z.astype(np.float32)
+        self.ur = np.where(self.depth > 0, xy[:, 0] - bf / np.maximum(self.depth, 1e-6), -1.0)
+        self._grid = None
+
     def drop(self, keep: NDArray[np.bool_]) -> None:
         """Remove keypoints (e.g. found dynamic after tracking) and everything indexed by them."""
         idx = np.nonzero(keep)[0]

@@ -61,6 +61,7 @@ class Tracking:
         self.state = TrackingState.NOT_INITIALIZED
         self.last: FrameState | None = None
         self.velocity: NDArray[np.float64] | None = None
+        self.velocity_dt = 0.0  # seconds between the two frames the velocity was measured on
         self.ref_kf: KeyFrame | None = None
         self.last_kf_frame = -1
         self.last_reloc_frame = -(10**9)
@@ -103,6 +104,9 @@ class Tracking:
         packet.keypoints_xy = kps.xy
         depth = self.depth.depth(frame)
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
+        if self.cfg.rolling_shutter_ms > 0 and self.velocity is not None and self.velocity_dt > 0:
+            cur.to_middle_row(self.velocity, self.velocity_dt, self.cfg.rolling_shutter_ms / 1e3, self.camera,
+                              self.cfg.bf)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
         is_kf = False
         t_wait = time.perf_counter()
@@ -129,6 +133,7 @@ class Tracking:
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
                     self.velocity = cur.T_cw @ invert(self.last.T_cw) if self.last is not None and self.last.T_cw is not None else None
+                    self.velocity_dt = cur.timestamp - self.last.timestamp if self.last is not None else 0.0
                     if not self.cfg.localization_only and self._need_new_keyframe(cur):
                         t0 = time.perf_counter()
                         self._create_keyframe(cur)
