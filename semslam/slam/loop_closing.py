@@ -115,9 +115,12 @@ class LoopClosing(KeyframeWorker):
         self.rng = np.random.default_rng(config.seed)
         self.last_loop_kf_id = 0
         self.consistency = LoopConsistency(config.slam.loop_consistency)
-        # Atlas (ORB-SLAM3): the same place recognition across maps finds merges.
+        # Atlas (ORB-SLAM3): the same place recognition across maps finds merges. A candidate
+        # is checked at first sight (no run of consistent keyframes): a new map may make one
+        # keyframe in seconds when the camera stays in a place it has mapped, and the merge's
+        # own check (MapMerger.refine: 50 pose inliers, relocalisation's bar) stands in for
+        # ORB-SLAM3's check of the candidate against the current keyframe's covisibles.
         self.merger = merger
-        self.merge_consistency = LoopConsistency(config.slam.loop_consistency)
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
                       "global_ba_ms": [], "pose_graph_ms": [], "merges": 0}
@@ -177,20 +180,19 @@ class LoopClosing(KeyframeWorker):
 
     def _detect_merge(self, kf: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
         """ORB-SLAM3 DetectCommonRegionsFromBoW for merges: the loop query, keeping the
-        candidates of other maps, with the same covisibility consistency (a counter of its
-        own) and the same SE(3) RANSAC and verification as a loop."""
+        candidates of other maps (the 3 best groups, as its DetectNBestCandidates), the same
+        SE(3) RANSAC and verification as a loop, then the merger's pose refit."""
         from semslam.place.database import detect_loop_candidates
 
         covis_ids, min_score = self._query_bounds(kf)
         cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, self._best_covisibles)
         cand_ids = self._in_map(cand_ids, kf.map_id, same=False)
-        candidates = self._candidate_groups(cand_ids)
-        accepted = self.merge_consistency.update([c for c, _ in candidates])
-        log.debug("kf %d: merge candidates %s, consistent %s", kf.id, cand_ids, accepted)
-        by_id = {c.kf_id: k for c, k in candidates}
+        log.debug("kf %d: merge candidates %s", kf.id, cand_ids)
         assert self.merger is not None
-        for cid in accepted:
-            res = self._compute_se3(kf, by_id[cid])
+        with self.map.lock:
+            candidates = [self.map.keyframes[i] for i in cand_ids[:3] if i in self.map.keyframes]
+        for cand in candidates:
+            res = self._compute_se3(kf, cand)
             refined = self.merger.refine(kf, *res) if res is not None else None
             if refined is not None:
                 return res[0], *refined
@@ -207,7 +209,6 @@ class LoopClosing(KeyframeWorker):
             res = self.merger.merge(kf, cand, T12, matched)
             # The merged map moved rigidly: measurements are its poses now (nothing "old").
             self._optimize_essential_graph(res.anchor, {}, {}, res.new_links)
-        self.merge_consistency.reset()
         self.consistency.reset()
         self.last_loop_kf_id = kf.id
         self.stats["merges"] += 1
