@@ -10,6 +10,8 @@ closes everything on every path.
 Trajectory output follows ORB-SLAM's SaveTrajectoryTUM: every tracked frame is stored
 relative to its reference keyframe and composed with that keyframe's final pose (walking up
 the spanning tree when the keyframe was culled); lost frames have no pose and are left out.
+With the atlas (``slam/atlas.py``) every frame is in its final map's frame: the first map's
+once the maps merged, its own map's first keyframe otherwise (``stats.json`` counts them).
 """
 
 from __future__ import annotations
