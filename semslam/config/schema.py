@@ -106,6 +106,10 @@ class SlamConfig:
     # this long (0: never waits).
     yield_to_tracking_ms: float = 15.0
     localization_only: bool = False
+    # Multi-map atlas (ORB-SLAM3): once tracking has been lost and relocalisation has failed
+    # for this long (frame timestamps), a new map starts at the next frame with depth; maps
+    # merge when one sees a place of another. 0 or negative: ORB-SLAM2, stay lost.
+    new_map_after_s: float = 1.0
 
     def check(self) -> None:
         """Raise ConfigError on values the core cannot use (the config loader checks types only)."""

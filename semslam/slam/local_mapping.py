@@ -435,7 +435,7 @@ class LocalMapping(KeyframeWorker):
             for p in k.valid_points():
                 pts.setdefault(p.id, p)
         points = list(pts.values())
-        free = [k for k in local if k.id != 0]
+        free = [k for k in local if not k.is_origin]
         if not points or not free:
             return
         # Fixed: the other keyframes that see the local points, the most observations first
@@ -445,7 +445,7 @@ class LocalMapping(KeyframeWorker):
         n_seen = np.bincount(table[1], minlength=len(observers))
         outside = [i for i, k in enumerate(observers) if k not in local_set and not k.bad]
         order = sorted(outside, key=lambda i: -n_seen[i])[: self.cfg.local_ba_max_fixed]
-        fixed_list = [observers[i] for i in order] + [k for k in local if k.id == 0]
+        fixed_list = [observers[i] for i in order] + [k for k in local if k.is_origin]
         problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf, table)
         t1 = time.perf_counter()
         result: BAResult = self.ba.run(problem)
@@ -513,7 +513,7 @@ class LocalMapping(KeyframeWorker):
         per-point histogram of observation levels), updated as each culled keyframe's
         observations go, exactly as the sequential per-point loops decided; the culled
         keyframes are removed under the lock, one per slice."""
-        cands = [c for c in kf.ordered_covis if c.id != 0 and not c.bad and c is not kf]
+        cands = [c for c in kf.ordered_covis if not c.is_origin and not c.bad and c is not kf]
         if not cands:
             return
         # Each candidate's live points by store row, numbered in first-seen order.

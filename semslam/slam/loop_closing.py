@@ -31,6 +31,7 @@ from semslam.slam.search import project, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
+    from semslam.slam.map_merging import MapMerger
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +100,8 @@ class LoopClosing(KeyframeWorker):
     thread_name = "loop-closing"
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, database: "KeyframeDatabase",
-                 ba: BundleAdjustmentRunner, fusion: PointFusion, inbox: KeyframeInbox, mapping: KeyframeInbox) -> None:
+                 ba: BundleAdjustmentRunner, fusion: PointFusion, inbox: KeyframeInbox, mapping: KeyframeInbox,
+                 merger: "MapMerger | None" = None) -> None:
         super().__init__(inbox)
         self.cfg = config.slam
         self.camera = camera
@@ -113,9 +115,15 @@ class LoopClosing(KeyframeWorker):
         self.rng = np.random.default_rng(config.seed)
         self.last_loop_kf_id = 0
         self.consistency = LoopConsistency(config.slam.loop_consistency)
+        # Atlas (ORB-SLAM3): the same place recognition across maps finds merges. A candidate
+        # is checked at first sight (no run of consistent keyframes): a new map may make one
+        # keyframe in seconds when the camera stays in a place it has mapped, and the merge's
+        # own check (MapMerger.refine: 50 pose inliers, relocalisation's bar) stands in for
+        # ORB-SLAM3's check of the candidate against the current keyframe's covisibles.
+        self.merger = merger
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
-                      "global_ba_ms": [], "pose_graph_ms": []}
+                      "global_ba_ms": [], "pose_graph_ms": [], "merges": 0}
 
     def _write_normals(self, points: list[MapPoint]) -> None:
         """Normals and depth ranges of ``points``: computed without the lock, written to the
@@ -130,7 +138,13 @@ class LoopClosing(KeyframeWorker):
         if kf.bad:
             return
         found = self._detect_loop(kf)
+        merge = None
+        if found is None and self.merger is not None and self.merger.mergeable():
+            merge = self._detect_merge(kf)
         self.db.add(kf.id, kf.bow)
+        if merge is not None:
+            self._merge_maps(kf, *merge)
+            return
         if found is None:
             return
         cand, T12, matched = found
@@ -146,6 +160,7 @@ class LoopClosing(KeyframeWorker):
             return None
         covis_ids, min_score = self._query_bounds(kf)
         cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, self._best_covisibles)
+        cand_ids = self._in_map(cand_ids, kf.map_id, same=True)  # other maps: merges, not loops
         log.debug("kf %d: min_score %.3f, loop candidates %s", kf.id, min_score, cand_ids)
         candidates = self._candidate_groups(cand_ids)
         accepted = self.consistency.update([c for c, _ in candidates])
@@ -156,6 +171,50 @@ class LoopClosing(KeyframeWorker):
             if res is not None:
                 return res
         return None
+
+    def _in_map(self, kf_ids: list[int], map_id: int, same: bool) -> list[int]:
+        """The ids whose keyframe is (``same``) or is not in atlas map ``map_id``."""
+        with self.map.lock:
+            kfs = self.map.keyframes
+            return [i for i in kf_ids if i in kfs and (kfs[i].map_id == map_id) == same]
+
+    def _detect_merge(self, kf: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        """ORB-SLAM3 DetectCommonRegionsFromBoW for merges: the loop query, keeping the
+        candidates of other maps (the 3 best groups, as its DetectNBestCandidates), the same
+        SE(3) RANSAC and verification as a loop, then the merger's pose refit."""
+        from semslam.place.database import detect_loop_candidates
+
+        covis_ids, min_score = self._query_bounds(kf)
+        cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, self._best_covisibles)
+        cand_ids = self._in_map(cand_ids, kf.map_id, same=False)
+        log.debug("kf %d: merge candidates %s", kf.id, cand_ids)
+        assert self.merger is not None
+        with self.map.lock:
+            candidates = [self.map.keyframes[i] for i in cand_ids[:3] if i in self.map.keyframes]
+        for cand in candidates:
+            res = self._compute_se3(kf, cand)
+            refined = self.merger.refine(kf, *res) if res is not None else None
+            if refined is not None:
+                return res[0], *refined
+        return None
+
+    def _merge_maps(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]) -> None:
+        """Merge kf's map with cand's (``slam/map_merging.py``) with local mapping paused, then
+        the essential graph and global BA over the merged map, as after a loop."""
+        assert self.merger is not None
+        t0 = time.perf_counter()
+        if not self.mapping.wait_idle(timeout=60.0):
+            log.warning("local mapping still busy after 60 s; merging maps anyway")
+        with self.mapping.paused():
+            res = self.merger.merge(kf, cand, T12, matched)
+            # The merged map moved rigidly: measurements are its poses now (nothing "old").
+            self._optimize_essential_graph(res.anchor, {}, {}, res.new_links)
+        self.consistency.reset()
+        self.last_loop_kf_id = kf.id
+        self.stats["merges"] += 1
+        self.stats["pose_graph_ms"].append((time.perf_counter() - t0) * 1e3)
+        if self.cfg.global_ba:
+            self.global_bundle_adjustment(res.kept)
 
     def _query_bounds(self, kf: KeyFrame) -> tuple[set[int], float]:
         """The keyframes a loop must not be (kf's covisibles) and the lowest BoW score among
@@ -241,7 +300,7 @@ class LoopClosing(KeyframeWorker):
         self.stats["pose_graph_ms"].append((time.perf_counter() - t0) * 1e3)
         log.info("loop closed: keyframe %d <-> %d", kf.id, cand.id)
         if self.cfg.global_ba:
-            self.global_bundle_adjustment()
+            self.global_bundle_adjustment(kf.map_id)
 
     def _correct_loop_paused(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64],
                              matched: dict[int, MapPoint]) -> None:
@@ -315,8 +374,8 @@ class LoopClosing(KeyframeWorker):
         Built without the lock (local mapping is paused), solved in the BA worker process;
         the poses and the points moved with their reference keyframes are written in one
         critical section."""
-        with self.map.lock:
-            kfs = self.map.all_keyframes()
+        with self.map.lock:  # one atlas map: the others have gauges of their own
+            kfs = [k for k in self.map.all_keyframes() if k.map_id == loop_kf.map_id]
         index = {k: i for i, k in enumerate(kfs)}
         # Reference (measurement) poses: non-corrected ones where a correction happened.
         ref_wc = {k: invert(old.get(k, k.T_cw)) for k in kfs}
@@ -377,21 +436,22 @@ class LoopClosing(KeyframeWorker):
             all_points = list(self.map.points.values())
         self._write_normals(all_points)
 
-    def global_bundle_adjustment(self) -> None:
+    def global_bundle_adjustment(self, map_id: int | None = None) -> None:
         """Full BA over all keyframes and points (first keyframe fixed), solved without the
         lock while local mapping goes on (the Schur solver releases the GIL); the problem is
         gathered and the result applied with local mapping paused, the result written in
         one critical section.  Keyframes and points added while it ran are moved with their
-        parent / reference keyframe."""
+        parent / reference keyframe. ``map_id``: only that atlas map (its origin fixed)."""
         t0 = time.perf_counter()
         with self.mapping.paused():
             with self.map.lock:
                 gen = self.map.generation
-                kfs = self.map.all_keyframes()
+                kfs = [k for k in self.map.all_keyframes() if map_id is None or k.map_id == map_id]
                 candidates = list(self.map.points.values())
             if len(kfs) < 2:
                 return
-            points = [p for p in candidates if not p.bad and p.observations]
+            points = [p for p in candidates if not p.bad and p.observations
+                      and (map_id is None or next(iter(p.observations)).map_id == map_id)]
             rows = np.fromiter((p.row for p in points), np.intp, len(points))
             free, fixed = kfs[1:], kfs[:1]
             problem = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)

@@ -240,6 +240,11 @@ class KeyFrame:
     to_be_erased: bool = False
     T_cw_before_gba: Array | None = None
     T_cp: Array | None = None  # pose relative to the parent, kept when the keyframe is culled
+    # The atlas map this keyframe belongs to (slam/atlas.py; 0 without a new map) and whether
+    # it is that map's first keyframe: the root of its spanning tree, never culled, fixed in
+    # local BA (ORB-SLAM3's GetInitKFid; ORB-SLAM2 tests id 0).
+    map_id: int = 0
+    origin: bool = False
     _tree: Any = None
     _center: Array = field(default_factory=lambda: np.zeros(3), repr=False)
 
@@ -252,6 +257,11 @@ class KeyFrame:
     @property
     def T_wc(self) -> Array:
         return invert(self.T_cw)
+
+    @property
+    def is_origin(self) -> bool:
+        """The first keyframe of its map (keyframe 0, or the origin of a later atlas map)."""
+        return self.id == 0 or self.origin
 
     def __post_init__(self) -> None:
         self.set_pose(self.T_cw)
@@ -304,7 +314,7 @@ class KeyFrame:
             kf.add_connection(self, w)
         self.covis = strong
         self.ordered_covis = sorted(strong, key=lambda k: -strong[k])
-        if self.parent is None and self.id != 0:
+        if self.parent is None and not self.is_origin:
             self.parent = self.ordered_covis[0]
             self.parent.children.add(self)
 
@@ -345,7 +355,9 @@ class Map:
         self.tracking_idle.set()
         self._next_kf = 0
         self._next_pt = 0
-        self.origins: list[KeyFrame] = []
+        self.origins: list[KeyFrame] = []  # the first keyframe of each atlas map, by map id
+        # The atlas map new keyframes join (slam/atlas.py changes it; 0 with one map).
+        self.active_map = 0
         self.n_loops = 0
         # Bumped by loop correction and global BA: a local BA computed on older poses is dropped.
         self.generation = 0
@@ -362,9 +374,11 @@ class Map:
 
     def add_keyframe(self, kf: KeyFrame) -> None:
         kf.map = self
+        kf.map_id = self.active_map
         self.keyframes[kf.id] = kf
-        if not self.origins:
+        if len(self.origins) <= kf.map_id:  # the first keyframe of a new map
             self.origins.append(kf)
+            kf.origin = True
 
     def set_bad_point(self, p: MapPoint) -> None:
         """Remove a point and its observations (ORB-SLAM MapPoint::SetBadFlag)."""
@@ -398,7 +412,7 @@ class Map:
 
     def set_bad_keyframe(self, kf: KeyFrame) -> None:
         """Remove a redundant keyframe, re-parenting its children (ORB-SLAM KeyFrame::SetBadFlag)."""
-        if kf.id == 0 or kf.not_erase:
+        if kf.is_origin or kf.not_erase:
             kf.to_be_erased = True
             return
         for other in list(kf.covis):

@@ -10,6 +10,8 @@ closes everything on every path.
 Trajectory output follows ORB-SLAM's SaveTrajectoryTUM: every tracked frame is stored
 relative to its reference keyframe and composed with that keyframe's final pose (walking up
 the spanning tree when the keyframe was culled); lost frames have no pose and are left out.
+With the atlas (``slam/atlas.py``) every frame is in its final map's frame: the first map's
+once the maps merged, its own map's first keyframe otherwise (``stats.json`` counts them).
 """
 
 from __future__ import annotations
@@ -33,11 +35,13 @@ from semslam.io.trajectory import Trajectory
 from semslam.place.database import KeyframeDatabase
 from semslam.place.flat import vocabulary_for
 from semslam.place.vocabulary import Vocabulary
+from semslam.slam.atlas import Atlas
 from semslam.slam.fusion import PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox
 from semslam.slam.local_mapping import LocalMapping
 from semslam.slam.loop_closing import LoopClosing
 from semslam.slam.map import KeyFrame, Map
+from semslam.slam.map_merging import MapMerger
 from semslam.slam.tracking import Tracking
 
 log = logging.getLogger(__name__)
@@ -123,13 +127,17 @@ class OrbSlamSystem:
         indexer = PlaceIndexer(self.vocabulary, self.database)
         fusion = PointFusion(self.map, camera, config.slam.bf)
         mapping_inbox, loop_inbox = KeyframeInbox(), KeyframeInbox()
+        # Multi-map atlas (ORB-SLAM3): off with localisation only (no mapping) or a delay <= 0.
+        new_map_after = config.slam.new_map_after_s if (use_mapping and self.vocabulary.recognises_places) else 0.0
+        self.atlas = Atlas(self.map, new_map_after)
+        merger = MapMerger(self.map, self.atlas, fusion, camera, config.slam.bf) if self.atlas.enabled else None
         self.closer = LoopClosing(config, camera, self.map, self.database, self.ba_runner, fusion, loop_inbox,
-                                  mapping_inbox)
+                                  mapping_inbox, merger)
         self.mapper = LocalMapping(config, camera, self.map, self.vocabulary, self.ba_runner, fusion, mapping_inbox,
                                    next_stage=self.closer if use_loops else indexer)
         self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database, extractor,
                                  keyframes=self.mapper if use_mapping else indexer, depth=inputs.depth,
-                                 dynamics=inputs.dynamics)
+                                 dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None)
         if slam_map is not None:
             for kf in self.map.all_keyframes():
                 indexer.insert(kf)
@@ -236,7 +244,13 @@ class OrbSlamSystem:
             "triangulated_points": mapper.stats["triangulated"],
             "culled_dynamic_points": self.tracking.n_culled_dynamic_points,
             "threaded": self.threaded,
+            **self._atlas_stats(),
         }
+
+    def _atlas_stats(self) -> dict[str, Any]:
+        """``maps``, ``merges`` and the trajectory's frames per final map (slam/atlas.py)."""
+        with self.map.lock:
+            return self.atlas.stats(ref.map_id for _, ref, _ in self.tracking.trajectory_refs)
 
     def save_map(self, path: Path) -> None:
         from semslam.slam.map_io import save_map

@@ -29,6 +29,7 @@ from semslam.slam.search import project, rotation_consistent, search_by_bow, sea
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
+    from semslam.slam.atlas import Atlas
     from semslam.place.vocabulary import Vocabulary
 
 
@@ -37,7 +38,7 @@ class Tracking:
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
                  database: "KeyframeDatabase", extractor: Extractor, keyframes: KeyframeSink,
-                 depth: DepthSource, dynamics: DynamicStage | None) -> None:
+                 depth: DepthSource, dynamics: DynamicStage | None, atlas: "Atlas | None" = None) -> None:
         self.cfg = config.slam
         self.dyn = config.dynamics
         self.camera = camera
@@ -75,6 +76,10 @@ class Tracking:
         # Per tracked frame: (timestamp, reference keyframe, T_c_ref) for the trajectory.
         # Lost frames have no pose and are not recorded (ORB-SLAM's SaveTrajectoryTUM skips them).
         self.trajectory_refs: list[tuple[float, KeyFrame, NDArray[np.float64]]] = []
+        # Multi-map atlas (ORB-SLAM3): lost since this timestamp; a new map is wanted.
+        self.atlas = atlas
+        self.lost_since: float | None = None
+        self.new_map_pending = False
 
     def start_lost_in(self, ref_kf: KeyFrame) -> None:
         """A loaded map: start lost (the camera is nowhere until it relocalises) with this
@@ -113,7 +118,8 @@ class Tracking:
         with self.map.lock:
             t0 = time.perf_counter()
             timings["lock_wait"] = (t0 - t_wait) * 1e3
-            if self.state is TrackingState.NOT_INITIALIZED:
+            self._follow_atlas(frame.timestamp)
+            if self.state is TrackingState.NOT_INITIALIZED or self.new_map_pending:
                 ok = self._initialize(cur)
                 is_kf = ok
                 timings["track"] = (time.perf_counter() - t0) * 1e3
@@ -149,6 +155,7 @@ class Tracking:
                         cur.T_cw = self.last.T_cw.copy() if self.last is not None and self.last.T_cw is not None else np.eye(4)
             if cur.ref_kf is None:
                 cur.ref_kf = self.ref_kf
+            self._apply_world_change(cur)  # a merge inside this frame's keyframe (sequential)
             if self.state is TrackingState.OK:
                 self._record(cur)
             self.last = cur
@@ -161,6 +168,33 @@ class Tracking:
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
                            timings=timings)
+
+    # ------------------------------------------------------------------ atlas
+    def _follow_atlas(self, timestamp: float) -> None:
+        """Under the map lock before a frame: map the last frame into its map's new world if
+        a merge moved it; once relocalisation has failed for ``slam.new_map_after_s``, ask
+        for a new map, which the next frame with enough keypoints and depth starts
+        (ORB-SLAM3 CreateMapInAtlas). Frames until then stay LOST."""
+        if self.atlas is None:
+            return
+        self._apply_world_change(self.last)
+        if self.state is not TrackingState.LOST or self.new_map_pending:
+            self.lost_since = None
+            return
+        if self.lost_since is None:
+            self.lost_since = self.last.timestamp if self.last is not None else timestamp
+        if self.atlas.new_map_due(timestamp - self.lost_since):
+            self.atlas.start_new_map()
+            self.new_map_pending = True
+            self.velocity = None
+            self.local_kfs = []
+            self.local_rows = np.zeros(0, np.intp)
+
+    def _apply_world_change(self, frame: FrameState | None) -> None:
+        """Map ``frame`` into its map's world if a merge moved that map (``Atlas``)."""
+        S = self.atlas.take_world_change() if self.atlas is not None else None
+        if S is not None and frame is not None and frame.T_cw is not None:
+            frame.T_cw = frame.T_cw @ invert(S)
 
     # ------------------------------------------------------------------ dynamics
     def _motion_prior(self) -> MotionPrior | None:
@@ -223,6 +257,7 @@ class Tracking:
         self.local_kfs = [kf]
         self.local_rows = kf.points.rows[kf.points.rows >= 0]
         self.state = TrackingState.OK
+        self.new_map_pending = False
         return True
 
     def _new_points_from_keyframe(self, kf: KeyFrame, cur: FrameState, idx: NDArray[np.intp],
@@ -496,6 +531,9 @@ class Tracking:
             return [] if other is None else [c.id for c in other.best_covisibles(n)]
 
         candidates = detect_relocalisation_candidates(self.db, cur.bow, covisibles)
+        # The active map first, then the others (ORB-SLAM3 relocalises in the whole atlas).
+        active = self.map.active_map
+        candidates.sort(key=lambda i: i not in self.map.keyframes or self.map.keyframes[i].map_id != active)
         for kf_id in candidates:
             kf = self.map.keyframes.get(kf_id)
             if kf is None or kf.bad:
@@ -532,6 +570,8 @@ class Tracking:
             if n_good >= 50:
                 self.ref_kf = kf
                 cur.ref_kf = kf
+                if self.atlas is not None and kf.map_id != self.map.active_map:
+                    self.atlas.activate(kf.map_id)  # tracking goes on in that map
                 return True
         cur.clear_points()
         cur.T_cw = None

@@ -60,6 +60,7 @@ def camera_trajectory(
         "loop": _loop,
         "room_loop": _room_loop,
         "fast_turns": _fast_turns,
+        "jump_back": _jump_back,
     }[motion]
     return fn(t, duration)
 
@@ -236,3 +237,27 @@ def _room_loop(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
         eye = ROOM_LOOP_CENTER + 0.5 * d - 0.5 * np.array([np.cos(yaw0), np.sin(yaw0), 0.0])
         poses[i] = look_at(eye, eye + 2.0 * d + np.array([0.0, 0.0, -0.35]))
     return poses
+
+
+#: ``jump_back``: the xyz sway at the rest pose; at JUMP_AT_S the view cuts JUMP_YAW_DEG to the
+#: side (an unmapped wall: no overlap with a ~60 deg field of view), stays there, turns back
+#: between JUMP_RETURN_S (a raised-cosine turn, peak ~56 deg/s) and then stays at the start.
+JUMP_AT_S = 1.5
+JUMP_RETURN_S = (3.5, 6.0)
+JUMP_YAW_DEG = 90.0
+
+
+def _jump_back(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """The xyz motion, yawed about the world vertical through the camera by 0 before
+    JUMP_AT_S, JUMP_YAW_DEG until JUMP_RETURN_S, then smoothly back to 0: a cut into an
+    unmapped part of the room (tracking is lost, a new map starts) and a return to the
+    first part (the maps can merge)."""
+    t = np.asarray(t, np.float64)
+    base = _xyz(t, duration)
+    a, b = JUMP_RETURN_S
+    x = np.clip((t - a) / (b - a), 0.0, 1.0)
+    yaw = np.deg2rad(JUMP_YAW_DEG) * np.where(t < JUMP_AT_S, 0.0, 0.5 + 0.5 * np.cos(np.pi * x))
+    out = base.copy()
+    for i in range(len(out)):
+        out[i, :3, :3] = so3_exp(np.array([0.0, 0.0, yaw[i]])) @ base[i, :3, :3]
+    return out

@@ -44,7 +44,8 @@ from semslam.synth.sequences import SynthConfig
 from semslam.synth.static_geometry import MOVERS_FILE, SCENE_FILE, movers_json, scene_json
 
 #: SynthConfig fields added after renders were first cached (absent there = default).
-_ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms")
+_ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
+                 "blackout_start_s", "blackout_s")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -122,6 +123,8 @@ class Renderer:
         img, rng, depth_noise = self._sensor_rgb(rgb8, i, gain)
         depth = kinect_depth(buf.z, buf.cos, rng, depth_noise)
         frame = Frame(img, depth, buf.label, buf.z)
+        if cfg.blackout_start_s <= t < cfg.blackout_start_s + cfg.blackout_s:  # lens covered
+            frame = Frame(np.zeros_like(img), np.zeros_like(depth), buf.label, buf.z)
         if static is None:
             return frame, None
         bg_img, _, _ = self._sensor_rgb(sample_atlas(self.atlas.levels, static), i)

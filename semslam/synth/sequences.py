@@ -13,7 +13,7 @@ from typing import Any
 
 from semslam.errors import ConfigError
 
-MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop", "fast_turns")
+MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop", "fast_turns", "jump_back")
 PEOPLE_MODES = ("walking", "idle")
 
 #: TUM freiburg3 RGB intrinsics at 640x480 (fx, fy, cx, cy); fr3 images are undistorted.
@@ -59,6 +59,10 @@ class SynthConfig:
     # Depth is captured this long after the RGB image at most (seeded per frame between
     # 35 % and 100 % of it: 20 gives 7-20 ms), the depth-colour offset of a Kinect.
     depth_delay_ms: float = 0.0
+    # Blackout (issue 13's atlas): from blackout_start_s for blackout_s seconds the camera
+    # is covered (black RGB, no depth) while it keeps moving. 0 = none.
+    blackout_start_s: float = 0.0
+    blackout_s: float = 0.0
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""
@@ -85,6 +89,9 @@ class SynthConfig:
             if not 0.0 <= getattr(self, name) <= 1000.0 / self.fps:
                 raise ConfigError(f"synth: {name} must be between 0 and one frame period "
                                   f"({1000.0 / self.fps:.1f} ms), got {getattr(self, name)}")
+        if self.blackout_start_s < 0 or self.blackout_s < 0:
+            raise ConfigError(f"synth: blackout_start_s and blackout_s must be >= 0, got "
+                              f"{self.blackout_start_s} and {self.blackout_s}")
         if not 0.0 <= self.gain_swing < 1.0:
             raise ConfigError(f"synth: gain_swing must be in [0, 1), got {self.gain_swing}")
         return self
@@ -134,6 +141,11 @@ SEQUENCES: dict[str, SynthConfig] = {
     "walking_hard": SynthConfig(motion="fast_turns", frames=744, people=2, seed=12, exposure_ms=16.0,
                                 rolling_shutter_ms=30.0, gain_swing=0.4, depth_delay_ms=20.0),
     "walking_turns": SynthConfig(motion="fast_turns", frames=744, people=2, seed=12),
+    # Issue 13's atlas: the camera is covered for 2 s (black, no depth) while it keeps moving;
+    # and a cut into an unmapped part of the room (90 deg to the side) that stays there for
+    # 2 s, then turns back to the first part (camera_motion.JUMP_*).
+    "blackout_xyz": SynthConfig(motion="xyz", frames=180, people=0, seed=13, blackout_start_s=2.0, blackout_s=2.0),
+    "jump_back": SynthConfig(motion="jump_back", frames=240, people=0, seed=14),
 }
 
 

@@ -1,0 +1,114 @@
+"""The multi-map atlas (ORB-SLAM3's Atlas) over one ``Map``.
+
+ORB-SLAM2 stays lost until it relocalises; ORB-SLAM3 starts a new map instead and merges
+maps when one sees a place of another. Here every map lives in the one ``Map`` object
+(one point store, one lock, one keyframe database, ids unique across maps, as ORB-SLAM3's
+keyframe ids are), and a keyframe's ``map_id`` says which map it belongs to. Maps share no
+points and no covisibility until they merge, so tracking's local map, local mapping and
+loop correction never mix them; what must not run over several maps at once (essential
+graph, global BA: each map has its own gauge) asks the atlas for one map's keyframes.
+
+Each map has its own world frame: the camera of its first keyframe (``Map.origins``).
+Merging moves the newer map into the older one's frame (``slam/map_merging.py``); the
+atlas records which map went into which, and the move of the world for tracking, whose
+last frame is still in the old coordinates (tracking takes it under the map lock at the
+start of its next frame).
+
+Threads: tracking starts maps and activates them, loop closing merges them; all of it
+under ``map.lock``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.slam.map import KeyFrame, Map
+
+
+class Atlas:
+    """Which keyframes form which map, which map is active, and the merges so far."""
+
+    def __init__(self, slam_map: Map, new_map_after_s: float) -> None:
+        self.map = slam_map
+        # <= 0: ORB-SLAM2 (no new maps: tracking stays lost until it relocalises).
+        self.new_map_after_s = float(new_map_after_s)
+        self.merges: list[tuple[int, int]] = []  # (kept map, map merged into it)
+        self._merged_into: dict[int, int] = {}
+        self._world_change: NDArray[np.float64] | None = None
+
+    @property
+    def enabled(self) -> bool:
+        return self.new_map_after_s > 0
+
+    # ------------------------------------------------------------------ tracking's side
+    def new_map_due(self, lost_for_s: float) -> bool:
+        """Has relocalisation failed long enough to start a new map?"""
+        return self.enabled and lost_for_s >= self.new_map_after_s
+
+    def start_new_map(self) -> int:
+        """The id the next keyframe's map gets (``Map.add_keyframe`` stamps it): a new map,
+        or the one already started that has no keyframe yet. Caller holds ``map.lock``."""
+        new_id = max(len(self.map.origins), 1)
+        self.map.active_map = new_id
+        return new_id
+
+    def activate(self, map_id: int) -> None:
+        """Tracking relocalised in another map: new keyframes join it. Caller holds the lock."""
+        self.map.active_map = self.resolve(map_id)
+
+    def take_world_change(self) -> NDArray[np.float64] | None:
+        """``S`` (new world <- old world) if the active map was moved by a merge since the last
+        call, else None; tracking maps its last frame with it. Caller holds ``map.lock``."""
+        S, self._world_change = self._world_change, None
+        return S
+
+    # ------------------------------------------------------------------ maps
+    @property
+    def n_maps(self) -> int:
+        """Maps created so far (merged ones included)."""
+        return max(len(self.map.origins), 1)
+
+    def resolve(self, map_id: int) -> int:
+        """The map ``map_id`` lives in now (after merges)."""
+        while map_id in self._merged_into:
+            map_id = self._merged_into[map_id]
+        return map_id
+
+    def live_maps(self) -> list[int]:
+        """Maps not merged into another (the ones with keyframes)."""
+        return [i for i in range(len(self.map.origins)) if i not in self._merged_into]
+
+    def keyframes_of(self, map_id: int) -> list[KeyFrame]:
+        """The live keyframes of one map, by id (the map's origin first)."""
+        return [k for k in self.map.all_keyframes() if k.map_id == map_id]
+
+    def record_merge(self, kept: int, merged: int, S: NDArray[np.float64]) -> None:
+        """``merged``'s keyframes now belong to ``kept`` and were moved by ``S`` (kept world
+        <- merged world). Caller holds ``map.lock`` and has moved them."""
+        self._merged_into[merged] = kept
+        self.merges.append((kept, merged))
+        if self.map.active_map == merged:
+            self.map.active_map = kept
+            prev = self._world_change
+            self._world_change = S if prev is None else S @ prev
+
+    # ------------------------------------------------------------------ output
+    def stats(self, frame_maps: Iterable[int]) -> dict[str, Any]:
+        """``maps``, ``merges`` and how many trajectory frames lie in each final map's frame
+        (``frame_maps``: the map id of each tracked frame's reference keyframe)."""
+        per_map = Counter(self.resolve(m) for m in frame_maps)
+        first = self.resolve(0)
+        return {
+            "maps": self.n_maps,
+            "merges": len(self.merges),
+            "maps_unmerged": len(self.live_maps()) if self.map.origins else 1,
+            # trajectory.txt holds every tracked frame; frames of a map never merged into the
+            # first one are in that map's own frame (its first keyframe's camera).
+            "trajectory_frames_by_map": {str(k): v for k, v in sorted(per_map.items())},
+            "frames_outside_first_map": sum(v for k, v in per_map.items() if k != first),
+        }

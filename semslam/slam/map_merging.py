@@ -1,0 +1,187 @@
+"""Merging two atlas maps that saw the same place (ORB-SLAM3 LoopClosing::MergeLocal, RGB-D).
+
+Loop closing finds the place (bag-of-words candidates in another map, covisibility
+consistency, SE(3) RANSAC and verification by projection: the same checks as a loop) and
+hands the result here; afterwards it runs the essential graph and global BA over the
+merged map, as after a loop.
+
+RGB-D observes scale, so the merge is one rigid SE(3) (ORB-SLAM3 solves a Sim3 for
+monocular maps). Deviation from ORB-SLAM3: the whole newer map is moved by that transform
+at once, in one critical section, instead of the welding window first and the rest after a
+welding BA; the window is then welded (duplicate points fused, as loop closing does) and
+global BA spreads the residual over both maps. The older map keeps its frame, so the first
+map's frame stays the trajectory's frame.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.pose_only import optimize_pose
+from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.se3 import invert, orthonormalize
+from semslam.slam.atlas import Atlas
+from semslam.slam.fusion import PointArrays, PointFusion
+from semslam.slam.local_mapping import apply_in_slices
+from semslam.slam.map import KeyFrame, Map, MapPoint
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class MergeResult:
+    """What loop closing needs for the essential graph after a merge."""
+
+    kept: int  # the map that kept its frame (the older one)
+    merged: int  # the map moved into it
+    anchor: KeyFrame  # the keyframe of the kept map at the weld (fixed in the essential graph)
+    new_links: dict[KeyFrame, set[KeyFrame]]  # covisibility links across the weld
+
+
+def merge_transform(kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], move_kf_map: bool) -> NDArray[np.float64]:
+    """``S`` (kept world <- moved world) from ``T12`` (kf camera <- cand camera).
+
+    Moving kf's map: kf's pose in cand's world is ``T12 @ cand.T_cw``, so a point ``p`` of
+    kf's world is ``inv(T12 @ cand.T_cw) @ kf.T_cw @ p`` there. Moving cand's map: the
+    same with the roles swapped (``inv(T12)``)."""
+    if move_kf_map:
+        return invert(T12 @ cand.T_cw) @ kf.T_cw
+    return invert(invert(T12) @ kf.T_cw) @ cand.T_cw
+
+
+def _reroot(child_kf: KeyFrame, new_parent: KeyFrame) -> None:
+    """Hang ``child_kf``'s spanning tree under ``new_parent``: the parent links from
+    child_kf up to its map's root are reversed (ORB-SLAM3 MergeLocal), so the merged map
+    has one tree and the old root becomes an ordinary keyframe."""
+    old_parent = child_kf.parent
+    if old_parent is not None:
+        old_parent.children.discard(child_kf)
+    child_kf.parent = new_parent
+    new_parent.children.add(child_kf)
+    below, node = child_kf, old_parent
+    while node is not None:
+        up = node.parent
+        if up is not None:
+            up.children.discard(node)
+        node.children.discard(below)
+        node.parent = below
+        below.children.add(node)
+        below, node = node, up
+
+
+def _window(kf: KeyFrame, n: int = 15) -> list[KeyFrame]:
+    """kf and its best covisibles (ORB-SLAM3's welding window, numTemporalKFs = 15)."""
+    return [kf, *kf.best_covisibles(n - 1)]
+
+
+class MapMerger:
+    """Moves one atlas map into another's frame and welds them; counts merges."""
+
+    def __init__(self, slam_map: Map, atlas: Atlas, fusion: PointFusion, camera: PinholeCamera, bf: float,
+                 min_inliers: int = 50) -> None:
+        self.map = slam_map
+        self.atlas = atlas
+        self.fusion = fusion
+        self.camera = camera
+        self.bf = bf
+        # Relocalisation's bar: a merge moves a whole map, so it must be as sure as a relocalisation.
+        self.min_inliers = min_inliers
+
+    def mergeable(self) -> bool:
+        """More than one map to merge (place recognition across maps is worth a query)."""
+        return self.atlas.enabled and len(self.atlas.live_maps()) > 1
+
+    def refine(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]
+               ) -> tuple[NDArray[np.float64], dict[int, MapPoint]] | None:
+        """Optimise kf's pose in cand's world on all verified matches (pose-only, outliers
+        rejected, as relocalisation does) and keep the merge only with >= ``min_inliers``.
+
+        Why: loop closing's check (SE(3) RANSAC on ~20+ BoW matches, then >= 40 matches by
+        projection counted together with the RANSAC inliers) let a wrong transform through on
+        a repeated texture here; a loop corrects a few centimetres of drift, a merge moves a
+        map by metres, and random projection matches are not consistent with one pose (ORB-SLAM3
+        likewise optimises the merge transform and counts its inliers before merging)."""
+        idx = np.fromiter(matched, np.intp, len(matched))
+        if len(idx) < self.min_inliers:
+            return None
+        with self.map.lock:
+            pts = [matched[i] for i in idx.tolist()]
+            if any(p.bad for p in pts):
+                keep = np.array([not p.bad for p in pts])
+                idx, pts = idx[keep], [p for p, k in zip(pts, keep) if k]
+            pos = np.array([p.pos for p in pts]).reshape(-1, 3)
+            T_cand = cand.T_cw.copy()
+        if len(idx) < self.min_inliers:
+            return None
+        pyr = self.map.spec.pyramid
+        cam = self.camera
+        res = optimize_pose(T12 @ T_cand, pos, kf.xy[idx], kf.ur[idx], pyr.inv_sigma2[kf.keypoints.octave[idx]],
+                            cam.fx, cam.fy, cam.cx, cam.cy, self.bf)
+        n_in = int(res.inliers.sum())
+        log.debug("merge check kf %d vs %d: %d of %d matches inliers", kf.id, cand.id, n_in, len(idx))
+        if n_in < self.min_inliers:
+            return None
+        T12 = orthonormalize(res.T_cw) @ invert(T_cand)
+        return T12, {int(i): p for i, p, ok in zip(idx, pts, res.inliers) if ok}
+
+    def merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64],
+              matched: dict[int, MapPoint]) -> MergeResult:
+        """Merge kf's map and cand's map (verified by loop closing: ``T12`` kf <- cand, and
+        ``matched`` kf keypoint -> cand-side point). Local mapping is paused by the caller."""
+        move_kf_map = kf.map_id > cand.map_id  # the newer map moves into the older one's frame
+        kept, moved = (cand.map_id, kf.map_id) if move_kf_map else (kf.map_id, cand.map_id)
+        S = merge_transform(kf, cand, T12, move_kf_map)
+        R, t = S[:3, :3], S[:3, 3]
+        S_inv = invert(S)
+        with self.map.lock:
+            self.map.generation += 1  # a local BA computed before the move is discarded
+            kfs = self.atlas.keyframes_of(moved)
+            rows = np.unique(np.concatenate([k.points.rows for k in kfs] or [np.zeros(0, np.intp)]))
+            rows = rows[rows >= 0]
+            rows = rows[~self.map.store.bad[rows]]
+            store = self.map.store
+            store.pos[rows] = store.pos[rows] @ R.T + t
+            store.normal[rows] = store.normal[rows] @ R.T
+            for k in kfs:
+                k.set_pose(k.T_cw @ S_inv)
+                k.map_id = kept
+            root = self.map.origins[moved]
+            mover, anchor = (kf, cand) if move_kf_map else (cand, kf)
+            _reroot(mover, anchor)
+            root.origin = False
+            self.atlas.record_merge(kept, moved, S)
+        log.info("maps merged: map %d into map %d at keyframes %d <-> %d", moved, kept, kf.id, cand.id)
+        return MergeResult(kept, moved, anchor, self._weld(kf, cand, matched))
+
+    def _weld(self, kf: KeyFrame, cand: KeyFrame, matched: dict[int, MapPoint]) -> dict[KeyFrame, set[KeyFrame]]:
+        """Fuse the duplicated points of the two windows, as loop closing fuses a loop's
+        points: the verified matches first, then cand's window projected into kf's window;
+        returns the covisibility links that appeared across the weld."""
+        with self.map.lock:
+            for idx, lp in matched.items():
+                if lp.bad:
+                    continue
+                cur = kf.points[idx]
+                if cur is not None and not cur.bad:
+                    self.map.replace_point(cur, lp)
+                elif kf not in lp.observations:
+                    lp.add_observation(kf, idx)
+                    kf.points[idx] = lp
+            here, there = _window(kf), _window(cand)
+            src_pts = list({p.id: p for k in there for p in k.valid_points()}.values())
+        src = PointArrays.of(src_pts)
+        plans = [(k, self.fusion.plan(k, src, th=4.0)) for k in here]
+        apply_in_slices(self.map.lock, [partial(self.fusion.apply, k, m) for k, m in plans if m])
+        before = {k: set(k.covis) for k in here + there}
+        apply_in_slices(self.map.lock, [k.update_connections for k in here + there])
+        with self.map.lock:
+            kf.loop_edges.add(cand)
+            cand.loop_edges.add(kf)
+            kf.not_erase = cand.not_erase = True
+        # The maps shared nothing before, so every new link crosses the weld.
+        return {k: set(k.covis) - before[k] for k in here + there}
