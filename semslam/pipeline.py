@@ -97,8 +97,8 @@ def run_slam(
     """
     out = Path(out_dir)
     if config.sensor == "rgbd" and not sequence.has_depth:
-        raise DataError(sequence.root, "no depth images: this is a monocular sequence, and monocular tracking is "
-                                       "not built yet (RGB-D only for now)")
+        raise DataError(sequence.root, "no depth images: this is a monocular sequence; run it with sensor: mono "
+                                       "(--preset sdf)")
     system = System(config, sequence.camera, Path(load_map) if load_map else None)
     if save_map and not system.has_map:  # before any frame, not after the whole run
         system.close()
