@@ -53,6 +53,8 @@ def print_summary(result: RunResult) -> None:
             table.add_row(label, str(r.tracker[key]))
     if r.ate is not None and r.rpe_trans_1s is not None and r.rpe_rot_deg_1s is not None:
         table.add_row(f"ATE RMSE ({r.ate_alignment})", f"{r.ate['rmse'] * 100:.2f} cm")
+        if r.ate_se3 is not None:  # monocular: the metric scale counted too
+            table.add_row("ATE RMSE (se3)", f"{r.ate_se3['rmse'] * 100:.2f} cm (sim3 scale {r.ate_sim3_scale:.3f})")
         table.add_row("RPE trans RMSE (1 s)", f"{r.rpe_trans_1s['rmse'] * 100:.2f} cm")
         table.add_row("RPE rot RMSE (1 s)", f"{r.rpe_rot_deg_1s['rmse']:.3f} deg")
     ms = r.ms_per_frame
