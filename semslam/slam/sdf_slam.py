@@ -9,8 +9,10 @@ SDFCNN; for tests the ``ground_truth_depth`` oracle), then the pose:
    (``frame``, the paper's "two adjacent frames"); its keypoints with depth are 3D points in
    the world (a keyframe's: its feature tracks' positions, the local data correction).
 2. Matching with the extractor's matcher: among keypoints within ``search_radius_px`` of
-   where the constant-velocity model projects the reference's points, else by brute force
-   (then again within 10 px of the pose found).
+   where the constant-velocity model projects the reference's points, else by brute force,
+   or with ``features.matcher: range`` by SDF-SLAM's range matcher (eq. 8: the nearest
+   descriptor in a 140-px square around the keypoint, the paper's search, with no motion
+   model), then again within 10 px of the pose found.
 3. PnP-RANSAC + Levenberg-Marquardt (``sdf_slam_pnp``).
 4. Recovery: when the reference fails, the other one (keyframe <-> previous frame) is
    tried, guided and unguided; when both fail the frame is lost (no pose; the constant-
@@ -40,6 +42,7 @@ from numpy.typing import NDArray
 
 from semslam.backend.pose_graph import PoseGraphFailed
 from semslam.config import SystemConfig
+from semslam.core import registry
 from semslam.core.protocols import FramePacket, KeyframeSnapshot, MotionPrior, TrackerInputs
 from semslam.core.types import Keypoints, TrackingState, TrackResult
 from semslam.errors import ConfigError, DataError
@@ -109,6 +112,12 @@ class SdfSlamTracker:
         self.extractor = create_extractor(config.features, size)
         self.spec = self.extractor.spec
         self.matcher = matcher_for(self.spec)
+        # features.matcher (the fpf branch adds the key): "range" is SDF-SLAM's eq. 8 window
+        # matcher, used for the search without a pose; the guided searches stay the matcher's.
+        self.range_matcher = (registry.create("matcher", "range")
+                              if getattr(config.features, "matcher", "default") == "range" else None)
+        # With the range matcher the search is the paper's (no motion model); else guided first.
+        self._searches = (False,) if self.range_matcher is not None else (True, False)
         self.max_distance = float(self.spec.th_high)
         c = self.cfg
         self.pnp = PnpSettings(c.ransac_reprojection_px, c.ransac_iterations, c.ransac_confidence, c.min_inliers,
@@ -209,7 +218,7 @@ class SdfSlamTracker:
                            timings=timings)
 
     def _advance(self, T_wc: Array) -> None:
-        if self._last_wc is not None and self._n_lost == 0:
+        if self._last_wc is not None:  # after lost frames: from the prediction it was searched from
             self._delta = invert(self._last_wc) @ T_wc
         self._last_wc = T_wc
 
@@ -234,7 +243,7 @@ class SdfSlamTracker:
         t_match = t_pose = 0.0
         best: tuple[Array | None, NDArray[np.bool_], int] = (None, np.zeros(len(view), bool), 0)
         for k, ref in enumerate(r for r in refs if r is not None):
-            for guided in (True, False):
+            for guided in self._searches:
                 t0 = time.perf_counter()
                 qi, ti = self._match(view, ref, predicted if guided else None, self.cfg.search_radius_px)
                 t1 = time.perf_counter()
@@ -260,9 +269,13 @@ class SdfSlamTracker:
                ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         """Matches (frame keypoint, reference keypoint with depth): near the projections of
         the reference's points from ``T_wc``, or by brute force without a pose."""
+        with_depth = np.flatnonzero(ref.features.has_depth)
+        if T_wc is None and self.range_matcher is not None:  # eq. 8: nearest descriptor in a window
+            qi, ti, _ = self.range_matcher.match(view.xy, view.descriptors, ref.features.xy[with_depth],
+                                                 ref.features.descriptors[with_depth])
+            return qi, with_depth[ti]
         if T_wc is None:
             return match_views(view, ref.features, self.matcher, self.max_distance, self.cfg.ratio)
-        with_depth = np.flatnonzero(ref.features.has_depth)
         pc = (ref.pts_w[with_depth] - T_wc[:3, 3]) @ T_wc[:3, :3]
         front = pc[:, 2] > 0.05
         with_depth, pc = with_depth[front], pc[front]
