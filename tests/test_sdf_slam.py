@@ -172,3 +172,30 @@ def test_sdf_preset_tracks_a_render_with_bounded_sim3_ate(small_static: Path, tm
     assert stats["ate"]["rmse"] == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-6)
     assert len(read_trajectory(tmp_path / "run" / "keyframes.txt")) == stats["keyframes"] >= 2
     json.loads((tmp_path / "run" / "config.json").read_text())["sdf_slam"]  # the section is recorded
+
+
+def test_tracking_recovers_after_frames_without_features(small_static: Path) -> None:
+    """Six black frames (no keypoints: PnP fails) are lost, without a pose; the next real
+    frame is matched again to the last keyframe by brute force from the constant-velocity
+    prediction, and the trajectory stays within the bound."""
+    from semslam.config import load_config
+    from semslam.core.types import Frame, TrackingState
+    from semslam.eval.metrics import ate
+    from semslam.io.sequence import open_sequence
+    from semslam.slam.system import System
+
+    cfg = load_config("sdf", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false"])
+    seq = open_sequence(small_static, kind="mono")
+    system = System(cfg, seq.camera)
+    try:
+        states = []
+        for f in seq.frames(0, 40):
+            if 16 <= f.index < 22:
+                f = Frame(f.index, f.timestamp, np.zeros_like(f.rgb), None, f.rgb_path)
+            states.append(system.track(f).state)
+        traj = system.trajectory()
+    finally:
+        system.close()
+    assert all(s is TrackingState.LOST for s in states[16:22])
+    assert all(s is TrackingState.OK for s in states[:16] + states[22:])
+    assert len(traj) == 34 and ate(read_trajectory(small_static / "groundtruth.txt"), traj, "sim3").stats["rmse"] < ATE_SIM3_BOUND_M

@@ -17,7 +17,7 @@ SDFCNN; for tests the ``ground_truth_depth`` oracle), then the pose:
 4. Recovery: when the reference fails, the other one (keyframe <-> previous frame) is
    tried, guided and unguided; when both fail the frame is lost (no pose; the constant-
    velocity prediction is kept to search from), and after ``reanchor_after`` lost frames in
-   a row a new keyframe is made at that prediction (a weak edge in the pose graph, which
+   a row a frame with enough keypoints with depth becomes a new keyframe at that prediction (a weak edge in the pose graph, which
    sampled pairs can then correct) so tracking starts again from the current view.
 5. Keyframe when the inliers fall below ``keyframe_min_inliers`` or the camera moved or
    turned past the thresholds: its features join the feature tracks (local correction), a
@@ -136,6 +136,7 @@ class SdfSlamTracker:
         self._last_index = -1
         self._delta: Array | None = None  # inv(T_wc(k-2)) @ T_wc(k-1): constant velocity
         self._n_lost = 0
+        self._min_points = max(2 * c.min_inliers, 50)  # keypoints with depth to start from (first, re-anchor)
         self._stopped = False
         self.counters = {"reanchors": 0, "fallback_reference": 0, "global_rounds": 0, "global_pairs_tried": 0,
                          "global_constraints": 0, "pose_graph_failed": 0}
@@ -158,6 +159,9 @@ class SdfSlamTracker:
         if depth is None:
             raise DataError(frame.rgb_path or "frame", "the depth source gave no depth for this frame "
                                                        "(sdf_slam needs depth.source: a depth network)")
+        if depth.shape != frame.rgb.shape[:2]:
+            raise DataError(frame.rgb_path or "frame", f"the depth source gave {depth.shape[1]}x{depth.shape[0]} depth "
+                                                       f"for a {frame.rgb.shape[1]}x{frame.rgb.shape[0]} image")
         view = self._view(kps, depth)
         if not self.keyframes:
             return self._initialise(packet, view, depth, len(kps), timings)
@@ -179,7 +183,7 @@ class SdfSlamTracker:
             self._last_ref = None
             assert predicted is not None
             self._last_wc, self._last_index = predicted, frame.index
-            if self._n_lost >= self.cfg.reanchor_after:
+            if self._n_lost >= self.cfg.reanchor_after and view.has_depth.sum() >= self._min_points:
                 self.counters["reanchors"] += 1
                 self._make_keyframe(packet, view, depth, predicted, timings, weight=REANCHOR_WEIGHT)
                 self._n_lost, self._delta = 0, None
@@ -205,7 +209,7 @@ class SdfSlamTracker:
     def _initialise(self, packet: FramePacket, view: ViewFeatures, depth: NDArray[np.float32], n_kps: int,
                     timings: dict[str, float]) -> TrackResult:
         frame = packet.frame
-        if view.has_depth.sum() < max(2 * self.cfg.min_inliers, 50):
+        if view.has_depth.sum() < self._min_points:
             return TrackResult(frame.timestamp, None, TrackingState.NOT_INITIALIZED, n_keypoints=n_kps,
                                timings=timings)
         pose = np.eye(4)
