@@ -69,33 +69,29 @@ def short_render(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_a_monocular_image_folder_without_depth_runs(short_render: Path, tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    """A bare folder of images (no lists, no depth, no ground truth) through ``--preset sdf``.
-
-    Until the sdfcnn networks land the preset's depth source (and segmenter) are oracles,
-    which need the depth (and label) files this folder lacks: first that is one clear line
-    (exit 2); then the run goes through with the plumbing stand-in ``constant_depth`` and no
-    segmenter (poses are not evaluated). TODO(lead): once the preset names sdfcnn, drop the
-    --set lines (and the refusal check).
-    """
+    """A bare folder of images (no lists, no depth, no ground truth) through ``--preset sdf``
+    as shipped: SDFCNN gives depth and classes. The oracle depth source, asked for on such a
+    folder, is one clear line (exit 2)."""
     folder = tmp_path / "frames"
     folder.mkdir()
     for p in sorted((short_render / "rgb").glob("*.png"))[:12]:
         shutil.copy(p, folder / p.name)
     (folder / "calib.txt").write_text((short_render / "calib.txt").read_text())
     out = tmp_path / "out"
-    assert main(["run", str(folder), "--out", str(out), "-q", "--preset", "sdf", "--set", "dynamics.semantic=false"]) == 2
+    assert main(["run", str(folder), "--out", str(out), "-q", "--preset", "sdf", "--set", "dynamics.semantic=false",
+                 "--set", "depth.source=ground_truth_depth"]) == 2
     err = capsys.readouterr().err
     assert "depth.txt" in err and len(err.strip().splitlines()) == 1
-    stats = run_cli(folder, out, "--preset", "sdf", "--set", "depth.source=constant_depth",
-                    "--set", "dynamics.semantic=false", "--set", "slam.sequential=true")
-    assert stats["frames"] == 12 and stats["tracked_frames"] >= 1 and "ate" not in stats
+    stats = run_cli(folder, out, "--preset", "sdf", "--set", "slam.sequential=true")
+    assert stats["frames"] == stats["tracked_frames"] == 12 and "ate" not in stats
     assert (out / "trajectory.txt").is_file() and (out / "map" / "semantic_cloud.ply").is_file()
 
 
 def test_sdf_rgbd_runs_the_orb_core_on_the_depth_sources_depth(short_render: Path, tmp_path: Path) -> None:
     """``sdf_rgbd``: the monocular frames (read without depth) get the depth source's depth,
-    here the oracle, so the ORB core tracks them as RGB-D and the scale is metric."""
-    stats = run_cli(short_render, tmp_path / "run", "--preset", "sdf_rgbd", "--set", "slam.sequential=true")
+    here the oracle's, so the ORB core tracks them as RGB-D and the scale is metric."""
+    stats = run_cli(short_render, tmp_path / "run", "--preset", "sdf_rgbd", "--set", "slam.sequential=true",
+                    "--set", "depth.source=ground_truth_depth", "--set", "semantics.backend=ground_truth")
     assert stats["ate_alignment"] == "sim3" and stats["tracked_frames"] == stats["frames"] == 40
     assert stats["ate"]["rmse"] < 0.01 and stats["ate_se3"]["rmse"] < 0.01
     assert abs(stats["ate_sim3_scale"] - 1.0) < 0.05

@@ -1,9 +1,11 @@
 """The monocular SDF-SLAM tracker (``slam/sdf_slam*.py``): exact PnP, the two data
-corrections on analytic cases, and the ``sdf`` preset on a short render with the oracle depth.
+corrections on analytic cases, the ``sdf`` preset as shipped (SDFCNN's depth and classes) on a
+short render, and recovery with the oracle depth (``ground_truth_depth``: the render's own
+depth, which bounds the tracker, not SDFCNN).
 
-The render runs with ``depth.source: ground_truth_depth`` (the sequence's own depth read as a
-depth network's would be): it bounds the tracker, not SDFCNN. When the sdfcnn branch lands the
-preset names it, and a render of a layout left out of its training is the monocular check.
+The render is of the room SDFCNN was trained in (the synthetic room has one layout; other
+seeds, textures and paths): the preset's bound here is a regression check, not the held-out
+measurement of the issue's target.
 """
 
 from __future__ import annotations
@@ -142,17 +144,20 @@ def small_static(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return render_sequence(cfg, tmp_path_factory.mktemp("sdf") / "static_xyz")
 
 
-#: Sim(3) ATE bound with the oracle depth: measured 0.18 cm (SIFT, 70 frames at 320x240).
-ATE_SIM3_BOUND_M = 0.01
+#: Sim(3) ATE bounds on the 70-frame 320x240 render: the preset as shipped (SDFCNN depth,
+#: measured 0.24 cm Sim(3), 0.80 cm SE(3), scale 0.948) and with the oracle depth (0.18 cm).
+ATE_SIM3_BOUND_M = 0.015
+ATE_SE3_BOUND_M = 0.05
+ORACLE_ATE_SIM3_BOUND_M = 0.01
 
 
 def test_sdf_preset_tracks_a_render_with_bounded_sim3_ate(small_static: Path, tmp_path: Path) -> None:
     stats = run_cli(small_static, tmp_path / "run", "--preset", "sdf", "--set", "slam.sequential=true")
     assert stats["ate_alignment"] == "sim3" and stats["tracked_frames"] == stats["frames"] == 70
     assert stats["ate"]["rmse"] < ATE_SIM3_BOUND_M
-    # SE(3) only: reported beside it, finite, and (metric oracle depth) the scale is ~1.
-    assert np.isfinite(stats["ate_se3"]["rmse"]) and stats["ate_se3"]["rmse"] >= stats["ate"]["rmse"] - 1e-12
-    assert abs(stats["ate_sim3_scale"] - 1.0) < 0.05
+    # SE(3) only: reported beside it, finite, and SDFCNN's metric scale within 20 %.
+    assert np.isfinite(stats["ate_se3"]["rmse"]) and stats["ate"]["rmse"] - 1e-12 <= stats["ate_se3"]["rmse"]
+    assert stats["ate_se3"]["rmse"] < ATE_SE3_BOUND_M and abs(stats["ate_sim3_scale"] - 1.0) < 0.2
     report = (tmp_path / "run" / "report.html").read_text()
     assert "Sim(3) aligned" in report and "SE(3) aligned, metric scale" in report
     # Local correction: one map point per feature track; the semantic cloud was written.
@@ -175,16 +180,17 @@ def test_sdf_preset_tracks_a_render_with_bounded_sim3_ate(small_static: Path, tm
 
 
 def test_tracking_recovers_after_frames_without_features(small_static: Path) -> None:
-    """Six black frames (no keypoints: PnP fails) are lost, without a pose; the next real
-    frame is matched again to the last keyframe by brute force from the constant-velocity
-    prediction, and the trajectory stays within the bound."""
+    """With the oracle depth: six black frames (no keypoints: PnP fails) are lost, without a
+    pose; the next real frame is matched again to the last keyframe by brute force from the
+    constant-velocity prediction, and the trajectory stays within the oracle's bound."""
     from semslam.config import load_config
     from semslam.core.types import Frame, TrackingState
     from semslam.eval.metrics import ate
     from semslam.io.sequence import open_sequence
     from semslam.slam.system import System
 
-    cfg = load_config("sdf", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false"])
+    cfg = load_config("sdf", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false",
+                              "depth.source=ground_truth_depth"])
     seq = open_sequence(small_static, kind="mono")
     system = System(cfg, seq.camera)
     try:
@@ -198,4 +204,4 @@ def test_tracking_recovers_after_frames_without_features(small_static: Path) -> 
         system.close()
     assert all(s is TrackingState.LOST for s in states[16:22])
     assert all(s is TrackingState.OK for s in states[:16] + states[22:])
-    assert len(traj) == 34 and ate(read_trajectory(small_static / "groundtruth.txt"), traj, "sim3").stats["rmse"] < ATE_SIM3_BOUND_M
+    assert len(traj) == 34 and ate(read_trajectory(small_static / "groundtruth.txt"), traj, "sim3").stats["rmse"] < ORACLE_ATE_SIM3_BOUND_M
