@@ -145,9 +145,9 @@ class SdfSlamTracker:
     def track(self, packet: FramePacket) -> TrackResult:
         frame = packet.frame
         timings: dict[str, float] = {}
-        mask = None
+        dynamic, mask = None, None
         if self.dynamics is not None:
-            _, mask, wait_ms = self.dynamics.before_extraction(packet, self._motion_prior())
+            dynamic, mask, wait_ms = self.dynamics.before_extraction(packet, self._motion_prior())
             timings["wait_mask"] = wait_ms
         t0 = time.perf_counter()
         kps = self.extractor.extract(frame.gray, mask)
@@ -193,7 +193,8 @@ class SdfSlamTracker:
             self._frames.append((frame.timestamp, len(self.keyframes) - 1, invert(kf.T_wc) @ T_wc))
         return TrackResult(frame.timestamp, T_wc, state, n_matches=n_matches,
                            n_inliers=int(inl.sum()) if T_wc is not None else 0, n_keypoints=len(kps),
-                           is_keyframe=is_kf, timings=timings)
+                           is_keyframe=is_kf, dynamic_ratio=float(dynamic.mean()) if dynamic is not None else 0.0,
+                           timings=timings)
 
     def _view(self, kps: Keypoints, depth: NDArray[np.float32]) -> ViewFeatures:
         xy = self.camera.undistort_points(kps.xy)
