@@ -97,8 +97,8 @@ def run_slam(
     """
     out = Path(out_dir)
     if config.sensor == "rgbd" and not sequence.has_depth:
-        raise DataError(sequence.root, "no depth images: this is a monocular sequence, and monocular tracking is "
-                                       "not built yet (RGB-D only for now)")
+        raise DataError(sequence.root, "no depth images: this is a monocular sequence; run it with sensor: mono "
+                                       "(--preset sdf)")
     system = System(config, sequence.camera, Path(load_map) if load_map else None)
     if save_map and not system.has_map:  # before any frame, not after the whole run
         system.close()
@@ -278,11 +278,14 @@ def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, 
     align = "se3" if config.sensor == "rgbd" else "sim3"
     try:
         ate_res = ate(gt, traj, align=align)
+        ate_se3 = ate(gt, traj, align="se3") if align == "sim3" else None  # mono: the metric scale too
     except EvalError as exc:
         log.warning("evaluation skipped: %s", exc)
         result.eval_error = str(exc)
         return
     result.ate, result.ate_alignment = ate_res.stats, align
+    if ate_se3 is not None:
+        result.ate_se3, result.ate_sim3_scale = ate_se3.stats, float(ate_res.scale)
     try:  # a run shorter than a second (one stopped early) has an ATE but no 1 s RPE
         rpe_res = rpe(gt, traj, delta=1.0, delta_unit="seconds", align="none")
     except EvalError as exc:
@@ -298,5 +301,5 @@ def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, 
                  "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
         write_report(out / "report.html", gt, traj, ate_res, rpe_res,
                      title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra,
-                     map_dir=out / "map")
+                     map_dir=out / "map", ate_se3=ate_se3)
         result.paths["report"] = str(out / "report.html")

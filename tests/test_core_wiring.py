@@ -66,7 +66,7 @@ def test_backends_implement_their_contracts(static_seq: Path) -> None:
 
 
 def test_registry_errors_name_the_key() -> None:
-    with pytest.raises(ConfigError, match=r"tracking\.method: unknown tracker 'nope' \(known: frame_to_keyframe, orb_slam\)"):
+    with pytest.raises(ConfigError, match=r"tracking\.method: unknown tracker 'nope' \(known: frame_to_keyframe, orb_slam, sdf_slam\)"):
         System(load_config("orb", ["tracking.method=nope"]), CAM)
     with pytest.raises(ConfigError, match=r"maps\.builders: unknown map_builder 'octopus' \(known: cloud, "):
         System(load_config("orb", ["maps.builders=[octopus]"]), CAM)
@@ -74,10 +74,12 @@ def test_registry_errors_name_the_key() -> None:
         load_config("orb", ["sensor=stereo"])
 
 
-def test_mono_sensor_is_refused_by_the_trackers_with_a_clear_line() -> None:
-    for preset in ("orb", "f2kf"):
-        with pytest.raises(ConfigError, match="monocular tracking is not built yet"):
-            System(load_config(preset, ["sensor=mono"]), CAM)
+def test_mono_sensor_is_refused_by_the_rgbd_trackers_with_a_clear_line() -> None:
+    # orb_slam runs mono only on a depth network's depth (pseudo-RGB-D), f2kf never.
+    with pytest.raises(ConfigError, match="mono has no sensor depth"):
+        System(load_config("orb", ["sensor=mono"]), CAM)
+    with pytest.raises(ConfigError, match=r"monocular: tracking\.method=sdf_slam"):
+        System(load_config("f2kf", ["sensor=mono"]), CAM)
 
 
 def test_monocular_folder_and_save_map_are_refused_before_the_run(
@@ -85,7 +87,7 @@ def test_monocular_folder_and_save_map_are_refused_before_the_run(
     # An image folder without depth: one line, exit 2, not an empty trajectory.
     assert main(["run", str(static_seq / "rgb"), "--out", str(tmp_path / "mono"), "-q", "--preset", "orb"]) == 2
     err = capsys.readouterr().err
-    assert "no depth images" in err and "monocular tracking is not built yet" in err and len(err.strip().splitlines()) == 1
+    assert "no depth images" in err and "sensor: mono" in err and len(err.strip().splitlines()) == 1
     # --save-map with a tracker that has no map: refused before any frame is tracked.
     t0 = time.perf_counter()
     assert main(["run", str(static_seq), "--out", str(tmp_path / "f2kf"), "-q", "--preset", "f2kf",

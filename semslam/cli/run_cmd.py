@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.table import Table
 
 from semslam.config import load_config
-from semslam.io.sequence import open_sequence
+from semslam.io.sequence import kind_for_sensor, open_sequence
 from semslam.core.types import RunResult
 from semslam.errors import RunInterrupted
 from semslam.pipeline import run_slam
@@ -53,6 +53,8 @@ def print_summary(result: RunResult) -> None:
             table.add_row(label, str(r.tracker[key]))
     if r.ate is not None and r.rpe_trans_1s is not None and r.rpe_rot_deg_1s is not None:
         table.add_row(f"ATE RMSE ({r.ate_alignment})", f"{r.ate['rmse'] * 100:.2f} cm")
+        if r.ate_se3 is not None:  # monocular: the metric scale counted too
+            table.add_row("ATE RMSE (se3)", f"{r.ate_se3['rmse'] * 100:.2f} cm (sim3 scale {r.ate_sim3_scale:.3f})")
         table.add_row("RPE trans RMSE (1 s)", f"{r.rpe_trans_1s['rmse'] * 100:.2f} cm")
         table.add_row("RPE rot RMSE (1 s)", f"{r.rpe_rot_deg_1s['rmse']:.3f} deg")
     ms = r.ms_per_frame
@@ -117,7 +119,7 @@ def register(app: typer.Typer) -> None:
         _setup_logging(verbose)
         cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only, realtime,
                                                 maps, save_inpainted))
-        seq = open_sequence(sequence, camera=camera, depth_scale=cfg.depth_scale)
+        seq = open_sequence(sequence, camera=camera, kind=kind_for_sensor(cfg.sensor), depth_scale=cfg.depth_scale)
         with stop_on_signals():  # Ctrl-C / SIGTERM: stop after this frame, write what exists, exit 130
             result = run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
                               save_map=save_map, load_map=load_map, rerun=rerun, rerun_spawn=rerun_spawn)
@@ -150,7 +152,7 @@ def register(app: typer.Typer) -> None:
             console.print(f"reusing rendered sequence {seq_dir}")
         cfg = load_config(preset)
         with stop_on_signals():
-            result = run_slam(open_sequence(seq_dir), cfg, out / "run", progress=not quiet)
+            result = run_slam(open_sequence(seq_dir, kind=kind_for_sensor(cfg.sensor)), cfg, out / "run", progress=not quiet)
         print_summary(result)
         if result.ate_rmse is not None:
             console.print(f"[bold]ATE RMSE {result.ate_rmse * 100:.2f} cm, {result.tracking_fps:.1f} fps tracking "

@@ -10,6 +10,7 @@ from semslam.config.schema import (
     FrameToKeyframeConfig,
     InpaintingConfig,
     MapsConfig,
+    SdfSlamConfig,
     SemanticsConfig,
     SlamConfig,
     SystemConfig,
@@ -17,7 +18,7 @@ from semslam.config.schema import (
 )
 
 __all__ = [
-    "PRESET_DIR", "SENSORS", "DepthConfig", "DynamicsConfig", "InpaintingConfig", "MapsConfig", "FeatureConfig", "FrameToKeyframeConfig", "SemanticsConfig",
+    "PRESET_DIR", "SENSORS", "DepthConfig", "DynamicsConfig", "InpaintingConfig", "MapsConfig", "SdfSlamConfig", "FeatureConfig", "FrameToKeyframeConfig", "SemanticsConfig",
     "SlamConfig", "SystemConfig", "TrackingConfig", "available_presets", "config_from_dict", "config_to_dict", "load_config",
     "parse_override",
 ]

@@ -64,6 +64,59 @@ class FrameToKeyframeConfig:
 
 
 @dataclass
+class SdfSlamConfig:
+    """The monocular SDF-SLAM tracker (tracking.method = sdf_slam, ``slam/sdf_slam.py``):
+    PnP-RANSAC on the depth source's depth of a reference, global and local data correction."""
+
+    # What a frame is matched to: the last keyframe ("keyframe": less drift) or the previous
+    # frame (the paper's "two adjacent frames"). The other is tried when the first fails.
+    reference: str = "keyframe"
+    ratio: float = 0.8
+    # Guided matching: candidates within this radius (px) of the motion model's projection.
+    search_radius_px: float = 30.0
+    ransac_reprojection_px: float = 3.0
+    ransac_iterations: int = 300
+    ransac_confidence: float = 0.999
+    min_inliers: int = 25
+    # Keypoints whose predicted depth lies outside this range get no 3D point.
+    min_depth_m: float = 0.1
+    max_depth_m: float = 10.0
+    # New keyframe when the inliers fall below this or the camera moved / turned this far.
+    keyframe_min_inliers: int = 150
+    keyframe_max_translation_m: float = 0.15
+    keyframe_max_rotation_deg: float = 10.0
+    # Lost this many frames in a row: a new keyframe at the constant-velocity prediction.
+    reanchor_after: int = 5
+    # Global data correction: every ``global_every`` keyframes, PnP between up to
+    # ``global_pairs`` sampled keyframe pairs (at least 2 keyframes apart, cameras within
+    # ``global_max_distance_m`` and ``global_max_angle_deg``) adds constraints to a pose graph.
+    global_correction: bool = True
+    global_every: int = 5
+    global_pairs: int = 12
+    global_max_distance_m: float = 1.0
+    global_max_angle_deg: float = 35.0
+    global_min_inliers: int = 40
+    # Local data correction: one world position per feature track, the median of its
+    # observations' back-projections; tracking uses it for the reference's points.
+    local_correction: bool = True
+
+    def check(self) -> None:
+        """Raise ConfigError on values the tracker cannot use."""
+        if self.reference not in ("keyframe", "frame"):
+            raise ConfigError(f"sdf_slam.reference: expected keyframe or frame, got {self.reference!r}")
+        if not 0.0 < self.ratio <= 1.0:
+            raise ConfigError(f"sdf_slam.ratio: expected a ratio in (0, 1], got {self.ratio}")
+        if self.min_inliers < 6:
+            raise ConfigError(f"sdf_slam.min_inliers: PnP needs at least 6, got {self.min_inliers}")
+        if not 0.0 < self.min_depth_m < self.max_depth_m:
+            raise ConfigError(f"sdf_slam.min_depth_m / max_depth_m: expected 0 < min < max, "
+                              f"got {self.min_depth_m} / {self.max_depth_m}")
+        if self.global_every < 1 or self.global_pairs < 0:
+            raise ConfigError(f"sdf_slam.global_every / global_pairs: expected >= 1 / >= 0, "
+                              f"got {self.global_every} / {self.global_pairs}")
+
+
+@dataclass
 class SlamConfig:
     """ORB-SLAM2-class core (tracking.method = orb_slam). Defaults are ORB-SLAM2's TUM RGB-D settings."""
 
@@ -294,7 +347,8 @@ class SystemConfig:
     """Root of the config tree."""
 
     preset: str = "custom"
-    # rgbd, or mono (accepted by the schema; refused by the trackers until one is built).
+    # rgbd, or mono (image folders, TUM folders read without depth: tracking.method sdf_slam,
+    # or orb_slam with a depth network as depth.source).
     sensor: str = "rgbd"
     seed: int = 0
     depth_scale: float = 5000.0
@@ -302,6 +356,7 @@ class SystemConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     frame_to_keyframe: FrameToKeyframeConfig = field(default_factory=FrameToKeyframeConfig)
     slam: SlamConfig = field(default_factory=SlamConfig)
+    sdf_slam: SdfSlamConfig = field(default_factory=SdfSlamConfig)
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     semantics: SemanticsConfig = field(default_factory=SemanticsConfig)
     depth: DepthConfig = field(default_factory=DepthConfig)

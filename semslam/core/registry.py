@@ -18,6 +18,7 @@ PLUGINS: dict[str, dict[str, str]] = {
     "tracker": {
         "frame_to_keyframe": "semslam.slam.frame_to_keyframe:create_tracker",
         "orb_slam": "semslam.slam.orb_slam_system:create_tracker",
+        "sdf_slam": "semslam.slam.sdf_slam:create_tracker",
     },
     "extractor": {
         "orb_opencv": "semslam.features.orb_opencv:create_extractor",
@@ -40,6 +41,8 @@ PLUGINS: dict[str, dict[str, str]] = {
     "depth_source": {
         "sensor": "semslam.io.depth:SensorDepth",
         "sdfcnn": "semslam.semantics.sdfcnn_backend:create_depth",
+        "ground_truth_depth": "semslam.io.standin_depth:GroundTruthDepth",
+        "constant_depth": "semslam.io.standin_depth:ConstantDepth",
     },
     "map_builder": {
         "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",

@@ -221,6 +221,10 @@ class RunResult:
     tracker: dict[str, object] = field(default_factory=dict)
     ate: dict[str, float] | None = None
     ate_alignment: str | None = None
+    # Monocular runs: ``ate`` is Sim(3)-aligned (as monocular tables report); this is the same
+    # trajectory SE(3)-aligned only (metric scale counts), and the Sim(3) scale found.
+    ate_se3: dict[str, float] | None = None
+    ate_sim3_scale: float | None = None
     rpe_trans_1s: dict[str, float] | None = None
     rpe_rot_deg_1s: dict[str, float] | None = None
     eval_error: str | None = None

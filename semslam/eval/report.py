@@ -109,6 +109,10 @@ def _rpe_plot(rpe_result: RpeResult, t0: float) -> str:
     return _png(fig)
 
 
+#: How the summary names each ATE alignment when a run reports two.
+_ALIGN_NAMES = {"sim3": "Sim(3) aligned", "se3": "SE(3) aligned, metric scale", "none": "not aligned"}
+
+
 def _stats_table(rows: list[tuple[str, dict[str, float], str]]) -> str:
     head = "".join(f"<th>{n}</th>" for n in STAT_NAMES)
     body = []
@@ -149,13 +153,16 @@ def write_report(
     title: str = "",
     extra: Mapping[str, Any] | None = None,
     map_dir: str | Path | None = None,
+    ate_se3: AteResult | None = None,
 ) -> Path:
     """Write an HTML report comparing ``est`` with ``gt`` and return its path.
 
     Contents: a summary table (ATE and RPE statistics, alignment, ``extra`` key/values
     such as fps), top-down plots (x-y and x-z) of the ground truth and the whole estimate
     mapped by the ATE alignment, ATE over time and RPE over time; with ``map_dir``, views
-    of the map's point cloud when the run wrote one (``viz.map_views``).
+    of the map's point cloud when the run wrote one (``viz.map_views``). ``ate_se3``: for a
+    monocular run aligned with Sim(3), the same trajectory's ATE with SE(3) alignment only
+    (a depth network's metric scale is then part of the error), as a second row.
     """
     path = Path(path)
     title = title or "Trajectory evaluation"
@@ -164,7 +171,10 @@ def write_report(
         apply_sim3(est.poses, ate_result.rotation, ate_result.translation, ate_result.scale),
         est.name,
     )
-    rows = [("ATE", ate_result.stats, "m")]
+    rows = [(f"ATE ({_ALIGN_NAMES.get(ate_result.align, ate_result.align)})" if ate_se3 is not None else "ATE",
+             ate_result.stats, "m")]
+    if ate_se3 is not None:
+        rows.append((f"ATE ({_ALIGN_NAMES['se3']})", ate_se3.stats, "m"))
     if rpe_result is not None:
         what = f"RPE trans (delta {rpe_result.delta:g} {rpe_result.delta_unit})"
         rows.append((what, rpe_result.trans_stats, "m"))

@@ -20,7 +20,7 @@ from typing import Any
 from semslam.config import load_config
 from semslam.core.types import RunResult
 from semslam.errors import ConfigError
-from semslam.io.sequence import open_sequence
+from semslam.io.sequence import kind_for_sensor, open_sequence
 from semslam.pipeline import run_slam
 from semslam.synth import SEQUENCES, ensure_rendered
 
@@ -96,7 +96,7 @@ def run_benchmark(variants: list[Variant], sequences: list[str], data: Path, out
         if ensure_rendered(synth_cfg, data / name):
             print(f"rendered {name} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
         for v in variants:
-            result = run_slam(open_sequence(data / name), configs[v.label], out / v.label / name,
+            result = run_slam(open_sequence(data / name, kind=kind_for_sensor(configs[v.label].sensor)), configs[v.label], out / v.label / name,
                               progress=False, report=False)
             row = BenchRow(v.label, v.preset, list(v.overrides), name, synth_cfg.people, synth_cfg.motion, result)
             rows.append(row)

@@ -323,6 +323,12 @@ class ImageFolderSequence(Sequence):
         return Frame(index, float(self._timestamps[index]), read_rgb(path), None, path, None)
 
 
+def kind_for_sensor(sensor: str) -> str:
+    """The ``open_sequence`` kind a config's sensor reads: ``mono`` reads a TUM folder's
+    colour images only (its depth is not the monocular tracker's to use), else ``auto``."""
+    return "mono" if sensor == "mono" else "auto"
+
+
 def open_sequence(
     path: str | Path,
     camera: str | PinholeCamera | None = None,
@@ -330,7 +336,8 @@ def open_sequence(
     depth_scale: float = 5000.0,
     max_diff: float = 0.02,
 ) -> Sequence:
-    """Open a sequence folder; ``kind`` is ``auto``, ``rgbd`` (TUM layout) or ``mono``."""
+    """Open a sequence folder; ``kind`` is ``auto``, ``rgbd`` (TUM layout) or ``mono`` (an image
+    folder, or a TUM folder's ``rgb.txt`` images without their depth)."""
     root = Path(path)
     if not root.exists():
         raise DataError(root, "sequence not found")

@@ -64,7 +64,7 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerI
     """The registry's factory: refuses what this tracker cannot do, with the key to change."""
     if config.sensor != "rgbd":
         raise ConfigError(f"sensor: {config.sensor!r} is not supported by tracking.method=frame_to_keyframe "
-                          "(RGB-D only; monocular tracking is not built yet)")
+                          "(RGB-D only; monocular: tracking.method=sdf_slam, --preset sdf)")
     if inputs is not None and inputs.dynamics is not None:
         raise ConfigError("dynamics: the frame_to_keyframe tracker has no dynamic-scene handling; "
                           "use tracking.method=orb_slam (e.g. --preset default)")

@@ -84,9 +84,9 @@ def _image_size(camera: PinholeCamera) -> tuple[int, int] | None:
 def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerInputs | None = None,
                    map_path: Path | None = None) -> "OrbSlamSystem":
     """The registry's factory: refuses a sensor it cannot run, loads a saved map."""
-    if config.sensor != "rgbd":
-        raise ConfigError(f"sensor: {config.sensor!r} is not supported by tracking.method=orb_slam yet "
-                          "(RGB-D only; monocular tracking is not built yet)")
+    if config.sensor == "mono" and config.depth.source == "sensor":  # pseudo-RGB-D needs a depth network
+        raise ConfigError("sensor: mono has no sensor depth; tracking.method=orb_slam runs monocular frames on a "
+                          "depth network's depth (depth.source: sdfcnn, --preset sdf_rgbd), or use --preset sdf")
     slam_map = None
     if map_path is not None:
         from semslam.slam.map_io import load_map

@@ -1,0 +1,184 @@
+"""SDF-SLAM's data correction (IV-A): global and local.
+
+The paper gives one paragraph for it: global optimisation "randomly selects key frames and
+performs camera pose estimation on the two key frames to establish a constraint relationship
+and to further optimize the camera pose information"; local ("partial") optimisation unifies
+"the feature point world coordinates of the second frame and the first frame ... according to
+the feature point matching pairs". What is built here, and the choices the paper leaves open:
+
+* Global: keyframe pairs at least two apart (consecutive ones are already constrained by
+  tracking) are sampled at random among those whose current poses could overlap (camera
+  centres within a distance, optical axes within an angle), newest keyframes first; each
+  pair is matched and solved by the same PnP-RANSAC as tracking (``sdf_slam_pnp``), and a pair
+  with enough inliers becomes an edge of an SE(3) pose graph (``backend.pose_graph``, GTSAM)
+  next to the tracking edges, keyframe 0 fixed. Edges weigh their inlier count / 100. SE(3),
+  not Sim(3): a depth network gives metric scale, which is the point of the method.
+* Local: every keypoint with depth of a keyframe belongs to one feature track (it inherits
+  the track of the previous keyframe's keypoint it matches, else starts one); a track's world
+  position is the MEDIAN (per coordinate) of its observations' back-projections through their
+  keyframes' current poses: with two observations the mean, and one bad predicted depth among
+  three or more cannot pull it. Tracking takes these positions as the reference's 3D points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.pose_graph import optimize_pose_graph
+from semslam.core.protocols import Matcher
+from semslam.geometry.se3 import invert, rotation_angle
+from semslam.slam.sdf_slam_pnp import PnpSettings, solve_pnp
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class ViewFeatures:
+    """A frame's keypoints as tracking and correction use them: undistorted pixels,
+    descriptors and, where the depth source gave a usable depth, camera-frame 3D points."""
+
+    xy: Array
+    descriptors: NDArray[np.generic]
+    pts_c: Array
+    has_depth: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+
+# ------------------------------------------------------------------------------------ local
+def group_median(keys: NDArray[np.intp], values: Array) -> tuple[NDArray[np.intp], Array]:
+    """Per distinct key, the per-column median of its rows of ``values`` (N, D): the keys
+    sorted and their medians, vectorised (one lexsort per column)."""
+    keys = np.asarray(keys, np.intp)
+    values = np.asarray(values, np.float64).reshape(len(keys), -1)
+    uniq, count = np.unique(keys, return_counts=True)
+    start = np.concatenate(([0], np.cumsum(count)[:-1]))
+    lo, hi = start + (count - 1) // 2, start + count // 2
+    out = np.empty((len(uniq), values.shape[1]))
+    for c in range(values.shape[1]):
+        v = values[np.lexsort((values[:, c], keys)), c]
+        out[:, c] = 0.5 * (v[lo] + v[hi])
+    return uniq, out
+
+
+class TrackTable:
+    """Feature tracks over keyframes: observations (keyframe, camera-frame point) per track."""
+
+    def __init__(self) -> None:
+        self._kf: list[NDArray[np.intp]] = []
+        self._track: list[NDArray[np.intp]] = []
+        self._pc: list[Array] = []
+        self.n_tracks = 0
+        self._cache: tuple[NDArray[np.intp], NDArray[np.intp], Array] | None = None
+
+    def add(self, kf_index: int, pts_c: Array, tracks: NDArray[np.intp]) -> NDArray[np.intp]:
+        """Observations of keyframe ``kf_index``; a track id < 0 starts a new track. Returns
+        the track id of every row."""
+        tracks = np.asarray(tracks, np.intp).copy()
+        new = tracks < 0
+        tracks[new] = self.n_tracks + np.arange(int(new.sum()))
+        self.n_tracks += int(new.sum())
+        self._kf.append(np.full(len(tracks), kf_index, np.intp))
+        self._track.append(tracks)
+        self._pc.append(np.asarray(pts_c, np.float64).reshape(-1, 3))
+        self._cache = None
+        return tracks
+
+    def _all(self) -> tuple[NDArray[np.intp], NDArray[np.intp], Array]:
+        if self._cache is None:
+            if not self._kf:
+                self._cache = (np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 3)))
+            else:
+                self._cache = (np.concatenate(self._kf), np.concatenate(self._track), np.concatenate(self._pc))
+        return self._cache
+
+    def observations(self) -> tuple[NDArray[np.intp], NDArray[np.intp], Array]:
+        """(keyframe index, track id, camera-frame point) of every observation."""
+        return self._all()
+
+    def positions(self, poses_wc: Array, tracks: NDArray[np.intp] | None = None) -> tuple[NDArray[np.intp], Array]:
+        """(track ids, world positions): the median of each track's back-projections through
+        ``poses_wc[keyframe index]``; only ``tracks`` when given (all tracks otherwise)."""
+        kf, tr, pc = self._all()
+        if tracks is not None:
+            keep = np.isin(tr, tracks)
+            kf, tr, pc = kf[keep], tr[keep], pc[keep]
+        P = poses_wc[kf]
+        pw = np.einsum("nij,nj->ni", P[:, :3, :3], pc) + P[:, :3, 3]
+        return group_median(tr, pw)
+
+
+# ------------------------------------------------------------------------------------ global
+@dataclass
+class Edge:
+    """``T_i_j = inv(T_wi) @ T_wj`` between keyframe indices, with a scalar weight."""
+
+    i: int
+    j: int
+    T_ij: Array
+    weight: float
+    kind: str  # "tracking" or "pair"
+
+
+def candidate_pairs(poses_wc: Array, tried: set[tuple[int, int]], newest: int, n: int, rng: np.random.Generator,
+                    max_distance: float, max_angle_deg: float, min_gap: int = 2) -> list[tuple[int, int]]:
+    """Up to ``n`` untried keyframe pairs (i < j, j - i >= ``min_gap``) whose cameras could
+    see the same scene: pairs with one of the ``newest`` last keyframes first, each group in
+    random order."""
+    k = len(poses_wc)
+    if k < min_gap + 1 or n <= 0:
+        return []
+    i, j = np.triu_indices(k, min_gap)
+    centre = poses_wc[:, :3, 3]
+    axis = poses_wc[:, :3, 2]
+    near = np.linalg.norm(centre[i] - centre[j], axis=1) <= max_distance
+    cos = np.clip(np.einsum("ij,ij->i", axis[i], axis[j]), -1.0, 1.0)
+    near &= np.degrees(np.arccos(cos)) <= max_angle_deg
+    pairs = [(int(a), int(b)) for a, b in zip(i[near], j[near]) if (int(a), int(b)) not in tried]
+    recent = [p for p in pairs if p[1] >= k - newest]
+    older = [p for p in pairs if p[1] < k - newest]
+    rng.shuffle(recent)
+    rng.shuffle(older)
+    return (recent + older)[:n]
+
+
+def match_views(query: ViewFeatures, train: ViewFeatures, matcher: Matcher, max_distance: float,
+                ratio: float) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Brute-force matches of ``query`` keypoints to ``train`` keypoints that have depth."""
+    with_depth = np.flatnonzero(train.has_depth)
+    if len(with_depth) < 2 or len(query) == 0:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    qi, ti, _ = matcher.match_brute_force(query.descriptors, train.descriptors[with_depth], max_distance, ratio)
+    return qi, with_depth[ti]
+
+
+def pair_constraint(view_i: ViewFeatures, view_j: ViewFeatures, matcher: Matcher, max_distance: float, ratio: float,
+                    K: Array, settings: PnpSettings) -> tuple[Array, int] | None:
+    """``T_i_j`` (camera j in camera i) by PnP of keyframe i's depth-backed points against
+    keyframe j's keypoints, and the inlier count; None when it does not hold."""
+    qi, ti = match_views(view_j, view_i, matcher, max_distance, ratio)
+    T_j_i, inl = solve_pnp(view_i.pts_c[ti], view_j.xy[qi], K, settings)
+    if T_j_i is None:
+        return None
+    return invert(T_j_i), int(inl.sum())
+
+
+def relative_motion(T_a: Array, T_b: Array) -> tuple[float, float]:
+    """(translation in metres, rotation in degrees) between two ``T_wc`` poses."""
+    rel = invert(T_a) @ T_b
+    return float(np.linalg.norm(rel[:3, 3])), float(np.degrees(rotation_angle(rel[:3, :3])))
+
+
+def correct_poses(poses_wc: Array, edges: list[Edge]) -> Array:
+    """The keyframe poses after the pose graph of ``edges`` (keyframe 0 fixed); raises
+    ``backend.pose_graph.PoseGraphFailed`` when GTSAM cannot solve it."""
+    if not edges:
+        return poses_wc.copy()
+    e = np.array([(x.i, x.j) for x in edges], np.intp)
+    T = np.stack([x.T_ij for x in edges])
+    w = np.array([x.weight for x in edges])
+    return optimize_pose_graph(poses_wc, e, T, w, fixed=(0,))
