@@ -121,15 +121,21 @@ class StopOnSignals:
 
     @staticmethod
     def _handle(signum: int, frame: object) -> None:
-        import sys
-
+        # os.write, not sys.stderr: the handler runs between two bytecodes of the main thread,
+        # which may be inside a write to stderr (the progress bar); a buffered write there
+        # raises "reentrant call" out of the handler into whatever the main thread was doing.
         if stop_requested():
-            sys.stderr.write("\nsemslam: stopped at once (second interrupt); outputs not written\n")
-            sys.stderr.flush()
+            _say("\nsemslam: stopped at once (second interrupt); outputs not written\n")
             os._exit(130)
         request_stop()
-        sys.stderr.write("\nsemslam: stopping after this frame and writing what exists (interrupt again to abort)\n")
-        sys.stderr.flush()
+        _say("\nsemslam: stopping after this frame and writing what exists (interrupt again to abort)\n")
+
+
+def _say(text: str) -> None:
+    try:
+        os.write(2, text.encode())
+    except OSError:
+        pass
 
 
 def exit_with_parent(poll_s: float = PARENT_POLL_S) -> None:
