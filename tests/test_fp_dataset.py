@@ -6,17 +6,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
 from semslam.errors import DataError
 from semslam.eval.feature_eval import transfer_points
-from semslam.geometry.camera import PinholeCamera
-from semslam.geometry.se3 import make_pose, pose_to_tum, so3_exp
+from semslam.geometry.se3 import make_pose, so3_exp
 from semslam.nets.fp_dataset import FPSequence, harris_corners, motion_blur_kernel
-
-CAM = PinholeCamera(535.4, 539.2, 320.1, 247.6, width=640, height=480)
+from tests.fpf_plane import CAM, write_plane_sequence
 
 
 def test_translation_over_a_plane_shifts_pixels_by_f_t_over_z():
@@ -40,31 +37,8 @@ def test_pure_rotation_is_the_infinite_homography_whatever_the_depth():
     np.testing.assert_allclose(xy2, ph[:, :2] / ph[:, 2:], atol=1e-9)
 
 
-def _write_plane_sequence(root: Path, shifts: list[float], z: float = 2.0) -> None:
-    """A TUM folder: a checkerboard on the plane Z = z, the camera moving sideways."""
-    (root / "rgb").mkdir(parents=True)
-    (root / "depth").mkdir()
-    rgb_lines, depth_lines, gt_lines = [], [], []
-    for k, shift in enumerate(shifts):
-        t = 1000.0 + 0.1 * k
-        xs = np.arange(640)
-        # The board is fixed in the world: world X of pixel u is (u - cx) z / fx + shift.
-        wx = (xs - CAM.cx) * z / CAM.fx + shift
-        wy = (np.arange(480) - CAM.cy) * z / CAM.fy
-        board = ((np.floor(wx / 0.1)[None, :] + np.floor(wy / 0.1)[:, None]) % 2 * 200 + 30).astype(np.uint8)
-        cv2.imwrite(str(root / f"rgb/{t:.6f}.png"), np.dstack([board] * 3))
-        cv2.imwrite(str(root / f"depth/{t:.6f}.png"), np.full((480, 640), int(z * 5000), np.uint16))
-        rgb_lines.append(f"{t:.6f} rgb/{t:.6f}.png")
-        depth_lines.append(f"{t:.6f} depth/{t:.6f}.png")
-        gt_lines.append(f"{t:.6f} " + " ".join(f"{v:.9f}" for v in pose_to_tum(make_pose(np.eye(3), [shift, 0, 0]))))
-    (root / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
-    (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
-    (root / "groundtruth.txt").write_text("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(gt_lines) + "\n")
-    (root / "calib.txt").write_text(f"{CAM.fx} {CAM.fy} {CAM.cx} {CAM.cy}\n")
-
-
 def test_pairs_from_a_tum_folder_transfer_corners_exactly(tmp_path: Path):
-    _write_plane_sequence(tmp_path / "plane", [0.0, 0.08, 0.2])
+    write_plane_sequence(tmp_path / "plane", [0.0, 0.08, 0.2])
     seq = FPSequence(tmp_path / "plane")
     assert len(seq) == 3 and seq.pair_indices(gap=1) == [(0, 1), (1, 2)]
     pair = seq.pair(0, 1)
@@ -86,7 +60,7 @@ def test_motion_blur_kernel_is_a_normalised_line():
 
 
 def test_folder_without_ground_truth_is_refused(tmp_path: Path):
-    _write_plane_sequence(tmp_path / "p", [0.0, 0.1])
+    write_plane_sequence(tmp_path / "p", [0.0, 0.1])
     (tmp_path / "p" / "groundtruth.txt").unlink()
     with pytest.raises(DataError, match="groundtruth.txt"):
         FPSequence(tmp_path / "p")

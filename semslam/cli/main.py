@@ -28,6 +28,9 @@ def _register_commands() -> None:
 
     for module in (run_cmd, map_cmd, eval_cmd, eval_map_cmd, synth_cmd, train_cmd, train_nets_cmd, bench_cmd):
         module.register(app)
+    from semslam.cli import eval_features_cmd, train_fpfdcnn_cmd
+    train_fpfdcnn_cmd.register(app)
+    eval_features_cmd.register(app)
 
 
 def main(argv: list[str] | None = None) -> int:

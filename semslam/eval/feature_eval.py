@@ -133,3 +133,45 @@ def pose_errors(T_est: NDArray[np.float64], T_true: NDArray[np.float64]) -> Pair
         trans_err_m=t_err, rot_err_deg=angle,
         trans_err_pct=100.0 * t_err / moved if moved > 0 else float("nan"),
         rot_err_deg_per_m=angle / moved if moved > 0 else float("nan"))
+
+
+@dataclass
+class MethodScore:
+    """Table 6 and 7 numbers of one method in one scenario (clear or blurred), summed over pairs."""
+
+    method: str
+    scenario: str
+    pairs: int = 0
+    points: int = 0  # keypoints of the first images
+    matches: int = 0
+    judged: int = 0  # matches whose query pixel has depth
+    correct: int = 0
+    pose_failures: int = 0  # pairs where PnP-RANSAC found no pose
+    poses: list[PairPose] | None = None
+
+    def add(self, n_points: int, judged: NDArray[np.bool_], correct: NDArray[np.bool_],
+            pose: PairPose | None) -> None:
+        self.pairs += 1
+        self.points += int(n_points)
+        self.matches += len(judged)
+        self.judged += int(judged.sum())
+        self.correct += int(correct.sum())
+        if pose is None:
+            self.pose_failures += 1
+        else:
+            self.poses = [*(self.poses or []), pose]
+
+    def to_dict(self) -> dict[str, object]:
+        """Table 6's rate (correct / judged matches) and Table 7's means over the pairs with a pose."""
+        out: dict[str, object] = {
+            "method": self.method, "scenario": self.scenario, "pairs": self.pairs,
+            "points_per_image": self.points / max(self.pairs, 1), "matches": self.matches,
+            "judged": self.judged, "correct": self.correct,
+            "correct_rate": self.correct / self.judged if self.judged else None,
+            "pose_failures": self.pose_failures,
+        }
+        poses = self.poses or []
+        for key in ("err_t", "err_r", "trans_err_m", "rot_err_deg", "trans_err_pct", "rot_err_deg_per_m"):
+            vals = [getattr(p, key) for p in poses if np.isfinite(getattr(p, key))]
+            out[key] = float(np.mean(vals)) if vals else None
+        return out
