@@ -11,8 +11,9 @@
   has depth), then ΔT = T PT^-1 (eq. 11) and ΔR = R PR^-1 (eq. 13) against the true
   relative pose; errT = ||ΔT - E|| (eq. 12) and errR = ||ΔR - E|| (eq. 14), Frobenius
   norms. The paper's Table 7 gives them in % and deg/m (after [37], KITTI's odometry
-  metric); those units are reported too: translation error in % of the true translation
-  and rotation error in degrees per metre of true translation.
+  metric); those units are reported too, per metre travelled over all pairs: the sum of
+  translation errors in % of the sum of true translations, and the sum of rotation errors
+  in degrees per metre of it.
 """
 
 from __future__ import annotations
@@ -118,6 +119,7 @@ class PairPose:
     rot_err_deg: float  # angle of ΔR
     trans_err_pct: float  # 100 |Δt| / |t_true|
     rot_err_deg_per_m: float  # angle(ΔR) / |t_true|
+    moved_m: float = 0.0  # |t_true|
 
 
 def pose_errors(T_est: NDArray[np.float64], T_true: NDArray[np.float64]) -> PairPose:
@@ -132,7 +134,7 @@ def pose_errors(T_est: NDArray[np.float64], T_true: NDArray[np.float64]) -> Pair
         err_t=float(np.linalg.norm(dT - e)), err_r=float(np.linalg.norm(dR - e[:3, :3])),
         trans_err_m=t_err, rot_err_deg=angle,
         trans_err_pct=100.0 * t_err / moved if moved > 0 else float("nan"),
-        rot_err_deg_per_m=angle / moved if moved > 0 else float("nan"))
+        rot_err_deg_per_m=angle / moved if moved > 0 else float("nan"), moved_m=moved)
 
 
 @dataclass
@@ -171,7 +173,11 @@ class MethodScore:
             "pose_failures": self.pose_failures,
         }
         poses = self.poses or []
-        for key in ("err_t", "err_r", "trans_err_m", "rot_err_deg", "trans_err_pct", "rot_err_deg_per_m"):
-            vals = [getattr(p, key) for p in poses if np.isfinite(getattr(p, key))]
-            out[key] = float(np.mean(vals)) if vals else None
+        for key in ("err_t", "err_r", "trans_err_m", "rot_err_deg"):
+            out[key] = float(np.mean([getattr(p, key) for p in poses])) if poses else None
+        # Per metre travelled over all pairs (KITTI's rule, [37]): a mean of per-pair ratios
+        # would be ruled by the pairs where the camera hardly moved.
+        moved = sum(p.moved_m for p in poses)
+        out["trans_err_pct"] = 100 * sum(p.trans_err_m for p in poses) / moved if moved > 0 else None
+        out["rot_err_deg_per_m"] = sum(p.rot_err_deg for p in poses) / moved if moved > 0 else None
         return out

@@ -4,9 +4,10 @@ Losses (the paper names the tasks, not the losses; these are SuperPoint's choice
 to Table 12's per-pixel sigmoid):
 
 * detector: binary cross-entropy of the per-pixel logits against the Harris corners of the
-  *clear* frame (1 at a corner pixel, 0 elsewhere), positives weighted by ``pos_weight``
-  (corners are ~0.2 % of the pixels). The network often sees the frame blurred, so it
-  learns to find the clear frame's corners in a blurred image.
+  *clear* frame, each a Gaussian bump (sigma ``heat_sigma`` = 1 px, peak 1: with one-pixel
+  targets a first run of 260 steps learnt a nearly flat map), positive term weighted by
+  ``pos_weight`` (corners are ~0.5 % of the pixels). The network often sees the frame
+  blurred, so it learns to find the clear frame's corners in a blurred image.
 * descriptor: SuperPoint's hinge loss on the sampled correspondences of a pair (frame i's
   corners and their eq. 5-7 transfers into frame j): for M correspondences the M x M
   cosine similarities s; positives max(0, 1 - s_kk), negatives max(0, s_kl - 0.2) for
@@ -29,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -57,7 +59,9 @@ class FPTrainConfig:
     pos_weight: float = 20.0
     desc_weight: float = 1.0
     n_corr: int = 128  # correspondences per pair in the descriptor loss
-    max_corners: int = 300
+    max_corners: int = 1000  # Harris corners per frame (labels and correspondences)
+    min_distance: int = 4  # px between them
+    heat_sigma: float = 1.0
     seed: int = 0
     threads: int = 1
     command: str = ""
@@ -75,7 +79,9 @@ class FPTrainData:
     """Grey frames, their Harris corners and the correspondences of every (i, i + gap)
     pair of some TUM-layout folders, in memory."""
 
-    def __init__(self, folders: list[Path], gaps: tuple[int, ...], max_corners: int = 300) -> None:
+    def __init__(self, folders: list[Path], gaps: tuple[int, ...], max_corners: int = 1000,
+                 min_distance: int = 4, heat_sigma: float = 1.0) -> None:
+        self.heat_sigma = heat_sigma
         self.gray: list[np.ndarray] = []
         self.corners: list[np.ndarray] = []
         self.pairs: list[_Pair] = []
@@ -85,7 +91,7 @@ class FPTrainData:
             frames = [seq.load(k) for k in range(len(seq))]
             for g, _ in frames:
                 self.gray.append(g)
-                self.corners.append(harris_corners(g, max_corners))
+                self.corners.append(harris_corners(g, max_corners, min_distance=min_distance))
             for gap in gaps:
                 for i, j in seq.pair_indices(gap):
                     xy1 = self.corners[base + i]
@@ -117,6 +123,9 @@ class FPTrainData:
                 c = np.rint(self.corners[k]).astype(int) - [x0, y0]
                 c = c[(c[:, 0] >= 0) & (c[:, 0] < cw) & (c[:, 1] >= 0) & (c[:, 1] < ch)]
                 heat[c[:, 1], c[:, 0]] = 1.0
+                if self.heat_sigma > 0:  # Gaussian bumps of peak 1
+                    heat = np.minimum(cv2.GaussianBlur(heat, (0, 0), self.heat_sigma)
+                                      * (2 * np.pi * self.heat_sigma ** 2), 1.0)
                 heats.append(heat)
             a, bb = p.xy1 - [x0, y0], p.xy2 - [x0, y0]
             inside = ((a >= 0) & (a <= [cw - 1, ch - 1])).all(1) & ((bb >= 0) & (bb <= [cw - 1, ch - 1])).all(1)
@@ -162,7 +171,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     t0 = time.perf_counter()
-    data = FPTrainData(cfg.data, cfg.gaps, cfg.max_corners)
+    data = FPTrainData(cfg.data, cfg.gaps, cfg.max_corners, cfg.min_distance, cfg.heat_sigma)
     say(f"{len(data.gray)} frames, {len(data.pairs)} pairs in {time.perf_counter() - t0:.0f} s")
     model = FPFDCNN(cfg.width)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -195,6 +204,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
         "command": cfg.command, "data": [str(p) for p in cfg.data], "val_data": [str(p) for p in cfg.val],
         "steps": step, "batch_pairs": cfg.batch, "crop": list(cfg.crop), "gaps": list(cfg.gaps),
         "blur_p": cfg.blur_p, "lr": cfg.lr, "pos_weight": cfg.pos_weight, "desc_weight": cfg.desc_weight,
+        "max_corners": cfg.max_corners, "min_distance": cfg.min_distance, "heat_sigma": cfg.heat_sigma,
         "seed": cfg.seed, "train_seconds": round(time.perf_counter() - t_start, 1), "history": history,
         "losses": "detector: weighted BCE on Harris corners; descriptor: SuperPoint hinge (1 / 0.2)",
         "full_width_parameters": count_parameters(FPFDCNN(1.0)),
@@ -210,7 +220,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
 def validate(model: FPFDCNN, cfg: FPTrainConfig, match: MatchFn | None, n_batches: int = 10) -> dict[str, Any]:
     """Losses on held-out pairs (fixed seed) and Table 6's correct-match share of FPFDCNN
     (500 points) + range matcher on the held-out folders' clear and blurred pairs (gap 3)."""
-    data = FPTrainData(cfg.val, (3,), cfg.max_corners)
+    data = FPTrainData(cfg.val, (3,), cfg.max_corners, cfg.min_distance, cfg.heat_sigma)
     vrng = np.random.default_rng(12345)
     det = desc = 0.0
     for _ in range(n_batches):
