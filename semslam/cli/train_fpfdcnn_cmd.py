@@ -39,6 +39,9 @@ def fpfdcnn_command(
     gaps: str = typer.Option("1,2,3,4", "--gaps", help="Frame gaps of the pairs."),
     blur_p: float = typer.Option(0.5, "--blur-p", min=0.0, max=1.0, help="Chance each image is motion-blurred."),
     lr: float = typer.Option(1e-3, "--lr"),
+    target: str = typer.Option("corners", "--target", help="Detector labels: corners (Gaussian bumps on Harris "
+                                                           "corners) or harris (dense Harris response)."),
+    pos_weight: float = typer.Option(20.0, "--pos-weight", min=0.0, help="Weight of the BCE's positive term."),
     seed: int = typer.Option(0, "--seed", min=0),
     threads: int = typer.Option(1, "--threads", min=0, help="Torch threads (0 = torch's default)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress messages."),
@@ -55,10 +58,12 @@ def fpfdcnn_command(
         raise ConfigError(f"--crop: expected WxH such as 320x240, got {crop!r}") from None
     cfg = FPTrainConfig(out=out, data=list(data), val=list(val), width=width, steps=steps, minutes=minutes,
                         batch=batch, crop=(w, h), gaps=_ints(gaps, "--gaps"), blur_p=blur_p, lr=lr, seed=seed,
+                        target=target, pos_weight=pos_weight,
                         threads=threads)
     args = [x for d in data for x in ("--data", str(d))] + [x for v in val for x in ("--val", str(v))]
     args += ["--out", str(out), "--width", str(width), "--steps", str(steps), "--minutes", str(minutes),
              "--batch", str(batch), "--crop", crop, "--gaps", gaps, "--blur-p", str(blur_p), "--lr", str(lr),
+             "--target", target, "--pos-weight", str(pos_weight),
              "--seed", str(seed), "--threads", str(threads)]
     cfg.command = shlex.join(["semslam", "train", "fpfdcnn", *args])
     say = (lambda msg: None) if quiet else (lambda msg: typer.echo(msg, err=True))

@@ -8,6 +8,9 @@ to Table 12's per-pixel sigmoid):
   targets a first run of 260 steps learnt a nearly flat map), positive term weighted by
   ``pos_weight`` (corners are ~0.5 % of the pixels). The network often sees the frame
   blurred, so it learns to find the clear frame's corners in a blurred image.
+  With ``target="harris"`` the label is instead the clear frame's dense Harris response,
+  divided by its 99.5th percentile and clipped to [0, 1] (every pixel gets a graded
+  target: a local function the network can learn in few steps, whose maxima are Harris's).
 * descriptor: SuperPoint's hinge loss on the sampled correspondences of a pair (frame i's
   corners and their eq. 5-7 transfers into frame j): for M correspondences the M x M
   cosine similarities s; positives max(0, 1 - s_kk), negatives max(0, s_kl - 0.2) for
@@ -62,6 +65,7 @@ class FPTrainConfig:
     max_corners: int = 1000  # Harris corners per frame (labels and correspondences)
     min_distance: int = 4  # px between them
     heat_sigma: float = 1.0
+    target: str = "corners"  # "corners" (Gaussian bumps) or "harris" (the dense Harris response)
     seed: int = 0
     threads: int = 1
     command: str = ""
@@ -80,8 +84,12 @@ class FPTrainData:
     pair of some TUM-layout folders, in memory."""
 
     def __init__(self, folders: list[Path], gaps: tuple[int, ...], max_corners: int = 1000,
-                 min_distance: int = 4, heat_sigma: float = 1.0) -> None:
+                 min_distance: int = 4, heat_sigma: float = 1.0, target: str = "corners") -> None:
+        if target not in ("corners", "harris"):
+            raise ConfigError(f"train fpfdcnn: --target must be corners or harris, got {target!r}")
         self.heat_sigma = heat_sigma
+        self.target = target
+        self.harris_scale: list[float] = []
         self.gray: list[np.ndarray] = []
         self.corners: list[np.ndarray] = []
         self.pairs: list[_Pair] = []
@@ -92,6 +100,7 @@ class FPTrainData:
             for g, _ in frames:
                 self.gray.append(g)
                 self.corners.append(harris_corners(g, max_corners, min_distance=min_distance))
+                self.harris_scale.append(float(np.quantile(_harris(g), 0.995)) or 1.0)
             for gap in gaps:
                 for i, j in seq.pair_indices(gap):
                     xy1 = self.corners[base + i]
@@ -119,6 +128,9 @@ class FPTrainData:
                 g = blur(g, rng) if rng.random() < blur_p else g
                 g = g[y0:y0 + ch, x0:x0 + cw].astype(np.float32) * rng.uniform(0.7, 1.3) + rng.uniform(-25, 25)
                 imgs.append(np.clip(g, 0, 255) / 255.0)
+                if self.target == "harris":
+                    heats.append(np.clip(_harris(self.gray[k])[y0:y0 + ch, x0:x0 + cw] / self.harris_scale[k], 0, 1))
+                    continue
                 heat = np.zeros((ch, cw), np.float32)
                 c = np.rint(self.corners[k]).astype(int) - [x0, y0]
                 c = c[(c[:, 0] >= 0) & (c[:, 0] < cw) & (c[:, 1] >= 0) & (c[:, 1] < ch)]
@@ -135,6 +147,11 @@ class FPTrainData:
         return {"img": torch.from_numpy(np.stack(imgs)[:, None].astype(np.float32)),
                 "heat": torch.from_numpy(np.stack(heats)[:, None]),
                 "xa": torch.from_numpy(xa), "xb": torch.from_numpy(xb), "mask": torch.from_numpy(mask)}
+
+
+def _harris(gray: np.ndarray) -> np.ndarray:
+    """OpenCV's Harris response (block 3, Sobel 3, k 0.04) of a clear frame."""
+    return cv2.cornerHarris(gray.astype(np.float32) / 255.0, 3, 3, 0.04)
 
 
 def losses(model: FPFDCNN, batch: dict[str, torch.Tensor], pos_weight: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -171,7 +188,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     t0 = time.perf_counter()
-    data = FPTrainData(cfg.data, cfg.gaps, cfg.max_corners, cfg.min_distance, cfg.heat_sigma)
+    data = FPTrainData(cfg.data, cfg.gaps, cfg.max_corners, cfg.min_distance, cfg.heat_sigma, cfg.target)
     say(f"{len(data.gray)} frames, {len(data.pairs)} pairs in {time.perf_counter() - t0:.0f} s")
     model = FPFDCNN(cfg.width)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -205,6 +222,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
         "steps": step, "batch_pairs": cfg.batch, "crop": list(cfg.crop), "gaps": list(cfg.gaps),
         "blur_p": cfg.blur_p, "lr": cfg.lr, "pos_weight": cfg.pos_weight, "desc_weight": cfg.desc_weight,
         "max_corners": cfg.max_corners, "min_distance": cfg.min_distance, "heat_sigma": cfg.heat_sigma,
+        "target": cfg.target,
         "seed": cfg.seed, "train_seconds": round(time.perf_counter() - t_start, 1), "history": history,
         "losses": "detector: weighted BCE on Harris corners; descriptor: SuperPoint hinge (1 / 0.2)",
         "full_width_parameters": count_parameters(FPFDCNN(1.0)),
@@ -220,7 +238,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
 def validate(model: FPFDCNN, cfg: FPTrainConfig, match: MatchFn | None, n_batches: int = 10) -> dict[str, Any]:
     """Losses on held-out pairs (fixed seed) and Table 6's correct-match share of FPFDCNN
     (500 points) + range matcher on the held-out folders' clear and blurred pairs (gap 3)."""
-    data = FPTrainData(cfg.val, (3,), cfg.max_corners, cfg.min_distance, cfg.heat_sigma)
+    data = FPTrainData(cfg.val, (3,), cfg.max_corners, cfg.min_distance, cfg.heat_sigma, cfg.target)
     vrng = np.random.default_rng(12345)
     det = desc = 0.0
     for _ in range(n_batches):
