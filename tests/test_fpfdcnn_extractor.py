@@ -58,19 +58,21 @@ def test_extract_gives_float_keypoints_inside_the_mask(tiny_weights: Path):
     assert ex.meta["command"] == "test"
 
 
-def test_tiny_training_run_lowers_both_losses(tmp_path: Path):
+@pytest.mark.parametrize("target", ["harris", "corners"])
+def test_tiny_training_run_lowers_both_losses(tmp_path: Path, target: str):
     write_plane_sequence(tmp_path / "plane", [0.0, 0.03, 0.06, 0.09, 0.12])
     out = tmp_path / "fpf.pt"
     args = ["train", "fpfdcnn", "--data", str(tmp_path / "plane"), "--out", str(out), "--width", "0.125",
             "--steps", "60", "--batch", "2", "--crop", "128x96", "--gaps", "1,2", "--blur-p", "0",
-            "--lr", "3e-3", "--seed", "0", "-q"]
+            "--lr", "3e-3", "--target", target, "--pos-weight", "5", "--seed", "0", "-q"]
     assert main(args) == 0
     trained, meta = load_fpfdcnn(out)
     assert meta["steps"] == 60 and meta["command"].startswith("semslam train fpfdcnn --data")
     torch.manual_seed(0)
     initial = FPFDCNN(0.125)  # the training run's initial weights (same seed)
-    batch = FPTrainData([tmp_path / "plane"], (1, 2)).batch(np.random.default_rng(7), 4, (128, 96), 0.0, 64)
+    data = FPTrainData([tmp_path / "plane"], (1, 2), target=target)
+    batch = data.batch(np.random.default_rng(7), 4, (128, 96), 0.0, 64)
     with torch.no_grad():
-        det0, desc0 = losses(initial, batch, 20.0)
-        det1, desc1 = losses(trained, batch, 20.0)
+        det0, desc0 = losses(initial, batch, 5.0)
+        det1, desc1 = losses(trained, batch, 5.0)
     assert float(det1) < 0.8 * float(det0) and float(desc1) < 0.8 * float(desc0)
