@@ -13,7 +13,7 @@ Descriptors are unit length (distances in [0, 2]). ``TH_LOW`` / ``TH_HIGH`` (ORB
 TH_LOW / TH_HIGH) are the distances accepting as many keypoint pairs of unrelated images
 as ORB's 50 / 100 bits do (0.049 % / 14 % of 45 M pairs, the rule ``features/sift.py``
 uses), measured for the shipped weights by ``python benchmarks/sift_thresholds.py --other
-fpfdcnn``: 0.29 / 0.98. At those, 92.8 % / 99.9 % of the true matches of freiburg2_desk
+fpfdcnn``: 0.55 / 1.20. At those, 97.8 % / 99.98 % of the true matches of freiburg2_desk
 pairs 3 and 10 frames apart are kept (ORB: 51 % / 84 %).
 
 Weights (``semslam/data/fpfdcnn.pt`` unless given) are loaded at the first ``extract``,
@@ -42,8 +42,8 @@ DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "fpfdcnn.pt"
 DIM = 256
 THRESHOLD = 0.015  # keypoint probability floor
 NMS_RADIUS = 4
-TH_LOW = 0.29  # see the module doc
-TH_HIGH = 0.98
+TH_LOW = 0.55  # see the module doc
+TH_HIGH = 1.20
 
 
 class FpfdcnnExtractor:
