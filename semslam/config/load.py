@@ -117,6 +117,7 @@ def _check(cfg: SystemConfig) -> None:
     """Values no component can use, refused once at load time with the key that holds them."""
     if cfg.sensor not in SENSORS:
         raise ConfigError(f"sensor: unknown sensor {cfg.sensor!r} (known: {', '.join(SENSORS)})")
+    cfg.features.check()
     cfg.semantics.check()
     cfg.slam.check()
 

@@ -13,6 +13,8 @@ from semslam.errors import ConfigError
 
 #: Sensors the schema knows; a tracker refuses the ones it cannot run yet.
 SENSORS = ("rgbd", "mono")
+#: Values of features.matcher.
+FEATURE_MATCHERS = ("default", "range")
 
 
 @dataclass
@@ -25,6 +27,14 @@ class FeatureConfig:
     n_levels: int = 8
     fast_threshold: int = 20
     fast_min_threshold: int = 7
+    # Frame-to-frame matcher: "default" (the descriptor kind's matcher) or "range"
+    # (SDF-SLAM's eq. 8 window matcher, float descriptors; features.range_matcher).
+    matcher: str = "default"
+
+    def check(self) -> None:
+        """Raise ConfigError on a matcher name no tracker knows."""
+        if self.matcher not in FEATURE_MATCHERS:
+            raise ConfigError(f"features.matcher: unknown matcher {self.matcher!r} (known: {', '.join(FEATURE_MATCHERS)})")
 
 
 @dataclass

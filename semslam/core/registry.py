@@ -25,10 +25,12 @@ PLUGINS: dict[str, dict[str, str]] = {
         "orb_slam2": "semslam.features.orb_slam2:create_extractor",
         "qtree_orb": "semslam.features.qtree_orb:create_extractor",
         "sift": "semslam.features.sift:create_extractor",
+        "fpfdcnn": "semslam.features.fpfdcnn:create_extractor",
     },
     "matcher": {
         "binary": "semslam.features.matching:HammingMatcher",
         "float": "semslam.features.matching:L2Matcher",
+        "range": "semslam.features.range_matcher:RangeMatcher",
     },
     "segmenter": {
         "mediapipe_person": "semslam.semantics.mediapipe_person:create_general",

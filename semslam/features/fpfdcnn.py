@@ -1,0 +1,97 @@
+"""SDF-SLAM's FPFDCNN (``nets/fpfdcnn.py``) as an extractor: float32 256-d descriptors
+compared by L2, one pyramid level.
+
+Keypoints: the network's per-pixel probability map, local maxima in a 9x9 window
+(``NMS_RADIUS`` = 4) above ``THRESHOLD``, outside the mask (0 = forbidden, the dynamic
+mask tracking passes), the ``n_features`` most probable first. The network sees the
+whole image once (no pyramid: it was trained at one scale), so the spec has one level;
+``scale_factor`` 1.2 only gives the core's level tables their usual meaning (unused with
+one level). Angles are 0: the descriptors are not rotation-normalised, so ORB-SLAM's
+rotation-consistency histogram sees one bin.
+
+Descriptors are unit length (distances in [0, 2]). ``TH_LOW`` / ``TH_HIGH`` (ORB-SLAM's
+TH_LOW / TH_HIGH) are the distances accepting as many keypoint pairs of unrelated images
+as ORB's 50 / 100 bits do (0.049 % / 14 % of 45 M pairs, the rule ``features/sift.py``
+uses), measured for the shipped weights by ``python benchmarks/sift_thresholds.py --other
+fpfdcnn``: 0.55 / 1.20. At those, 97.8 % / 99.98 % of the true matches of freiburg2_desk
+pairs 3 and 10 frames apart are kept (ORB: 51 % / 84 %).
+
+Weights (``semslam/data/fpfdcnn.pt`` unless given) are loaded at the first ``extract``,
+so building an extractor (e.g. to read its spec) needs neither torch's time nor the file;
+a missing file is one ``DataError`` line naming it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.config import FeatureConfig
+from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
+from semslam.features.inputs import check_extractor_inputs
+
+if TYPE_CHECKING:
+    from semslam.nets.fpfdcnn import FPFDCNN
+
+__all__ = ["DEFAULT_WEIGHTS", "FpfdcnnExtractor", "create_extractor"]
+
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "fpfdcnn.pt"
+DIM = 256
+THRESHOLD = 0.015  # keypoint probability floor
+NMS_RADIUS = 4
+TH_LOW = 0.55  # see the module doc
+TH_HIGH = 1.20
+
+
+class FpfdcnnExtractor:
+    """The ``n_features`` most probable FPFDCNN points with their descriptors."""
+
+    def __init__(self, n_features: int = 1000, weights: str | Path | None = None,
+                 threshold: float = THRESHOLD, nms_radius: int = NMS_RADIUS) -> None:
+        if n_features < 0:
+            raise ValueError("need n_features >= 0")
+        self.n_features = int(n_features)
+        self.weights = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+        self.threshold = float(threshold)
+        self.nms_radius = int(nms_radius)
+        self.spec = FeatureSpec(DescriptorKind.FLOAT, DIM, 1.2, 1, th_low=TH_LOW, th_high=TH_HIGH)
+        self._model: FPFDCNN | None = None
+        self.meta: dict[str, Any] = {}
+
+    @property
+    def model(self) -> "FPFDCNN":
+        if self._model is None:
+            from semslam.nets.fpfdcnn import load_fpfdcnn
+
+            self._model, self.meta = load_fpfdcnn(self.weights)
+        return self._model
+
+    def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
+        import torch
+
+        from semslam.nets.fpfdcnn import CELL, sample_descriptors, select_points, to_tensor
+
+        gray, mask = check_extractor_inputs(gray, mask)
+        model = self.model
+        if gray.size == 0 or self.n_features == 0:
+            return Keypoints.empty(DIM, np.float32)
+        h, w = gray.shape
+        ph, pw = -h % CELL, -w % CELL  # the network needs sides that are multiples of 16
+        padded = np.pad(gray, ((0, ph), (0, pw)), mode="edge") if ph or pw else gray
+        with torch.inference_mode():
+            prob, coarse = model(to_tensor(padded))
+            xy, p = select_points(prob[0, 0, :h, :w].numpy(), self.n_features, self.threshold,
+                                  self.nms_radius, mask)
+            desc = sample_descriptors(coarse, torch.from_numpy(xy)[None])[0].numpy()
+        n = len(xy)
+        return Keypoints(xy=xy, octave=np.zeros(n, np.int32), response=p, angle=np.zeros(n, np.float32),
+                         descriptors=np.ascontiguousarray(desc, np.float32))
+
+
+def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None) -> FpfdcnnExtractor:
+    """The registry's factory (``features.extractor: fpfdcnn``): ``cfg.n_features`` points
+    with the shipped weights; ORB's pyramid and FAST settings do not apply."""
+    return FpfdcnnExtractor(cfg.n_features)

@@ -1,0 +1,78 @@
+"""The ``fpfdcnn`` extractor backend: float 256-d descriptors behind the Extractor
+protocol, one pyramid level, the mask honoured, weights loaded lazily with a one-line
+error when missing; and a tiny training run (``semslam train fpfdcnn``) lowers both losses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from semslam.cli.main import main
+from semslam.config import FeatureConfig
+from semslam.core import protocols
+from semslam.core.types import DescriptorKind
+from semslam.errors import DataError
+from semslam.features import create_extractor
+from semslam.features.fpfdcnn import DEFAULT_WEIGHTS, FpfdcnnExtractor
+from semslam.features.matching import L2Matcher, matcher_for
+from semslam.nets.fpfdcnn import FPFDCNN, load_fpfdcnn, save_fpfdcnn
+from semslam.nets.train_fpfdcnn import FPTrainData, losses
+from tests.fpf_plane import write_plane_sequence
+
+
+@pytest.fixture(scope="module")
+def tiny_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    torch.manual_seed(0)
+    return save_fpfdcnn(tmp_path_factory.mktemp("fpf") / "tiny.pt", FPFDCNN(0.25), {"command": "test"})
+
+
+def test_backend_is_registered_with_a_float_one_level_spec():
+    ex = create_extractor(FeatureConfig(extractor="fpfdcnn", n_features=300))
+    assert isinstance(ex, protocols.Extractor) and isinstance(ex, FpfdcnnExtractor)
+    assert ex.spec.kind is DescriptorKind.FLOAT and ex.spec.dim == 256 and ex.spec.n_levels == 1
+    assert ex.spec.dtype is np.float32 and ex.spec.distance == "l2" and 0 < ex.spec.th_low < ex.spec.th_high <= 2
+    assert type(matcher_for(ex.spec)) is L2Matcher
+    assert ex.weights == DEFAULT_WEIGHTS and ex._model is None  # nothing loaded yet
+
+
+def test_missing_weights_are_one_clear_error(tmp_path: Path):
+    ex = FpfdcnnExtractor(weights=tmp_path / "none.pt")
+    with pytest.raises(DataError, match=r"none\.pt: FPFDCNN weights not found"):
+        ex.extract(np.zeros((48, 64), np.uint8))
+
+
+def test_extract_gives_float_keypoints_inside_the_mask(tiny_weights: Path):
+    ex = FpfdcnnExtractor(n_features=80, weights=tiny_weights, threshold=0.0)
+    gray = (np.random.default_rng(1).random((100, 130)) * 255).astype(np.uint8)  # not multiples of 16
+    kp = ex.extract(gray)
+    assert len(kp) == 80 and kp.descriptors.dtype == np.float32 and kp.descriptors.shape == (80, 256)
+    assert (kp.xy >= 0).all() and (kp.xy[:, 0] < 130).all() and (kp.xy[:, 1] < 100).all()
+    assert (np.diff(kp.response) <= 0).all() and (kp.octave == 0).all()
+    np.testing.assert_allclose(np.linalg.norm(kp.descriptors, axis=1), 1.0, rtol=1e-5)
+    mask = np.zeros_like(gray)
+    mask[50:, :] = 1
+    assert (ex.extract(gray, mask).xy[:, 1] >= 50).all()
+    assert ex.meta["command"] == "test"
+
+
+@pytest.mark.parametrize("target", ["harris", "corners"])
+def test_tiny_training_run_lowers_both_losses(tmp_path: Path, target: str):
+    write_plane_sequence(tmp_path / "plane", [0.0, 0.03, 0.06, 0.09, 0.12])
+    out = tmp_path / "fpf.pt"
+    args = ["train", "fpfdcnn", "--data", str(tmp_path / "plane"), "--out", str(out), "--width", "0.125",
+            "--steps", "60", "--batch", "2", "--crop", "128x96", "--gaps", "1,2", "--blur-p", "0",
+            "--lr", "3e-3", "--target", target, "--pos-weight", "5", "--seed", "0", "-q"]
+    assert main(args) == 0
+    trained, meta = load_fpfdcnn(out)
+    assert meta["steps"] == 60 and meta["command"].startswith("semslam train fpfdcnn --data")
+    torch.manual_seed(0)
+    initial = FPFDCNN(0.125)  # the training run's initial weights (same seed)
+    data = FPTrainData([tmp_path / "plane"], (1, 2), target=target)
+    batch = data.batch(np.random.default_rng(7), 4, (128, 96), 0.0, 64)
+    with torch.no_grad():
+        det0, desc0 = losses(initial, batch, 5.0)
+        det1, desc1 = losses(trained, batch, 5.0)
+    assert float(det1) < 0.8 * float(det0) and float(desc1) < 0.8 * float(desc0)
