@@ -76,3 +76,20 @@ def test_tiny_training_run_lowers_both_losses(tmp_path: Path, target: str):
         det0, desc0 = losses(initial, batch, 5.0)
         det1, desc1 = losses(trained, batch, 5.0)
     assert float(det1) < 0.8 * float(det0) and float(desc1) < 0.8 * float(desc0)
+
+
+def test_no_keypoints_on_an_image_without_structure() -> None:
+    """A covered lens or a blank wall: the detector's probabilities alone would still give
+    points; the structure gate gives none, and a textured image keeps most of its area."""
+    import numpy as np
+
+    from semslam.config import FeatureConfig
+    from semslam.features.fpfdcnn import create_extractor, structure_mask
+
+    ex = create_extractor(FeatureConfig(extractor="fpfdcnn", n_features=500))
+    for value in (0, 128, 255):
+        assert len(ex.extract(np.full((96, 128), value, np.uint8))) == 0
+    rng = np.random.default_rng(0)
+    textured = rng.integers(0, 255, (96, 128), dtype=np.uint8)
+    assert (structure_mask(textured) > 0).mean() > 0.9
+    assert len(ex.extract(textured)) > 50

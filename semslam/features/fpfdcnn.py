@@ -42,6 +42,10 @@ DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "fpfdcnn.pt"
 DIM = 256
 THRESHOLD = 0.015  # keypoint probability floor
 NMS_RADIUS = 4
+#: A keypoint needs image structure: the strongest intensity gradient (Sobel, grey levels per
+#: pixel) within 2 px must reach this. The shipped detector's probabilities do not separate
+#: texture from none (a black frame gave 1000 points above THRESHOLD), as FAST's threshold does.
+MIN_GRADIENT = 8.0
 TH_LOW = 0.55  # see the module doc
 TH_HIGH = 1.20
 
@@ -79,6 +83,10 @@ class FpfdcnnExtractor:
         if gray.size == 0 or self.n_features == 0:
             return Keypoints.empty(DIM, np.float32)
         h, w = gray.shape
+        textured = structure_mask(gray)
+        mask = textured if mask is None else np.where(textured > 0, mask, 0).astype(np.uint8)
+        if not textured.any():  # a covered lens, a blank wall: nothing to detect
+            return Keypoints.empty(DIM, np.float32)
         ph, pw = -h % CELL, -w % CELL  # the network needs sides that are multiples of 16
         padded = np.pad(gray, ((0, ph), (0, pw)), mode="edge") if ph or pw else gray
         with torch.inference_mode():
@@ -89,6 +97,16 @@ class FpfdcnnExtractor:
         n = len(xy)
         return Keypoints(xy=xy, octave=np.zeros(n, np.int32), response=p, angle=np.zeros(n, np.float32),
                          descriptors=np.ascontiguousarray(desc, np.float32))
+
+
+def structure_mask(gray: NDArray[np.uint8], min_gradient: float = MIN_GRADIENT) -> NDArray[np.uint8]:
+    """255 where the image has a gradient of at least ``min_gradient`` within 2 px, else 0."""
+    import cv2
+
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    mag = cv2.dilate(cv2.magnitude(gx, gy), np.ones((5, 5), np.uint8))
+    return np.where(mag >= 8.0 * min_gradient, 255, 0).astype(np.uint8)  # 3x3 Sobel = 8 x the slope per pixel
 
 
 def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None) -> FpfdcnnExtractor:

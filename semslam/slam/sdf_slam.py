@@ -115,7 +115,7 @@ class SdfSlamTracker:
         # features.matcher (the fpf branch adds the key): "range" is SDF-SLAM's eq. 8 window
         # matcher, used for the search without a pose; the guided searches stay the matcher's.
         self.range_matcher = (registry.create("matcher", "range")
-                              if getattr(config.features, "matcher", "default") == "range" else None)
+                              if config.features.matcher == "range" else None)
         # With the range matcher the search is the paper's (no motion model); else guided first.
         self._searches = (False,) if self.range_matcher is not None else (True, False)
         self.max_distance = float(self.spec.th_high)
