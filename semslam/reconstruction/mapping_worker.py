@@ -264,10 +264,10 @@ class MappingWorker:
             fut.cancel()
         if self._pool is not None:
             pool, self._pool = self._pool, None
-            # Ended, not asked: a keyframe in hand would take its full time (seconds on a
-            # loaded machine) and nothing of it is wanted. Its exit frees the builders.
-            for process in list((getattr(pool, "_processes", None) or {}).values()):
-                process.terminate()
+            # Not terminated: a process killed while a snapshot is still being written to it
+            # leaves the queue's feeder thread blocked on a full pipe, and the interpreter's
+            # exit waits for that thread for ever (seen in CI). The keyframe in hand finishes,
+            # queued ones are cancelled, and the process's exit frees the builders.
             pool.shutdown(wait=True, cancel_futures=True)
         else:
             _close()
