@@ -21,6 +21,21 @@ from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.search import project
 
 
+def adopt_matched_points(slam_map: Map, kf: KeyFrame, matched: dict[int, MapPoint]) -> None:
+    """Verified matches (kf keypoint -> a point of the other side: a loop's, or another
+    map's) win: each replaces kf's own point there, or is observed by kf where it had none.
+    The caller holds the map lock."""
+    for idx, lp in matched.items():
+        if lp.bad:
+            continue
+        cur = kf.points[idx]
+        if cur is not None and not cur.bad:
+            slam_map.replace_point(cur, lp)
+        elif kf not in lp.observations:
+            lp.add_observation(kf, idx)
+            kf.points[idx] = lp
+
+
 @dataclass
 class PointArrays:
     """Positions, depth ranges, normals, descriptors and ids of a list of good points."""

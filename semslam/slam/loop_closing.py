@@ -21,7 +21,7 @@ from semslam.config import SystemConfig
 from semslam.geometry.alignment import AlignmentError, umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
-from semslam.slam.fusion import PointArrays, PointFusion
+from semslam.slam.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
@@ -340,15 +340,7 @@ class LoopClosing(KeyframeWorker):
         # Fuse: the loop's points replace the current keyframe's duplicates, then are
         # searched in every connected keyframe (planned without the lock).
         with self.map.lock:
-            for idx, lp in matched.items():
-                if lp.bad:
-                    continue
-                cur = kf.points[idx]
-                if cur is not None and not cur.bad:
-                    self.map.replace_point(cur, lp)
-                elif kf not in lp.observations:
-                    lp.add_observation(kf, idx)
-                    kf.points[idx] = lp
+            adopt_matched_points(self.map, kf, matched)
         loop_pts = list({p.id: p for k in [cand, *cand.covisibles_with_weight(0)] for p in k.valid_points()}.values())
         src = PointArrays.of(loop_pts)
         plans = [(k, self.fusion.plan(k, src, th=4.0)) for k in connected]

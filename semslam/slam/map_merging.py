@@ -26,7 +26,7 @@ from semslam.backend.pose_only import optimize_pose
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.atlas import Atlas
-from semslam.slam.fusion import PointArrays, PointFusion
+from semslam.slam.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.local_mapping import apply_in_slices
 from semslam.slam.map import KeyFrame, Map, MapPoint
 
@@ -163,15 +163,7 @@ class MapMerger:
         points: the verified matches first, then cand's window projected into kf's window;
         returns the covisibility links that appeared across the weld."""
         with self.map.lock:
-            for idx, lp in matched.items():
-                if lp.bad:
-                    continue
-                cur = kf.points[idx]
-                if cur is not None and not cur.bad:
-                    self.map.replace_point(cur, lp)
-                elif kf not in lp.observations:
-                    lp.add_observation(kf, idx)
-                    kf.points[idx] = lp
+            adopt_matched_points(self.map, kf, matched)
             here, there = _window(kf), _window(cand)
             src_pts = list({p.id: p for k in there for p in k.valid_points()}.values())
         src = PointArrays.of(src_pts)

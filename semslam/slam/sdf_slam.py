@@ -53,7 +53,8 @@ from semslam.geometry.se3 import invert
 from semslam.io.trajectory import Trajectory
 from semslam.slam.sdf_slam_correction import (Edge, TrackTable, ViewFeatures, candidate_pairs, correct_poses,
                                               match_views, pair_constraint, relative_motion)
-from semslam.slam.sdf_slam_pnp import PnpSettings, sample_depth, solve_pnp
+from semslam.slam.frame_to_keyframe import sample_depth
+from semslam.slam.sdf_slam_pnp import PnpSettings, solve_pnp
 
 Array = NDArray[np.float64]
 

@@ -28,17 +28,6 @@ class PnpSettings:
     seed: int = 0
 
 
-def sample_depth(depth: NDArray[np.float32], xy: NDArray[np.floating]) -> NDArray[np.float32]:
-    """Depth at the nearest pixel of each keypoint (0 outside the image)."""
-    h, w = depth.shape
-    u = np.rint(xy[:, 0]).astype(np.intp)
-    v = np.rint(xy[:, 1]).astype(np.intp)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    out = np.zeros(len(xy), np.float32)
-    out[inside] = depth[v[inside], u[inside]]
-    return out
-
-
 def _pose(rvec: Array, tvec: Array) -> Array:
     rot, _ = cv2.Rodrigues(rvec)
     return make_pose(rot, np.asarray(tvec).reshape(3))
