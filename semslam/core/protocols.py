@@ -7,7 +7,7 @@ Every backend implements one of these protocols and is found by name through
                                    │
                                    ▼
     Tracker.track(packet)   uses  Extractor (+ its FeatureSpec) ─► Matcher (chosen by the spec)
-                                  DepthSource (sensor depth now, a depth network later)
+                                  DepthSource (sensor depth, or SDFCNN's for monocular runs)
                                   DynamicStage.before_extraction / after_pose
                                    │ keyframes
                                    ▼
