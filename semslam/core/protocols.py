@@ -169,7 +169,7 @@ class Segmenter(Protocol):
 
 @runtime_checkable
 class DepthSource(Protocol):
-    """Depth in metres for a frame: the sensor's now, a depth network's for monocular later."""
+    """Depth in metres for a frame: the sensor's, or a depth network's (SDFCNN) for monocular runs."""
 
     def depth(self, frame: Frame) -> NDArray[np.float32] | None: ...
 
