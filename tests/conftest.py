@@ -91,3 +91,15 @@ def evo_ate(gt: Path, est: Path) -> float:
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, e))
     return float(ape.get_statistic(metrics.StatisticsType.rmse))
+
+
+@pytest.fixture(scope="module")
+def torch_one_thread():
+    """One torch thread for a test module: on a busy 2-core machine two threads wait on each
+    other ~10x longer."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

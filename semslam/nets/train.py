@@ -188,6 +188,18 @@ def _init_from(model: nn.Module, cfg: TrainConfig, say: Callable[[str], None]) -
     say(f"initialised from {cfg.init} ({meta.get('epochs', '?')} epochs, val mIoU {meta.get('val_miou', float('nan')):.4f})")
 
 
+
+def set_poly_lr(opt: torch.optim.Optimizer, step: int, total: int, warm: int, t0: float, minutes: float) -> None:
+    """Linear warm-up over ``warm`` steps, then the poly schedule (power 0.9) of the
+    segmentation papers, each group scaled from its ``base_lr``. The schedule's position is
+    by steps, or by time when a ``minutes`` budget ends training first."""
+    done = step / total
+    if minutes:
+        done = max(done, (time.perf_counter() - t0) / (60 * minutes))
+    f = (step + 1) / warm if step < warm else max(0.0, 1 - done) ** 0.9
+    for g in opt.param_groups:
+        g["lr"] = g["base_lr"] * f
+
 def train(cfg: TrainConfig, progress: bool = True, say: Callable[[str], None] = print) -> dict[str, Any]:
     """Train ``cfg.arch`` and write the checkpoint to ``cfg.out``; return its metadata."""
     cfg.validate()
@@ -244,13 +256,7 @@ def train(cfg: TrainConfig, progress: bool = True, say: Callable[[str], None] = 
         for epoch in range(cfg.epochs):
             run_loss, seen = 0.0, 0
             for x, y in loader:
-                # Schedule position: by steps, or by time when a time budget ends training first.
-                done = step / total
-                if cfg.minutes:
-                    done = max(done, (time.perf_counter() - t0) / (60 * cfg.minutes))
-                f = (step + 1) / warm if step < warm else max(0.0, 1 - done) ** 0.9
-                for g in opt.param_groups:
-                    g["lr"] = g["base_lr"] * f
+                set_poly_lr(opt, step, total, warm, t0, cfg.minutes)
                 loss, parts = loss_fn(model(x, aux=True), y)  # type: ignore[arg-type]
                 opt.zero_grad(set_to_none=True)
                 loss.backward()

@@ -29,7 +29,7 @@ from semslam.nets.datasets import describe_sources
 from semslam.nets.models import build_model, load_checkpoint, save_checkpoint
 from semslam.nets.sdf_dataset import N_CLASSES, SdfDataset, class_frequencies, load_folder
 from semslam.nets.sdfcnn import IMG_SCALE, LAMBDA, MEAN, PAPER_OUTPUT_SIZE, STD, sdfcnn_loss
-from semslam.nets.train import _param_groups
+from semslam.nets.train import _param_groups, set_poly_lr
 
 
 @dataclass
@@ -144,12 +144,7 @@ def train_sdfcnn(cfg: SdfTrainConfig, progress: bool = True, say: Callable[[str]
         for epoch in range(cfg.epochs):
             run_loss, seen = 0.0, 0
             for x, y, d in loader:
-                done = step / total
-                if cfg.minutes:
-                    done = max(done, (time.perf_counter() - t0) / (60 * cfg.minutes))
-                f = (step + 1) / warm if step < warm else max(0.0, 1 - done) ** 0.9
-                for g in opt.param_groups:
-                    g["lr"] = g["base_lr"] * f
+                set_poly_lr(opt, step, total, warm, t0, cfg.minutes)
                 out = model(x, output_size=(x.shape[-1], x.shape[-2]))
                 loss, parts = sdfcnn_loss(out, y, d, cfg.lam)
                 opt.zero_grad(set_to_none=True)
