@@ -22,12 +22,22 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from semslam.slam.map import KeyFrame, Map
+
+
+@dataclass(frozen=True)
+class MergeHint:
+    """Tracking left map ``left`` by relocalising at ``reloc_kf`` of another map."""
+
+    left: int
+    reloc_kf: KeyFrame
+    bridge: NDArray[np.float64] | None  # S (reloc_kf's world <- left's world), a guess
 
 
 class Atlas:
@@ -40,6 +50,8 @@ class Atlas:
         self.merges: list[tuple[int, int]] = []  # (kept map, map merged into it)
         self._merged_into: dict[int, int] = {}
         self._world_change: NDArray[np.float64] | None = None
+        # Tracking left a map by relocalising in another: see ``activate``.
+        self._merge_hints: list[MergeHint] = []
 
     @property
     def enabled(self) -> bool:
@@ -57,9 +69,23 @@ class Atlas:
         self.map.active_map = new_id
         return new_id
 
-    def activate(self, map_id: int) -> None:
-        """Tracking relocalised in another map: new keyframes join it. Caller holds the lock."""
-        self.map.active_map = self.resolve(map_id)
+    def activate(self, reloc_kf: KeyFrame, bridge: NDArray[np.float64] | None = None) -> None:
+        """Tracking relocalised at ``reloc_kf`` of another map: new keyframes join that map.
+        The map it left was being tracked a moment ago, so its last keyframes are likely near
+        ``reloc_kf``: loop closing gets a hint to try that merge directly (``take_merge_hints``),
+        because the left map gets no new keyframe that could find the place by itself.
+        ``bridge``: tracking's guess of ``S`` (new map's world <- left map's world) from the
+        motion model across the gap, if the gap was short. Caller holds the lock."""
+        left = self.resolve(self.map.active_map)
+        target = self.resolve(reloc_kf.map_id)
+        self.map.active_map = target
+        if left != target and left < len(self.map.origins):
+            self._merge_hints.append(MergeHint(left, reloc_kf, bridge))
+
+    def take_merge_hints(self) -> list[MergeHint]:
+        """The hints since the last call, for loop closing. Caller holds ``map.lock``."""
+        hints, self._merge_hints = self._merge_hints, []
+        return hints
 
     def take_world_change(self) -> NDArray[np.float64] | None:
         """``S`` (new world <- old world) if the active map was moved by a merge since the last

@@ -25,6 +25,7 @@ from semslam.slam.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
+from semslam.slam.atlas import MergeHint
 from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.map_batch import normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
@@ -32,6 +33,9 @@ from semslam.slam.search import project, search_by_bow, search_by_projection
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
     from semslam.slam.map_merging import MapMerger
+
+#: New keyframes of the map tracking relocalised in on which a merge hint is tried (``_merge_on_hints``).
+HINT_KEYFRAMES = 5
 
 log = logging.getLogger(__name__)
 
@@ -121,6 +125,7 @@ class LoopClosing(KeyframeWorker):
         # own check (MapMerger.refine: 50 pose inliers, relocalisation's bar) stands in for
         # ORB-SLAM3's check of the candidate against the current keyframe's covisibles.
         self.merger = merger
+        self._hints: list[tuple[MergeHint, int]] = []  # (hint, keyframes it is still tried on)
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
                       "global_ba_ms": [], "pose_graph_ms": [], "merges": 0}
@@ -136,6 +141,9 @@ class LoopClosing(KeyframeWorker):
     # ---------------------------------------------------------------- per keyframe
     def process(self, kf: KeyFrame) -> None:
         if kf.bad:
+            return
+        if self._merge_on_hints(kf):
+            self.db.add(kf.id, kf.bow)
             return
         found = self._detect_loop(kf)
         merge = None
@@ -198,6 +206,58 @@ class LoopClosing(KeyframeWorker):
                 return res[0], *refined
         return None
 
+    def _merge_on_hints(self, kf: KeyFrame) -> bool:
+        """Tracking left a map for another by relocalising (``Atlas.activate``): try to merge
+        the left map's last keyframes with keyframes of the map tracking went on in: the
+        relocalisation keyframe and its covisibles, then each new keyframe there for the next
+        ``HINT_KEYFRAMES`` (the camera usually keeps moving back towards the left map's last
+        view). Each pair gets the same SE(3) RANSAC and verification as a merge found by BoW,
+        or, where BoW finds too little, the motion model's bridge across the gap verified by
+        projection; then the merger's pose refit (50 inliers).
+
+        Why: the left map gets no new keyframe, so nothing of it would query the database
+        again; in threaded runs tracking often loses a young map (its local mapping still
+        behind) on the way back to an old place and relocalises there, leaving the young
+        map's frames in their own world for good. A frame tracked in one map and, a moment
+        later, relocalised in another says where to look."""
+        if self.merger is None:
+            return False
+        atlas = self.merger.atlas
+        with self.map.lock:
+            self._hints += [(h, HINT_KEYFRAMES) for h in atlas.take_merge_hints()]
+            attempts: list[tuple[list[KeyFrame], list[KeyFrame], NDArray[np.float64] | None]] = []
+            kept: list[tuple[MergeHint, int]] = []
+            for hint, tries in self._hints:
+                left, there = atlas.resolve(hint.left), atlas.resolve(hint.reloc_kf.map_id)
+                if left == there:
+                    continue  # merged meanwhile
+                if atlas.resolve(kf.map_id) != there:
+                    kept.append((hint, tries))  # a keyframe from before the relocalisation
+                    continue
+                recent = [k for k in atlas.keyframes_of(left) if not k.bad][-3:][::-1]
+                first = tries == HINT_KEYFRAMES
+                near = [kf, hint.reloc_kf, *hint.reloc_kf.best_covisibles(4)] if first else [kf]
+                attempts.append((recent, [k for k in dict.fromkeys(near) if not k.bad], hint.bridge))
+                if tries > 1:
+                    kept.append((hint, tries - 1))
+            self._hints = kept
+        for recent, near, bridge in attempts:
+            for cand in near:
+                for left_kf in recent:
+                    res = self._compute_se3(left_kf, cand)
+                    if res is None and bridge is not None:
+                        # left_kf in cand's world by the motion model's bridge, checked as a loop is.
+                        with self.map.lock:
+                            T12 = left_kf.T_cw @ invert(bridge) @ invert(cand.T_cw)
+                        res = self._verify_by_projection(left_kf, cand, T12)
+                    refined = self.merger.refine(left_kf, *res) if res is not None else None
+                    if refined is not None:
+                        log.debug("merge hint: kf %d (left map) vs %d", left_kf.id, cand.id)
+                        self._merge_maps(left_kf, res[0], *refined)
+                        self._hints = []
+                        return True
+        return False
+
     def _merge_maps(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]) -> None:
         """Merge kf's map with cand's (``slam/map_merging.py``) with local mapping paused, then
         the essential graph and global BA over the merged map, as after a loop."""
@@ -257,9 +317,14 @@ class LoopClosing(KeyframeWorker):
         if T12 is None:
             log.debug("kf %d vs %d: SE3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(i1), int(inl.sum()))
             return None
-        T_cw_corr = T12 @ T2
-        # Verify: project the loop keyframe's neighbourhood into the current keyframe.
+        return self._verify_by_projection(kf, cand, T12, int(inl.sum()))
+
+    def _verify_by_projection(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], n_inliers: int = 0
+                              ) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        """Project cand's neighbourhood into kf with ``T12`` (kf <- cand); enough matches
+        (with ``n_inliers`` already found) confirm it. Returns kf keypoint -> cand-side point."""
         with self.map.lock:
+            T_cw_corr = T12 @ cand.T_cw
             pts = _neighbourhood_points(cand)
             pos = np.array([p.pos for p in pts])
             max_dist = np.array([p.max_dist for p in pts])
@@ -276,8 +341,8 @@ class LoopClosing(KeyframeWorker):
                                       np.stack([descriptors[s] for s in sel]), kf.xy, kf.keypoints.octave,
                                       kf.keypoints.descriptors, np.ones(len(kf.points), bool),
                                       kf.tree(), self.map.matcher, self.map.spec.th_high, 0.9)
-        n_matched = int(inl.sum()) + len(qi)
-        log.debug("kf %d vs %d: %d SE3 inliers, %d projected matches", kf.id, cand.id, int(inl.sum()), len(qi))
+        n_matched = n_inliers + len(qi)
+        log.debug("kf %d vs %d: %d SE3 inliers, %d projected matches", kf.id, cand.id, n_inliers, len(qi))
         if len(qi) < self.cfg.loop_min_matches and n_matched < self.cfg.loop_min_matches:
             return None
         return cand, T12, {int(t): pts[sel[q]] for q, t in zip(qi, ti)}

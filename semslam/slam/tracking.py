@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from dataclasses import dataclass
 from itertools import chain
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +32,22 @@ if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
     from semslam.slam.atlas import Atlas
     from semslam.place.vocabulary import Vocabulary
+
+
+#: The longest gap (seconds) between the last frame tracked in one map and a relocalisation
+#: in another over which the motion model still bridges the two (``Tracking._bridge_to``).
+BRIDGE_MAX_GAP_S = 0.5
+
+
+@dataclass(frozen=True)
+class LastTracked:
+    """The last frame tracking had (state OK), for bridging a relocalisation into another map."""
+
+    timestamp: float
+    T_cw: NDArray[np.float64]
+    velocity: NDArray[np.float64] | None
+    velocity_dt: float
+    map_id: int
 
 
 class Tracking:
@@ -62,6 +79,7 @@ class Tracking:
         self.state = TrackingState.NOT_INITIALIZED
         self.last: FrameState | None = None
         self.velocity: NDArray[np.float64] | None = None
+        self._last_ok: LastTracked | None = None
         self.velocity_dt = 0.0  # seconds between the two frames the velocity was measured on
         self.ref_kf: KeyFrame | None = None
         self.last_kf_frame = -1
@@ -140,6 +158,8 @@ class Tracking:
                 if ok:
                     self.velocity = cur.T_cw @ invert(self.last.T_cw) if self.last is not None and self.last.T_cw is not None else None
                     self.velocity_dt = cur.timestamp - self.last.timestamp if self.last is not None else 0.0
+                    self._last_ok = LastTracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt,
+                                                self.map.active_map)
                     if not self.cfg.localization_only and self._need_new_keyframe(cur):
                         t0 = time.perf_counter()
                         self._create_keyframe(cur)
@@ -189,6 +209,23 @@ class Tracking:
             self.velocity = None
             self.local_kfs = []
             self.local_rows = np.zeros(0, np.intp)
+
+    def _bridge_to(self, cur: FrameState) -> NDArray[np.float64] | None:
+        """``S`` (this frame's map world <- the left map's world) if the last frame tracked in
+        the left map is at most ``BRIDGE_MAX_GAP_S`` old: that frame carried by the motion
+        model to now is this frame in the left map's world. A guess for loop closing, which
+        verifies it (``LoopClosing._merge_on_hints``)."""
+        last = self._last_ok
+        if (last is None or cur.T_cw is None or last.velocity is None or last.velocity_dt <= 0
+                or last.map_id != self.map.active_map):
+            return None
+        gap = cur.timestamp - last.timestamp
+        if not 0 < gap <= BRIDGE_MAX_GAP_S:
+            return None
+        T_pred = last.T_cw
+        for _ in range(max(1, round(gap / last.velocity_dt))):
+            T_pred = last.velocity @ T_pred
+        return invert(cur.T_cw) @ T_pred
 
     def _apply_world_change(self, frame: FrameState | None) -> None:
         """Map ``frame`` into its map's world if a merge moved that map (``Atlas``)."""
@@ -531,7 +568,8 @@ class Tracking:
             return [] if other is None else [c.id for c in other.best_covisibles(n)]
 
         candidates = detect_relocalisation_candidates(self.db, cur.bow, covisibles)
-        # The active map first, then the others (ORB-SLAM3 relocalises in the whole atlas).
+        # The active map first, then the others (ORB-SLAM3 tries the active map only; here a
+        # relocalisation into another map leaves loop closing a merge hint, Atlas.activate).
         active = self.map.active_map
         candidates.sort(key=lambda i: i not in self.map.keyframes or self.map.keyframes[i].map_id != active)
         for kf_id in candidates:
@@ -571,7 +609,7 @@ class Tracking:
                 self.ref_kf = kf
                 cur.ref_kf = kf
                 if self.atlas is not None and kf.map_id != self.map.active_map:
-                    self.atlas.activate(kf.map_id)  # tracking goes on in that map
+                    self.atlas.activate(kf, self._bridge_to(cur))  # tracking goes on in that map
                 return True
         cur.clear_points()
         cur.T_cw = None
