@@ -277,6 +277,13 @@ def test_bonn_zip_and_icl_flat_tarball(env: Path, server: Any, render: Path, tmp
     _serve(server, bonn)
     seq = open_sequence(get("bonn/balloon", progress=False))
     assert seq.root.name == "rgbd_bonn_balloon" and seq.camera.fx == KNOWN_CAMERAS["bonn"][0]
+    flat = tmp_path / "rgbd_bonn_balloon2.zip"  # repacked without its folder: found at the top level
+    with zipfile.ZipFile(flat, "w") as zf:
+        for f in _official_files(render):
+            zf.write(f, str(f.relative_to(render)))
+    _serve(server, flat)
+    assert len(open_sequence(get("bonn/balloon2", progress=False))) == N_FRAMES
+    assert _no_leftovers(env) == ["rgbd_bonn_balloon", "rgbd_bonn_balloon2"]
 
     icl = tmp_path / "living_room_traj0_frei_png.tar.gz"
     rgb, depth = sorted((render / "rgb").iterdir())[:5], sorted((render / "depth").iterdir())[:5]

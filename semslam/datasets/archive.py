@@ -37,6 +37,21 @@ def _unpack(archive: Path, kind: str, into: Path) -> None:
         raise DataError(archive, f"corrupt or truncated {kind} archive ({exc.__class__.__name__}: {exc})") from None
 
 
+def _sequence_root(archive: Path, entry: DatasetEntry, tmp: Path) -> Path:
+    """The unpacked folder holding the sequence: the catalogue's ``inner`` folder, else (a
+    publisher repacked it) the top level or a single folder there that has the files."""
+    expected = tmp / entry.inner if entry.inner else tmp
+    candidates = [expected, tmp, *sorted(p for p in tmp.iterdir() if p.is_dir())]
+    found = next((c for c in candidates if c.is_dir() and not missing_files(c, entry.required)), None)
+    if found is not None:
+        return found
+    if not expected.is_dir():
+        names = sorted(p.name for p in tmp.iterdir())[:5]
+        raise DataError(archive, f"archive has no folder {entry.inner}/ (it holds: {', '.join(names) or 'nothing'})")
+    where = f"{entry.inner}/" if entry.inner else "its top level"
+    raise DataError(archive, f"archive is incomplete: no {', '.join(missing_files(expected, entry.required))} in {where}")
+
+
 def extract(archive: Path, entry: DatasetEntry, target: Path) -> Path:
     """Unpack ``archive`` (as described by ``entry``) to ``target``; return ``target``.
 
@@ -47,15 +62,7 @@ def extract(archive: Path, entry: DatasetEntry, target: Path) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".extracting", dir=target.parent))
     try:
         _unpack(archive, entry.archive, tmp)
-        root = tmp / entry.inner if entry.inner else tmp
-        if not root.is_dir():
-            found = sorted(p.name for p in tmp.iterdir())[:5]
-            raise DataError(archive, f"archive has no folder {entry.inner}/ (it holds: {', '.join(found) or 'nothing'})")
-        missing = missing_files(root, entry.required)
-        if missing:
-            where = f"{entry.inner}/" if entry.inner else "its top level"
-            raise DataError(archive, f"archive is incomplete: no {', '.join(missing)} in {where}")
-        root.rename(target)
+        _sequence_root(archive, entry, tmp).rename(target)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return target
