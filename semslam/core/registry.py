@@ -52,11 +52,13 @@ PLUGINS: dict[str, dict[str, str]] = {
         "cloud": "semslam.reconstruction.semantic_cloud:SemanticCloud",
         "mesh": "semslam.reconstruction.tsdf_mesh:TsdfMesh",
     },
+    "sequence_source": {"rosbag": "semslam.io.rosbag_sequence:RosbagSequence"},  # by file type; folders: io/sequence.py
 }
 
 #: The config field that names each kind's backend (for error messages).
 KEYS = {"tracker": "tracking.method", "extractor": "features.extractor", "matcher": "descriptor kind",
-        "segmenter": "semantics.backend", "depth_source": "depth.source", "map_builder": "maps.builders"}
+        "segmenter": "semantics.backend", "depth_source": "depth.source", "map_builder": "maps.builders",
+        "sequence_source": "sequence file type"}
 
 #: Old names still accepted in presets and --set (renamed to say what they are).
 ALIASES: dict[str, dict[str, str]] = {"extractor": {"orb_slam": "orb_slam2"}}

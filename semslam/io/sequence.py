@@ -17,7 +17,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core import registry
 from semslam.core.types import Frame
+from semslam.datasets import is_dataset_name, resolve as resolve_dataset
 from semslam.errors import DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import resolve_camera
@@ -339,6 +341,11 @@ def open_sequence(
     """Open a sequence folder; ``kind`` is ``auto``, ``rgbd`` (TUM layout) or ``mono`` (an image
     folder, or a TUM folder's ``rgb.txt`` images without their depth)."""
     root = Path(path)
+    if root.suffix.lower() == ".bag":  # a ROS 1 bag: io/rosbag_sequence.py, through the registry
+        return registry.create("sequence_source", "rosbag", root, camera=camera, max_diff=max_diff,
+                               with_depth=kind != "mono")
+    if not root.exists() and is_dataset_name(str(path)):  # tum/fr3_walking_xyz: its downloaded folder
+        root = resolve_dataset(str(path))
     if not root.exists():
         raise DataError(root, "sequence not found")
     if not root.is_dir():
