@@ -141,6 +141,12 @@ class SlamConfig:
     # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).
     min_frames: int = 0
     max_frames: int = 30
+    # ORB-SLAM2 refuses a keyframe while local mapping has 3 queued. On fast turns tracking
+    # then runs out of points (a new keyframe's points come from its depth at once, whatever
+    # local mapping's backlog), so when tracking is weak (< 25 % of the reference keyframe's
+    # points, or too few close points) a keyframe is taken up to this many queued; local
+    # mapping skips fusion and BA while it has a backlog and catches up after the turn.
+    max_queued_keyframes_when_weak: int = 12
     min_init_keypoints: int = 500
     local_mapping: bool = True
     local_ba: bool = True

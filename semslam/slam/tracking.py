@@ -529,7 +529,8 @@ class Tracking:
         c1c = inl < ref_matches * 0.25 or need_close
         c2 = (inl < ref_matches * th_ref or need_close) and inl > 15
         if (c1a or c1b or c1c) and c2:
-            return idle or self.keyframes.queue_size() < 3
+            queued = self.keyframes.queue_size()
+            return idle or queued < 3 or (c1c and queued < self.cfg.max_queued_keyframes_when_weak)
         return False
 
     def _create_keyframe(self, cur: FrameState) -> None:
