@@ -88,7 +88,7 @@ def run_overrides(set_: list[str], depth_scale: float | None, sequential: bool, 
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
-        sequence: Path = typer.Argument(..., help="TUM-layout RGB-D folder (rgb.txt, depth.txt[, groundtruth.txt])"),
+        sequence: Path = typer.Argument(..., help="sequence: a TUM-layout folder (rgb.txt, depth.txt[, groundtruth.txt]), an image folder, a ROS 1 .bag, or a dataset name (tum/fr3_walking_xyz; semslam dataset list)"),
         out: Path = typer.Option(..., "--out", "-o", help="output folder"),
         preset: str = typer.Option("default", "--preset", "-p", help="preset name or YAML file"),
         max_frames: Optional[int] = typer.Option(None, "--max-frames", min=1, help="stop after N frames"),
