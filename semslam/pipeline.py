@@ -96,6 +96,7 @@ def run_slam(
         system.close()
         raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
     recorder = _open_recorder(rerun, rerun_spawn, system)
+    out.mkdir(parents=True, exist_ok=True)  # an unusable output folder fails now, not after the run
     n_total = len(sequence) if max_frames is None else min(max_frames, len(sequence))
     error: BaseException | None = None
     interrupted = False
