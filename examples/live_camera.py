@@ -89,8 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     limit_threads()  # one BLAS / OpenCV thread: SLAM runs threads of its own
+    camera: list[float] | Path
     if args.camera:
-        camera: object = [float(v) for v in args.camera.split(",")]
+        camera = [float(v) for v in args.camera.split(",")]
     elif args.folder is not None:
         camera = args.folder
     else:

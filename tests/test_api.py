@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -58,6 +59,7 @@ def test_import_semslam_stays_cheap() -> None:
     assert out.strip() == "[]"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["orb", "default"])
 def test_api_run_equals_semslam_run(render: Path, frames: list, tmp_path: Path, preset: str) -> None:
     """Frame by frame through the API = ``semslam run --sequential`` on the folder: the same
@@ -91,8 +93,27 @@ def test_api_run_equals_semslam_run(render: Path, frames: list, tmp_path: Path, 
     assert api_stats["camera"] == cli["camera"] and api_stats["sequence"] == cli["sequence"]
 
 
+def test_close_stops_every_worker(render: Path, frames: list) -> None:
+    """Threaded, as live: close() (no outputs asked for) stops the BA worker process and the
+    local mapping and loop closing threads."""
+    before = set(threading.enumerate())
+    kids_before = set(_children(os.getpid()))
+    slam = System("orb", camera=render / "calib.txt", bgr=True)
+    for bgr, depth, t in frames[:8]:
+        slam.track(bgr, depth, t)
+    kids = _new_workers(kids_before)
+    assert kids, "a threaded run has a BA worker process"
+    assert [t for t in set(threading.enumerate()) - before if t.is_alive()], "and threads"
+    slam.close()
+    slam.close()  # twice is fine
+    assert not wait_gone(kids), "a worker process outlived close()"
+    assert not [t for t in set(threading.enumerate()) - before if t.is_alive()], "a thread outlived close()"
+    assert len(slam.trajectory()) == 8  # still answers
+
+
+@pytest.mark.slow
 def test_save_writes_what_evo_reads(render: Path, frames: list, tmp_path: Path) -> None:
-    """Threaded (as live), with a map builder: ``out`` gets the outputs when the block ends,
+    """Threaded, with a map builder: ``out`` gets the outputs when the ``with`` block ends,
     evo reads them, and no worker process or thread outlives the block."""
     from evo.tools import file_interface
 
@@ -102,19 +123,23 @@ def test_save_writes_what_evo_reads(render: Path, frames: list, tmp_path: Path) 
                 overrides={"maps.builders": ["keyframe_cloud"]}) as slam:
         for bgr, depth, t in frames[:30]:
             slam.track(bgr, depth, t)
-        kids = [p for p in set(_children(os.getpid())) - kids_before if not _is_resource_tracker(p)]
-        assert kids, "a threaded run has a BA worker and a maps' worker process"
+        kids = _new_workers(kids_before)
+        assert len(kids) >= 2, "a BA worker and a maps' worker process"
         slam.save_trajectory(tmp_path / "so_far.txt")
-    assert not wait_gone(kids), "a worker process outlived close()"
-    assert not [t for t in set(threading.enumerate()) - before if t.is_alive() and not t.daemon], "threads left"
+    assert not wait_gone(kids), "a worker process outlived the block"
+    assert not [t for t in set(threading.enumerate()) - before if t.is_alive()], "a thread outlived the block"
     assert file_interface.read_tum_trajectory_file(str(tmp_path / "so_far.txt")).num_poses == 30
     out = tmp_path / "run"
     stats = json.loads((out / "stats.json").read_text())
     traj = file_interface.read_tum_trajectory_file(str(out / "trajectory.txt"))
     kfs = file_interface.read_tum_trajectory_file(str(out / "keyframes.txt"))
     assert traj.num_poses == stats["tracked_frames"] == 30 and kfs.num_poses == stats["keyframes"] >= 2
-    assert Path(stats["paths"]["keyframe_cloud"]).stat().st_size > 1000  # the map asked for
+    assert stats["threaded"] is True and Path(stats["paths"]["keyframe_cloud"]).stat().st_size > 1000
     assert json.loads((out / "config.json").read_text())["maps"]["builders"] == ["keyframe_cloud"]
+
+
+def _new_workers(before: set[int]) -> list[int]:
+    return [p for p in set(_children(os.getpid())) - before if not _is_resource_tracker(p)]
 
 
 def _children(pid: int) -> list[int]:
@@ -137,7 +162,7 @@ def _is_resource_tracker(pid: int) -> bool:
 
 
 @pytest.fixture()
-def live(render: Path) -> System:
+def live(render: Path) -> Iterator[System]:
     slam = System("f2kf", camera=render / "calib.txt", bgr=True)
     yield slam
     slam.close()
