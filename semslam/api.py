@@ -1,0 +1,493 @@
+"""``semslam.System``: SLAM fed frame by frame from user code, the way ``semslam run`` feeds it.
+
+A live camera (OpenCV, a vendor SDK) gives numpy images one at a time; ``track`` takes
+them, ``trajectory()`` / ``keyframes()`` / ``map_points()`` / ``stats()`` answer at any
+time, and ``save`` writes what ``semslam run`` writes (``trajectory.txt``,
+``keyframes.txt``, ``stats.json``, ``config.json``, the maps, ``report.html`` with ground
+truth). ``pipeline.run_slam`` is a loop over this class: one code path for both.
+
+    import cv2
+    from semslam import System
+
+    with System("default", camera=(535.4, 539.2, 320.1, 247.6), bgr=True, out="run1") as slam:
+        for bgr, depth_u16, t in frames:          # depth: uint16, 5000 units per metre (TUM)
+            result = slam.track(bgr, depth_u16, t)
+            if result.pose_wc is not None:        # 4x4 camera-to-world, None while lost
+                ...
+    # leaving the block stops every thread and process and writes run1/
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Union
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.config import SystemConfig, config_from_dict, config_to_dict, load_config
+from semslam.core.protocols import FramePacket
+from semslam.core.types import Frame, RunResult, TrackResult
+from semslam.errors import ConfigError, DataError, EvalError, SemslamError
+from semslam.geometry.camera import PinholeCamera
+from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
+from semslam.io.trajectory import Trajectory, read_trajectory, write_tum
+from semslam.slam.system import System as SlamSystem
+
+log = logging.getLogger(__name__)
+
+#: A camera as the API takes it: intrinsics (fx, fy, cx, cy[, k1, k2, p1, p2, k3]), a
+#: ``PinholeCamera``, a ``calib.txt`` file or a sequence folder (its calib.txt / dataset name).
+CameraLike = Union[PinholeCamera, Sequence[float], str, Path]
+
+
+class System:
+    """One SLAM run fed frame by frame; owns the threads and processes it starts.
+
+    ``preset``: a preset name (``semslam run --preset``), a YAML file or a ``SystemConfig``.
+    ``overrides``: ``--set`` overrides as a mapping (``{"slam.loop_closing": False}``) or as
+    ``"section.key=value"`` strings. ``sensor``: ``"rgbd"`` or ``"mono"``; None keeps the
+    preset's (``default``, ``orb``: rgbd; ``sdf``: mono). ``depth_scale``: uint16 depth units
+    per metre (TUM 5000, millimetres 1000); None keeps the preset's (5000).
+    ``bgr``: colour images come in OpenCV's BGR order (``cv2.imread``, ``VideoCapture``);
+    the default is RGB. ``image_size``: (width, height); without it (and without a
+    ``PinholeCamera`` that has one) the SLAM system is built at the first frame, from its
+    size. ``out``: where ``close()`` (and leaving a ``with`` block) writes the outputs; None
+    writes nothing unless ``save`` is called. ``load_map``: start from a map saved with
+    ``save(save_map=...)`` (relocalise in it). ``name``: what ``stats.json`` calls the sequence.
+    """
+
+    def __init__(self, preset: str | Path | SystemConfig = "default", camera: CameraLike | None = None, *,
+                 sensor: str | None = None, overrides: Mapping[str, Any] | Sequence[str] | None = None,
+                 depth_scale: float | None = None, bgr: bool = False, image_size: tuple[int, int] | None = None,
+                 out: str | Path | None = None, load_map: str | Path | None = None, name: str = "live") -> None:
+        self.config = make_config(preset, overrides, sensor, depth_scale)
+        cam = make_camera(camera)
+        self.camera = cam.with_image_size(*image_size) if image_size is not None else cam
+        self.bgr = bool(bgr)
+        self.out = Path(out) if out is not None else None
+        self.name = name
+        self._load_map = Path(load_map) if load_map is not None else None
+        self._slam: SlamSystem | None = None
+        self._start_lock = threading.Lock()
+        self._timing = _RunTiming()
+        self._last_t = -np.inf
+        self._n_given = 0
+        self._closed = False
+        self._warned_mono_depth = False
+        #: What ``save`` wrote (None before); ``stats.json`` as a value.
+        self.result: RunResult | None = None
+        if self.camera.width > 0:  # the size is known: build now (a bad config fails here, not at frame 1)
+            self._start()
+
+    # ------------------------------------------------------------------ lifetime
+    def _start(self) -> SlamSystem:
+        """The SLAM system, built on first use (``pipeline.run_slam``'s reader thread may be first)."""
+        with self._start_lock:
+            if self._slam is None:
+                self._slam = SlamSystem(self.config, self.camera, self._load_map)
+            return self._slam
+
+    def __enter__(self) -> System:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        """Outputs to ``out`` (with the exception that ended the block in ``stats.json``;
+        after Ctrl-C without the maps, which take seconds), then everything stopped."""
+        if self.out is None or self.result is not None or self._closed:
+            self.close()
+            return
+        stopped = isinstance(exc, KeyboardInterrupt)
+        try:
+            self.save(self.out, error=None if stopped else exc, interrupted=stopped)
+        except BaseException as failure:  # the block's own exception propagates as it is
+            if failure is not exc:
+                raise
+
+    def close(self) -> None:
+        """Stop every thread and process of the run (local mapping, loop closing, the BA worker,
+        the semantic thread, the maps' worker); with ``out``, write the outputs there first.
+        Safe to call twice; ``trajectory()`` and the others still answer afterwards."""
+        if self._closed or self.result is not None:
+            self._closed = True
+            return
+        if self.out is not None:
+            self.save(self.out)
+            return
+        self._closed = True
+        if self._slam is not None:
+            self._slam.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed or self.result is not None
+
+    # ------------------------------------------------------------------ frames
+    def track(self, rgb: NDArray[np.uint8], depth: NDArray[Any] | None, timestamp: float, *,
+              bgr: bool | None = None) -> TrackResult:
+        """Track one frame: ``rgb`` HxWx3 uint8 (RGB, or BGR with ``bgr``; HxW grey is
+        accepted), ``depth`` HxW uint16 (``depth_scale`` units per metre) or float (metres,
+        0 / NaN = no measurement) or None for monocular presets, ``timestamp`` in seconds,
+        increasing. Returns the ``TrackResult``: ``pose_wc`` (4x4 camera-to-world, None while
+        not initialised or lost), ``state``, inlier counts, per-stage timings."""
+        where = f"System.track (frame {self._n_given}, t={timestamp})"
+        if self.closed:
+            raise SemslamError(f"{where}: the system is closed (save() or close() ended the run)")
+        t = _check_timestamp(timestamp, self._last_t, where)
+        image = _as_rgb(rgb, self.bgr if bgr is None else bgr, where)
+        metres = self._as_depth(depth, image.shape[:2], where)
+        if self.camera.width > 0 and (self.camera.width, self.camera.height) != (image.shape[1], image.shape[0]):
+            raise DataError(where, f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
+                                   f"{self.camera.width}x{self.camera.height}")
+        if self._slam is None:
+            self.camera = self.camera.with_image_size(image.shape[1], image.shape[0])
+        self._last_t = t
+        frame = Frame(self._n_given, t, image, metres)
+        self._n_given += 1
+        return self.track_frame(self.prepare(frame))
+
+    def _as_depth(self, depth: NDArray[Any] | None, shape: tuple[int, ...], where: str) -> NDArray[np.float32] | None:
+        if self.config.sensor == "mono":  # as `semslam run` reads a TUM folder for a mono preset
+            if depth is not None and not self._warned_mono_depth:
+                log.warning("sensor mono (preset %s): the depth images given are not used", self.config.preset)
+                self._warned_mono_depth = True
+            return None
+        if depth is None:
+            raise DataError(where, f"no depth: preset {self.config.preset!r} is RGB-D (sensor rgbd); give depth, "
+                                   "or use a monocular preset (sensor='mono', preset 'sdf')")
+        return _as_metres(depth, self.config.depth_scale, shape, where)
+
+    def prepare(self, frame: Frame) -> FramePacket:
+        """Start the work that can run ahead of tracking (segmentation) on a decoded frame;
+        ``pipeline.run_slam`` calls it from its reader thread."""
+        return self._start().prepare(frame)
+
+    def track_frame(self, packet: FramePacket, arrived: float | None = None) -> TrackResult:
+        """Track a prepared frame and record its timings (``track`` after its checks, and
+        ``pipeline.run_slam`` for each frame it reads). ``arrived``: when the frame came in
+        (``time.perf_counter``), for the latency of camera-rate runs."""
+        if self.closed:
+            raise SemslamError("System.track_frame: the system is closed (save() or close() ended the run)")
+        slam = self._start()
+        t0 = time.perf_counter()
+        result = slam.track(packet)
+        self._timing.add(t0, time.perf_counter(), result, arrived)
+        return result
+
+    # ------------------------------------------------------------------ at any time
+    @property
+    def has_map(self) -> bool:
+        """Whether the tracker keeps a map that ``save(save_map=...)`` can write (``orb_slam``)."""
+        return self._start().has_map
+
+    @property
+    def n_frames(self) -> int:
+        """Frames tracked so far."""
+        return len(self._timing.frame_ms)
+
+    @property
+    def n_keyframes(self) -> int:
+        return self._slam.n_keyframes if self._slam is not None else 0
+
+    def trajectory(self) -> Trajectory:
+        """Camera-to-world poses of every frame tracked so far that has one (lost frames are
+        left out); after ``save``, the poses after the final optimisation."""
+        return self._slam.trajectory() if self._slam is not None else Trajectory.from_poses([])
+
+    def save_trajectory(self, path: str | Path) -> None:
+        """``trajectory()`` as a TUM file (``timestamp tx ty tz qx qy qz qw``; evo reads it)."""
+        write_tum(path, self.trajectory())
+
+    def keyframes(self) -> Trajectory:
+        """Camera-to-world poses of the keyframes."""
+        return self._slam.keyframe_trajectory() if self._slam is not None else Trajectory.from_poses([])
+
+    def map_points(self) -> NDArray[np.float64]:
+        """World positions (N, 3) of the sparse map's points now ((0, 3) for a tracker without a
+        map). They carry no colour or class; the coloured, labelled maps (``maps.builders``:
+        semantic cloud, octree, mesh) are built from the keyframes and written by ``save``."""
+        return self._slam.map_points() if self._slam is not None else np.zeros((0, 3))
+
+    def stats(self) -> dict[str, Any]:
+        """What ``stats.json`` holds so far (counts, ms/frame, per-stage times, the tracker's
+        counters); ATE/RPE and paths come with ``save`` (they need the end of the run)."""
+        if self.result is not None:
+            return self.result.to_dict()
+        out = self.out if self.out is not None else Path(".")
+        return self._run_result(out, {}, (), None).to_dict()
+
+    # ------------------------------------------------------------------ the end
+    def save(self, out_dir: str | Path | None = None, *, groundtruth: str | Path | None = None, report: bool = True,
+             save_map: str | Path | None = None, error: BaseException | None = None, interrupted: bool = False,
+             skipped: Sequence[str] = ()) -> RunResult:
+        """End the run and write what ``semslam run`` writes to ``out_dir`` (default ``out``):
+        ``trajectory.txt`` (poses after the final optimisation), ``keyframes.txt``,
+        ``stats.json``, ``config.json``, the maps of ``maps.builders`` under ``map/``; with
+        ``groundtruth`` (a TUM file) ATE/RPE in ``stats.json`` and ``report.html``;
+        ``save_map`` writes the sparse map (.npz) for ``load_map``. Every thread and process
+        is stopped first. Returns the ``RunResult`` (``stats.json`` as a value).
+
+        For drivers such as ``pipeline.run_slam``: ``error`` (what ended the feeding) goes into
+        ``stats.json`` and is raised once the outputs are written; ``interrupted`` (Ctrl-C)
+        marks the run so and skips the maps (``semslam map OUT`` builds them later);
+        ``skipped`` lists frames the reader could not decode."""
+        target = out_dir if out_dir is not None else self.out
+        if target is None:
+            raise ConfigError("System.save: no output folder (give out_dir, or out= to System)")
+        if self.closed:
+            raise SemslamError(f"System.save: the run has ended already ({self._ended_how()})")
+        out = Path(target)
+        out.mkdir(parents=True, exist_ok=True)
+        slam = self._start()
+        try:
+            slam.shutdown()  # the final optimisation; worker threads and the BA process stop
+        except BaseException as exc:  # a worker that failed on the last keyframes
+            error = error or exc
+        if save_map and error is None:
+            try:
+                slam.save_map(Path(save_map))
+            except BaseException:
+                self._closed = True  # nothing else written: the map was asked for
+                slam.close()
+                raise
+        failure = self._write_outputs(slam, out, groundtruth, report, error, interrupted, skipped)
+        error = error or failure
+        if error is not None:
+            raise error
+        assert self.result is not None
+        return self.result
+
+    def _ended_how(self) -> str:
+        return f"saved to {self.result.out_dir}" if self.result is not None else "closed"
+
+    def _write_outputs(self, slam: SlamSystem, out: Path, groundtruth: str | Path | None, report: bool,
+                       error: BaseException | None, interrupted: bool, skipped: Sequence[str]) -> BaseException | None:
+        """Every output; returns the maps' failure, if they failed (``stats.json`` says so too)."""
+        traj = slam.trajectory()
+        write_tum(out / "trajectory.txt", traj)
+        paths = {"trajectory": str(out / "trajectory.txt"), "stats": str(out / "stats.json"),
+                 "config": str(out / "config.json")}
+        kf_traj = slam.keyframe_trajectory()
+        if len(kf_traj):
+            write_tum(out / "keyframes.txt", kf_traj)
+            paths["keyframes"] = str(out / "keyframes.txt")
+        map_error: BaseException | None = None
+        if interrupted:  # stop fast: finishing the maps takes seconds; `semslam map OUT` rebuilds them
+            slam.close()
+        else:
+            try:  # a failed map still leaves the trajectory and stats.json (with the error) behind
+                paths.update({name: str(p) for name, p in slam.write_maps(out / "map").items()})
+            except Exception as exc:  # noqa: BLE001 - reported in stats.json, then raised by save
+                map_error = exc
+                error = error or exc
+        self._timing.interrupted = interrupted
+        result = self._run_result(out, paths, skipped, error)
+        if groundtruth is not None and len(traj) >= 3:
+            # Interrupted: ATE into stats.json, but no report (its plots take a second or more).
+            _evaluate(Path(groundtruth), traj, self.config, out, result, report and not interrupted)
+        (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
+        (out / "config.json").write_text(json.dumps(config_to_dict(self.config), indent=2))
+        self.result = result
+        return map_error
+
+    def _run_result(self, out: Path, paths: dict[str, str], skipped: Sequence[str],
+                    error: BaseException | None) -> RunResult:
+        timing, cam = self._timing, self.camera
+        n = len(timing.frame_ms)
+        counts = self._slam.counts() if self._slam is not None else {}
+        return RunResult(
+            sequence=self.name, preset=self.config.preset, out_dir=out, **counts,
+            skipped_frames=len(skipped), skipped=list(skipped),
+            ms_per_frame=_timing_stats(timing.frame_ms),
+            stages_ms_median={k: float(np.median(v)) for k, v in timing.stage_ms.items()},
+            stages_ms_p95={k: float(np.percentile(v, 95)) for k, v in timing.stage_ms.items()},
+            stages_ms_max={k: float(np.max(v)) for k, v in timing.stage_ms.items()},
+            realtime=self.config.slam.realtime, late_frames=timing.late_frames,
+            latency_ms=_timing_stats(timing.latency_ms) if timing.latency_ms else {},
+            dynamic_ratio_mean=float(np.mean(timing.dynamic_ratio)) if timing.dynamic_ratio else 0.0,
+            wall_s=timing.wall_s, fps=n / timing.wall_s if timing.wall_s > 0 else 0.0,
+            tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,
+            camera={"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width,
+                    "height": cam.height, "dist": list(cam.dist), "source": cam.source},
+            tracker=self._slam.stats() if self._slam is not None else {}, paths=paths,
+            interrupted=timing.interrupted or isinstance(error, KeyboardInterrupt),
+            error=None if error is None else f"{type(error).__name__}: {error}",
+        )
+
+
+# ---------------------------------------------------------------------------- building it
+def make_config(preset: str | Path | SystemConfig, overrides: Mapping[str, Any] | Sequence[str] | None = None,
+                sensor: str | None = None, depth_scale: float | None = None) -> SystemConfig:
+    """The config of a preset (name, YAML file or ``SystemConfig``) with overrides applied; a
+    mapping's values go in as YAML (JSON is YAML), so ``{"maps.builders": []}`` works."""
+    texts: list[str]
+    if overrides is None:
+        texts = []
+    elif isinstance(overrides, Mapping):
+        texts = [f"{key}={json.dumps(value, default=str)}" for key, value in overrides.items()]
+    elif isinstance(overrides, str):
+        raise ConfigError(f"overrides: give a mapping or a list of 'section.key=value' strings, not {overrides!r}")
+    else:
+        texts = [str(text) for text in overrides]
+    if sensor is not None:
+        texts.append(f"sensor={json.dumps(sensor)}")
+    if depth_scale is not None:
+        texts.append(f"depth_scale={float(depth_scale)}")
+    if isinstance(preset, SystemConfig):
+        if not texts:
+            return preset
+        return config_from_dict(config_to_dict(preset), "config", texts)
+    return load_config(preset, texts)
+
+
+def make_camera(camera: CameraLike | None) -> PinholeCamera:
+    """The intrinsics of ``camera``: a ``PinholeCamera``; 4 or 9 numbers (fx fy cx cy [k1 k2 p1
+    p2 k3]); a ``calib.txt``; a sequence folder (its calib.txt or the dataset its name says)."""
+    if camera is None:
+        raise ConfigError("System: camera is required: (fx, fy, cx, cy), a PinholeCamera or a calib.txt path")
+    if isinstance(camera, PinholeCamera):
+        return camera
+    if isinstance(camera, (str, Path)):
+        path = Path(camera)
+        if path.is_dir():
+            return resolve_camera(path)
+        if not path.is_file():
+            raise DataError(path, "camera calibration file not found")
+        return read_calib_file(path)
+    try:
+        values = [float(v) for v in camera]
+    except (TypeError, ValueError):
+        raise ConfigError(f"camera: expected (fx, fy, cx, cy[, k1, k2, p1, p2, k3]), got {camera!r}") from None
+    return camera_from_values(values, "camera")
+
+
+# ---------------------------------------------------------------------------- input checks
+def _check_timestamp(timestamp: float, last: float, where: str) -> float:
+    try:
+        t = float(timestamp)
+    except (TypeError, ValueError):
+        raise DataError(where, f"timestamp {timestamp!r} is not a number") from None
+    if not np.isfinite(t):
+        raise DataError(where, "timestamp is not finite")
+    if t <= last:
+        raise DataError(where, f"timestamp {t:.6f} is not after the previous frame's ({last:.6f}); "
+                               "timestamps must increase")
+    return t
+
+
+def _as_rgb(image: Any, bgr: bool, where: str) -> NDArray[np.uint8]:
+    """A fresh HxWx3 RGB copy (a keyframe keeps its image: the caller's buffer may be reused)."""
+    if not isinstance(image, np.ndarray):
+        raise DataError(where, f"rgb is a {type(image).__name__}, expected a numpy array (HxWx3 uint8)")
+    if image.dtype != np.uint8:
+        raise DataError(where, f"rgb is {image.dtype}, expected uint8 (HxWx3, 0-255)")
+    if image.ndim == 2:
+        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_GRAY2RGB)
+    if image.ndim != 3 or image.shape[2] != 3 or min(image.shape[:2]) < 1:
+        raise DataError(where, f"rgb has shape {image.shape}, expected HxWx3 (or HxW grey)")
+    if bgr:
+        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2RGB)
+    return np.array(image, copy=True, order="C")
+
+
+def _as_metres(depth: Any, scale: float, shape: tuple[int, ...], where: str) -> NDArray[np.float32]:
+    """Depth in metres as float32 (0 = no measurement), converted as ``io.images.read_depth``
+    converts a depth PNG, so the same image gives the same numbers."""
+    if not isinstance(depth, np.ndarray):
+        raise DataError(where, f"depth is a {type(depth).__name__}, expected a numpy array (HxW)")
+    if depth.ndim == 3 and depth.shape[2] == 1:
+        depth = depth[:, :, 0]
+    if depth.ndim != 2:
+        raise DataError(where, f"depth has shape {depth.shape}, expected HxW")
+    if depth.shape != tuple(shape):
+        raise DataError(where, f"depth is {depth.shape[1]}x{depth.shape[0]} but rgb is {shape[1]}x{shape[0]}")
+    if depth.dtype == np.uint16:
+        return depth.astype(np.float32) * np.float32(1.0 / scale)
+    if depth.dtype in (np.float32, np.float64):
+        metres = np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        if (metres < 0).any():
+            raise DataError(where, "depth has negative values (expected metres, 0 = no measurement)")
+        return metres
+    raise DataError(where, f"depth is {depth.dtype}; expected uint16 ({scale:g} units per metre, depth_scale) "
+                           "or float metres")
+
+
+# ---------------------------------------------------------------------------- timing, evaluation
+class _RunTiming:
+    """Per-frame wall times, per-stage times and dynamic ratios of one run."""
+
+    def __init__(self) -> None:
+        self.frame_ms: list[float] = []
+        self.dynamic_ratio: list[float] = []
+        self.stage_ms: dict[str, list[float]] = {}
+        self.latency_ms: list[float] = []
+        self.late_frames = 0
+        self.interrupted = False
+        self.t_first: float | None = None
+        self.last_done = -np.inf
+        self.wall_s = 0.0
+
+    def add(self, t0: float, done: float, result: TrackResult, arrived: float | None) -> None:
+        """One frame tracked from ``t0`` to ``done``; wall time counts from the first frame."""
+        if self.t_first is None:
+            self.t_first = t0 if arrived is None else min(t0, arrived)
+        self.frame_ms.append((done - t0) * 1e3)
+        self.dynamic_ratio.append(result.dynamic_ratio)
+        for stage, v in result.timings.items():
+            self.stage_ms.setdefault(stage, []).append(v)
+        if arrived is not None:  # camera rate: the previous frame was still being tracked when it arrived
+            self.late_frames += int(self.last_done > arrived)
+            self.latency_ms.append((done - arrived) * 1e3)
+        self.last_done = done
+        self.wall_s = done - self.t_first
+
+
+def _timing_stats(values: list[float]) -> dict[str, float]:
+    if not values:
+        return {"median": 0.0, "mean": 0.0, "p95": 0.0, "max": 0.0}
+    a = np.asarray(values)
+    return {"median": float(np.median(a)), "mean": float(a.mean()), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
+
+
+def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, result: RunResult,
+              report: bool) -> None:
+    """ATE (SE(3) for RGB-D, Sim(3) for monocular) and RPE over 1 s, into ``result``; the HTML report."""
+    from semslam.eval.metrics import ate, rpe
+
+    gt = read_trajectory(gt_path)
+    align = "se3" if config.sensor == "rgbd" else "sim3"
+    try:
+        ate_res = ate(gt, traj, align=align)
+        ate_se3 = ate(gt, traj, align="se3") if align == "sim3" else None  # mono: the metric scale too
+    except EvalError as exc:
+        log.warning("evaluation skipped: %s", exc)
+        result.eval_error = str(exc)
+        return
+    result.ate, result.ate_alignment = ate_res.stats, align
+    if ate_se3 is not None:
+        result.ate_se3, result.ate_sim3_scale = ate_se3.stats, float(ate_res.scale)
+    try:  # a run shorter than a second (one stopped early) has an ATE but no 1 s RPE
+        rpe_res = rpe(gt, traj, delta=1.0, delta_unit="seconds", align="none")
+    except EvalError as exc:
+        log.warning("RPE skipped: %s", exc)
+        result.eval_error = str(exc)
+        return
+    result.rpe_trans_1s, result.rpe_rot_deg_1s = rpe_res.trans_stats, rpe_res.rot_stats
+    if report:
+        from semslam.eval.report import write_report
+
+        extra = {"preset": config.preset, "frames": result.frames, "tracked": result.tracked_frames,
+                 "lost": result.lost_frames, "keyframes": result.keyframes,
+                 "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
+        write_report(out / "report.html", gt, traj, ate_res, rpe_res,
+                     title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra,
+                     map_dir=out / "map", ate_se3=ate_se3)
+        result.paths["report"] = str(out / "report.html")
