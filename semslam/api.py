@@ -35,10 +35,11 @@ from numpy.typing import NDArray
 from semslam.config import SystemConfig, config_from_dict, config_to_dict, load_config
 from semslam.core.protocols import FramePacket
 from semslam.core.types import Frame, RunResult, TrackResult
-from semslam.errors import ConfigError, DataError, EvalError, SemslamError
+from semslam.errors import ConfigError, DataError, SemslamError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
-from semslam.io.trajectory import Trajectory, read_trajectory, write_tum
+from semslam.io.trajectory import Trajectory, write_tum
+from semslam.run_record import RunTiming, evaluate, timing_stats
 from semslam.slam.system import System as SlamSystem
 
 log = logging.getLogger(__name__)
@@ -77,7 +78,7 @@ class System:
         self._load_map = Path(load_map) if load_map is not None else None
         self._slam: SlamSystem | None = None
         self._start_lock = threading.Lock()
-        self._timing = _RunTiming()
+        self._timing = RunTiming()
         self._last_t = -np.inf
         self._n_given = 0
         self._closed = False
@@ -292,7 +293,7 @@ class System:
         result = self._run_result(out, paths, skipped, error)
         if groundtruth is not None and len(traj) >= 3:
             # Interrupted: ATE into stats.json, but no report (its plots take a second or more).
-            _evaluate(Path(groundtruth), traj, self.config, out, result, report and not interrupted)
+            evaluate(Path(groundtruth), traj, self.config, out, result, report and not interrupted)
         (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
         (out / "config.json").write_text(json.dumps(config_to_dict(self.config), indent=2))
         self.result = result
@@ -306,12 +307,12 @@ class System:
         return RunResult(
             sequence=self.name, preset=self.config.preset, out_dir=out, **counts,
             skipped_frames=len(skipped), skipped=list(skipped),
-            ms_per_frame=_timing_stats(timing.frame_ms),
+            ms_per_frame=timing_stats(timing.frame_ms),
             stages_ms_median={k: float(np.median(v)) for k, v in timing.stage_ms.items()},
             stages_ms_p95={k: float(np.percentile(v, 95)) for k, v in timing.stage_ms.items()},
             stages_ms_max={k: float(np.max(v)) for k, v in timing.stage_ms.items()},
             realtime=self.config.slam.realtime, late_frames=timing.late_frames,
-            latency_ms=_timing_stats(timing.latency_ms) if timing.latency_ms else {},
+            latency_ms=timing_stats(timing.latency_ms) if timing.latency_ms else {},
             dynamic_ratio_mean=float(np.mean(timing.dynamic_ratio)) if timing.dynamic_ratio else 0.0,
             wall_s=timing.wall_s, fps=n / timing.wall_s if timing.wall_s > 0 else 0.0,
             tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,
@@ -418,76 +419,3 @@ def _as_metres(depth: Any, scale: float, shape: tuple[int, ...], where: str) -> 
         return metres
     raise DataError(where, f"depth is {depth.dtype}; expected uint16 ({scale:g} units per metre, depth_scale) "
                            "or float metres")
-
-
-# ---------------------------------------------------------------------------- timing, evaluation
-class _RunTiming:
-    """Per-frame wall times, per-stage times and dynamic ratios of one run."""
-
-    def __init__(self) -> None:
-        self.frame_ms: list[float] = []
-        self.dynamic_ratio: list[float] = []
-        self.stage_ms: dict[str, list[float]] = {}
-        self.latency_ms: list[float] = []
-        self.late_frames = 0
-        self.interrupted = False
-        self.t_first: float | None = None
-        self.last_done = -np.inf
-        self.wall_s = 0.0
-
-    def add(self, t0: float, done: float, result: TrackResult, arrived: float | None) -> None:
-        """One frame tracked from ``t0`` to ``done``; wall time counts from the first frame."""
-        if self.t_first is None:
-            self.t_first = t0 if arrived is None else min(t0, arrived)
-        self.frame_ms.append((done - t0) * 1e3)
-        self.dynamic_ratio.append(result.dynamic_ratio)
-        for stage, v in result.timings.items():
-            self.stage_ms.setdefault(stage, []).append(v)
-        if arrived is not None:  # camera rate: the previous frame was still being tracked when it arrived
-            self.late_frames += int(self.last_done > arrived)
-            self.latency_ms.append((done - arrived) * 1e3)
-        self.last_done = done
-        self.wall_s = done - self.t_first
-
-
-def _timing_stats(values: list[float]) -> dict[str, float]:
-    if not values:
-        return {"median": 0.0, "mean": 0.0, "p95": 0.0, "max": 0.0}
-    a = np.asarray(values)
-    return {"median": float(np.median(a)), "mean": float(a.mean()), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
-
-
-def _evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, result: RunResult,
-              report: bool) -> None:
-    """ATE (SE(3) for RGB-D, Sim(3) for monocular) and RPE over 1 s, into ``result``; the HTML report."""
-    from semslam.eval.metrics import ate, rpe
-
-    gt = read_trajectory(gt_path)
-    align = "se3" if config.sensor == "rgbd" else "sim3"
-    try:
-        ate_res = ate(gt, traj, align=align)
-        ate_se3 = ate(gt, traj, align="se3") if align == "sim3" else None  # mono: the metric scale too
-    except EvalError as exc:
-        log.warning("evaluation skipped: %s", exc)
-        result.eval_error = str(exc)
-        return
-    result.ate, result.ate_alignment = ate_res.stats, align
-    if ate_se3 is not None:
-        result.ate_se3, result.ate_sim3_scale = ate_se3.stats, float(ate_res.scale)
-    try:  # a run shorter than a second (one stopped early) has an ATE but no 1 s RPE
-        rpe_res = rpe(gt, traj, delta=1.0, delta_unit="seconds", align="none")
-    except EvalError as exc:
-        log.warning("RPE skipped: %s", exc)
-        result.eval_error = str(exc)
-        return
-    result.rpe_trans_1s, result.rpe_rot_deg_1s = rpe_res.trans_stats, rpe_res.rot_stats
-    if report:
-        from semslam.eval.report import write_report
-
-        extra = {"preset": config.preset, "frames": result.frames, "tracked": result.tracked_frames,
-                 "lost": result.lost_frames, "keyframes": result.keyframes,
-                 "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
-        write_report(out / "report.html", gt, traj, ate_res, rpe_res,
-                     title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra,
-                     map_dir=out / "map", ate_se3=ate_se3)
-        result.paths["report"] = str(out / "report.html")

@@ -1,0 +1,88 @@
+"""What one run measured (per-frame times, latency, dynamic ratios) and its evaluation
+against ground truth: the numbers ``stats.json`` and the report are written from."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from semslam.config import SystemConfig
+from semslam.core.types import RunResult, TrackResult
+from semslam.errors import EvalError
+from semslam.io.trajectory import Trajectory, read_trajectory
+
+log = logging.getLogger(__name__)
+
+
+class RunTiming:
+    """Per-frame wall times, per-stage times and dynamic ratios of one run."""
+
+    def __init__(self) -> None:
+        self.frame_ms: list[float] = []
+        self.dynamic_ratio: list[float] = []
+        self.stage_ms: dict[str, list[float]] = {}
+        self.latency_ms: list[float] = []
+        self.late_frames = 0
+        self.interrupted = False
+        self.t_first: float | None = None
+        self.last_done = -np.inf
+        self.wall_s = 0.0
+
+    def add(self, t0: float, done: float, result: TrackResult, arrived: float | None) -> None:
+        """One frame tracked from ``t0`` to ``done``; wall time counts from the first frame."""
+        if self.t_first is None:
+            self.t_first = t0 if arrived is None else min(t0, arrived)
+        self.frame_ms.append((done - t0) * 1e3)
+        self.dynamic_ratio.append(result.dynamic_ratio)
+        for stage, v in result.timings.items():
+            self.stage_ms.setdefault(stage, []).append(v)
+        if arrived is not None:  # camera rate: the previous frame was still being tracked when it arrived
+            self.late_frames += int(self.last_done > arrived)
+            self.latency_ms.append((done - arrived) * 1e3)
+        self.last_done = done
+        self.wall_s = done - self.t_first
+
+
+def timing_stats(values: list[float]) -> dict[str, float]:
+    if not values:
+        return {"median": 0.0, "mean": 0.0, "p95": 0.0, "max": 0.0}
+    a = np.asarray(values)
+    return {"median": float(np.median(a)), "mean": float(a.mean()), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
+
+
+def evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, result: RunResult,
+              report: bool) -> None:
+    """ATE (SE(3) for RGB-D, Sim(3) for monocular) and RPE over 1 s, into ``result``; the HTML report."""
+    from semslam.eval.metrics import ate, rpe
+
+    gt = read_trajectory(gt_path)
+    align = "se3" if config.sensor == "rgbd" else "sim3"
+    try:
+        ate_res = ate(gt, traj, align=align)
+        ate_se3 = ate(gt, traj, align="se3") if align == "sim3" else None  # mono: the metric scale too
+    except EvalError as exc:
+        log.warning("evaluation skipped: %s", exc)
+        result.eval_error = str(exc)
+        return
+    result.ate, result.ate_alignment = ate_res.stats, align
+    if ate_se3 is not None:
+        result.ate_se3, result.ate_sim3_scale = ate_se3.stats, float(ate_res.scale)
+    try:  # a run shorter than a second (one stopped early) has an ATE but no 1 s RPE
+        rpe_res = rpe(gt, traj, delta=1.0, delta_unit="seconds", align="none")
+    except EvalError as exc:
+        log.warning("RPE skipped: %s", exc)
+        result.eval_error = str(exc)
+        return
+    result.rpe_trans_1s, result.rpe_rot_deg_1s = rpe_res.trans_stats, rpe_res.rot_stats
+    if report:
+        from semslam.eval.report import write_report
+
+        extra = {"preset": config.preset, "frames": result.frames, "tracked": result.tracked_frames,
+                 "lost": result.lost_frames, "keyframes": result.keyframes,
+                 "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
+        write_report(out / "report.html", gt, traj, ate_res, rpe_res,
+                     title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra,
+                     map_dir=out / "map", ate_se3=ate_se3)
+        result.paths["report"] = str(out / "report.html")
