@@ -29,6 +29,8 @@ def _register_commands() -> None:
     for module in (run_cmd, map_cmd, eval_cmd, eval_map_cmd, synth_cmd, train_cmd, train_nets_cmd, bench_cmd,
                    train_sdfcnn_cmd, eval_sdfcnn_cmd, train_fpfdcnn_cmd, eval_features_cmd):
         module.register(app)
+    from semslam.cli import batch_cmd  # semslam batch PLAN.yaml (issue 14)
+    batch_cmd.register(app)
 
 
 def main(argv: list[str] | None = None) -> int:
