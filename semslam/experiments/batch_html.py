@@ -25,7 +25,7 @@ body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; mar
 h1 { font-size: 1.5em; } h2 { font-size: 1.15em; margin-top: 1.6em; }
 table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.2em 0.6em; text-align: right; }
-th { background: #f3f3f3; } td.k { text-align: left; } tr.failed td { color: #b00; }
+th { background: #f3f3f3; } td.k, th.k { text-align: left; } tr.failed td { color: #b00; }
 figure.plot { margin: 1em 0; } figure.plot svg { max-width: 100%; height: auto; }
 .meta { color: #666; font-size: 0.9em; }
 """
@@ -85,7 +85,7 @@ def _cell(s: dict[str, float] | None, scale: float, digits: int) -> str:
 
 
 def _groups_table(summary: dict[str, Any]) -> str:
-    rows = ["<table><tr><th>sequence</th><th>variant</th><th>ok / runs</th><th>ATE RMSE (cm)</th>"
+    rows = ["<table><tr><th class=k>sequence</th><th class=k>variant</th><th>ok / runs</th><th>ATE RMSE (cm)</th>"
             "<th>ms/frame median</th><th>lost frames</th></tr>"]
     for g in summary["groups"]:
         rows.append(f"<tr><td class=k>{html.escape(g['sequence'])}</td><td class=k>{html.escape(g['variant'])}</td>"
@@ -95,7 +95,7 @@ def _groups_table(summary: dict[str, Any]) -> str:
 
 
 def _jobs_table(summary: dict[str, Any], out: Path) -> str:
-    rows = ["<table><tr><th>sequence</th><th>variant</th><th>repeat</th><th>status</th><th>ATE RMSE (cm)</th>"
+    rows = ["<table><tr><th class=k>sequence</th><th class=k>variant</th><th>repeat</th><th>status</th><th>ATE RMSE (cm)</th>"
             "<th>ms/frame</th><th>lost</th><th>job s</th><th>folder</th><th>error</th></tr>"]
     for j in summary["jobs"]:
         try:
