@@ -11,12 +11,15 @@ import shutil
 import statistics
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import yaml
 
 from semslam.cli.main import main
+from semslam.experiments.batch_jobs import finished_record
+from semslam.experiments.batch_plan import load_plan
 
 FRAMES = 12  # per run: enough to initialise, make keyframes and evaluate ATE
 SEQS = ("xyz", "rpy")
@@ -132,6 +135,12 @@ def test_second_run_skips_finished_jobs(plan: Path, local_out: Path, capsys: pyt
     for path, mtime in marks.items():  # finished jobs untouched; failed ones tried again
         assert (path.stat().st_mtime_ns == mtime) == ("missing" not in path.parts), path
     _check_against_runs(again, local_out)
+    # A job the plan now describes differently is not finished: it runs again.
+    job = next(j for j in load_plan(plan).jobs(local_out.resolve()) if j.sequence == "xyz")
+    assert finished_record(job) is not None
+    for changed in (replace(job, overrides=("features.n_features=700",)), replace(job, seed=9),
+                    replace(job, max_frames=FRAMES - 2)):
+        assert finished_record(changed) is None
 
 
 def test_plan_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -191,3 +200,21 @@ def test_summary_page_plots_render_in_chromium(ray_out: Path, tmp_path: Path) ->
     for p in plots:
         assert p["width"] > 300 and p["height"] > 150
         assert p["runs"] == {f"{p['id'][:-5]}-runs-{i}": per_variant for i in range(len(VARIANTS))}
+
+
+def test_bench_repeats_report_the_spread(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``semslam bench --repeats 2`` runs through the batch runner: a row per run (its
+    stats.json), and per sequence x variant the median and range of those rows."""
+    out = tmp_path / "runs"
+    assert main(["bench", "--presets", "orb", "--sequences", "static_xyz", "--frames", "10", "--repeats", "2",
+                 "--data", str(tmp_path / "data"), "--out", str(out), "--json", str(tmp_path / "b.json")]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads((tmp_path / "b.json").read_text())
+    assert [(r["variant"], r["repeat"]) for r in doc["results"]] == [("orb", 0), ("orb", 1)] and doc["failed"] == []
+    ate = [json.loads((out / "orb" / "static_xyz" / f"r{k}" / "stats.json").read_text())["ate"]["rmse"]
+           for k in (0, 1)]
+    assert [r["ate_rmse_m"] for r in doc["results"]] == ate
+    (group,) = doc["groups"]
+    assert group["n_ok"] == 2 and group["ate_rmse_m"] == {"median": statistics.median(ate), "min": min(ate),
+                                                          "max": max(ate)}
+    assert "| static_xyz | 0 | orb (r1) | 10 (" in printed and "| static_xyz | orb | 2 / 2 |" in printed

@@ -39,6 +39,7 @@ class JobRecord:
     repeat: int
     seed: int | None
     source: str
+    max_frames: int | None
     out_dir: str
     status: str  # "ok" or "failed"
     error: str | None = None
@@ -71,7 +72,13 @@ class JobRecord:
     @classmethod
     def for_job(cls, job: Job, status: str, error: str | None = None, job_s: float | None = None) -> "JobRecord":
         return cls(job.sequence, job.variant, job.preset, list(job.overrides), job.repeat, job.seed, job.source,
-                   str(job.out_dir), status, error, job_s=job_s, host=socket.gethostname())
+                   job.max_frames, str(job.out_dir), status, error, job_s=job_s, host=socket.gethostname())
+
+    def same_work(self, job: Job) -> bool:
+        """Whether this record is of ``job`` as the plan now has it (same preset, overrides,
+        seed, sequence and frames): a changed plan runs the job again."""
+        return (self.preset, tuple(self.overrides), self.seed, self.source, self.max_frames) == (
+            job.preset, job.overrides, job.seed, job.source, job.max_frames)
 
     def with_result(self, r: RunResult) -> "JobRecord":
         """The run's numbers, as its ``stats.json`` holds them."""
@@ -96,12 +103,12 @@ def read_stats(out_dir: str | Path) -> RunResult:
 
 
 def finished_record(job: Job) -> JobRecord | None:
-    """The record of a job an earlier batch finished (``job.json`` ok and ``stats.json``
-    readable), marked ``resumed``; None if it has to run."""
+    """The record of a job an earlier batch finished (``job.json`` ok, of the same work,
+    and ``stats.json`` readable), marked ``resumed``; None if it has to run."""
     path = job.out_dir / RESULT_FILE
     try:
         record = JobRecord.from_dict(json.loads(path.read_text()))
-        if not record.ok:
+        if not record.ok or not record.same_work(job):
             return None
         record.with_result(read_stats(job.out_dir))
     except (OSError, ValueError, TypeError):
