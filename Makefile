@@ -7,6 +7,8 @@ STAMP := $(VENV)/.installed
 # Debian packages the Python wheels need at run time (opencv is the headless build; open3d
 # loads libusb-1.0). Installed with apt-get when running as root.
 APT_PACKAGES := libusb-1.0-0
+# Headless Chromium: tests/test_batch.py renders semslam batch's summary.html in it.
+APT_PACKAGES += chromium
 
 .PHONY: demo test lint bench setup clean
 
@@ -20,6 +22,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[test,nets]"
 	$(BIN)/pip install -q --no-deps mediapipe==0.10.21
+	$(BIN)/pip install -q -e ".[batch]"  # Ray: semslam batch (tested in CI; optional for users)
 	@touch $(STAMP)
 
 setup: $(STAMP)

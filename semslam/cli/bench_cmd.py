@@ -1,5 +1,6 @@
-"""``semslam bench``: render synthetic sequences, run presets/variants on each, print a JSON
-document and a markdown table (``--ablation``: the structure of STDC-SLAM's Table 1)."""
+"""``semslam bench``: render synthetic sequences, run presets/variants on each (``--repeats``
+times; a batch plan run by the batch runner), print a JSON document and a markdown table
+(``--ablation``: the structure of STDC-SLAM's Table 1)."""
 
 from __future__ import annotations
 
@@ -26,8 +27,15 @@ def register(app: typer.Typer) -> None:
         rate: int = typer.Option(250, "--rate", min=10, max=2000, help="--profile: samples per second"),
         realtime: bool = typer.Option(False, "--realtime", help="feed frames at camera rate (semslam run --realtime): "
                                                                  "per-frame times as ORB-SLAM3's examples measure them"),
+        repeats: int = typer.Option(1, "--repeats", min=1, help="runs per sequence x variant; the JSON's groups and "
+                                                               "the second table give median and min-max"),
+        ray: bool = typer.Option(False, "--ray", help="run the jobs as Ray tasks (2 CPUs each; default: one after "
+                                                      "another in this process)"),
+        address: Optional[str] = typer.Option(None, "--address", help="with --ray: an existing Ray cluster"),
     ) -> None:
         """Benchmark presets on the synthetic sequences: JSON + a markdown table of ATE and ms/frame."""
+        from semslam.experiments.batch import Executor
+        from semslam.experiments.batch_summary import markdown
         from semslam.experiments.bench import (
             ABLATION_SEQUENCES,
             ABLATION_VARIANTS,
@@ -56,14 +64,25 @@ def register(app: typer.Typer) -> None:
             print(f"{row.variant} on {row.sequence}: ATE {r.ate_rmse}, {r.ms_per_frame['median']:.1f} ms/frame, "
                   f"loops {r.get('loops')}", file=sys.stderr)
 
-        rows = run_benchmark(variants, names, data, out, frames, on_row=report)
-        text = json.dumps(document(rows, names), indent=2)
+        if address and not ray:
+            raise typer.BadParameter("--address needs --ray")
+        bench_run = run_benchmark(variants, names, data, out, frames, on_row=report, repeats=repeats,
+                                  executor=Executor(ray=ray, address=address))
+        doc = document(bench_run.rows, names, bench_run.summary)
+        text = json.dumps(doc, indent=2)
         print(text)
         if json_path:
             json_path.parent.mkdir(parents=True, exist_ok=True)
             json_path.write_text(text)
         print()
-        print(markdown_table(rows))
+        print(markdown_table(bench_run.rows))
+        if repeats > 1 or doc["failed"]:
+            print()
+            print(markdown(bench_run.summary), end="")
+        for job in doc["failed"]:
+            print(f"{job['variant']} on {job['sequence']} (r{job['repeat']}) failed: {job['error']}", file=sys.stderr)
+        if doc["failed"]:
+            raise typer.Exit(1)
 
 
 def _profile(variants: list, names: list[str], data: Path, out: Path, frames: int | None, rate: int,  # type: ignore[type-arg]

@@ -31,6 +31,8 @@ def _register_commands() -> None:
         module.register(app)
     from semslam.cli import dataset_cmd  # semslam dataset list | get | path
     dataset_cmd.register(app)
+    from semslam.cli import batch_cmd  # semslam batch PLAN.yaml (issue 14)
+    batch_cmd.register(app)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,28 +1,31 @@
-"""Benchmarks on the project's synthetic sequences (``semslam bench``): render them, run
-variants on each, return one row per (variant, sequence) made from each run's ``RunResult``.
+"""Benchmarks on the project's synthetic sequences (``semslam bench``): a batch plan (render
+them, run variants on each, ``repeats`` times) run by the batch runner, with one row per run
+made from each run's ``RunResult``.
 
 A variant is ``label:preset:key=value[,key=value...]`` (a preset with ``--set`` overrides).
 Rendered sequences are cached (re-rendered when their config changes). Numbers come from
-the runs on this machine; nothing is hard-coded.
+the runs on this machine; nothing is hard-coded. Unlike ``semslam batch``, a benchmark runs
+every job again (no resuming) and, by default, one job at a time in this process, so the
+runs' timings do not compete with each other.
 """
 
 from __future__ import annotations
 
-import os
-import platform
-import sys
-import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from semslam.config import load_config
 from semslam.core.types import RunResult
 from semslam.errors import ConfigError
-from semslam.io.sequence import kind_for_sensor, open_sequence
-from semslam.pipeline import run_slam
-from semslam.synth import SEQUENCES, ensure_rendered
+from semslam.experiments.batch import Executor, run_batch
+from semslam.experiments.batch_jobs import JobRecord, read_stats
+from semslam.experiments.batch_plan import Plan, SequenceSpec, Variant
+from semslam.experiments.batch_summary import machine
+from semslam.synth import SEQUENCES
+
+__all__ = ["Variant", "BenchRow", "bench_plan", "run_benchmark", "machine", "targets_table", "document",
+           "markdown_table"]
 
 #: STDC-SLAM Table 1 columns: OS3 (base), +S, +S+SRM, +S+SRM+Q (= stdc), +Q; and DDL-SLAM.
 ABLATION_VARIANTS = [
@@ -36,24 +39,8 @@ ABLATION_VARIANTS = [
 ]
 ABLATION_SEQUENCES = ["walking_xyz", "walking_rpy", "walking_halfsphere", "walking_static", "static_xyz", "walking_box"]
 DEFAULT_SEQUENCES = ["static_xyz", "loop", "room_loop", "walking_static", "walking_xyz", "walking_rpy", "walking_halfsphere"]
-
-
-@dataclass(frozen=True)
-class Variant:
-    label: str
-    preset: str
-    overrides: tuple[str, ...] = ()
-
-    @classmethod
-    def parse(cls, text: str) -> "Variant":
-        """``label:preset:key=value,...``; a bare preset name is its own label."""
-        parts = text.split(":")
-        if len(parts) == 1:
-            return cls(parts[0], parts[0])
-        if len(parts) > 3 or not parts[0] or not parts[1]:
-            raise ConfigError(f"--variant {text!r}: expected label:preset[:key=value,...]")
-        rest = parts[2] if len(parts) == 3 else ""
-        return cls(parts[0], parts[1], tuple(o for o in rest.split(",") if o))
+#: Ray CPUs per benchmark job: tracking and local mapping keep about two cores busy.
+BENCH_JOB_CPUS = 2.0
 
 
 @dataclass
@@ -67,6 +54,7 @@ class BenchRow:
     people: int
     motion: str
     result: RunResult
+    repeat: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -78,36 +66,53 @@ class BenchRow:
             "relocalisations": r.get("relocalisations"), "ate_rmse_m": r.ate_rmse,
             "rpe_trans_rmse_m_1s": r.rpe_trans_rmse, "ms_per_frame_median": r.ms_per_frame.get("median"),
             "ms_per_frame_p95": r.ms_per_frame.get("p95"), "stages_ms_median": r.stages_ms_median,
-            "dynamic_ratio_mean": r.dynamic_ratio_mean, "out_dir": str(r.out_dir),
+            "dynamic_ratio_mean": r.dynamic_ratio_mean, "out_dir": str(r.out_dir), "repeat": self.repeat,
         }
 
 
-def run_benchmark(variants: list[Variant], sequences: list[str], data: Path, out: Path, frames: int | None = None,
-                  on_row: Callable[[BenchRow], None] | None = None) -> list[BenchRow]:
-    """Render each sequence (cached) and run every variant on it."""
+def bench_plan(variants: list[Variant], sequences: list[str], data: Path, frames: int | None = None,
+               repeats: int = 1) -> Plan:
+    """The benchmark as a batch plan: synthetic sequences rendered into ``data`` (``frames``
+    long), runs in ``VARIANT/SEQUENCE`` (``VARIANT/SEQUENCE/rK`` with repeats), no reports."""
     unknown = [n for n in sequences if n not in SEQUENCES]
     if unknown:
         raise ConfigError(f"--sequences: unknown {', '.join(unknown)} (known: {', '.join(SEQUENCES)})")
-    configs = {v.label: load_config(v.preset, list(v.overrides)) for v in variants}  # fail before rendering
-    rows = []
-    for name in sequences:
-        synth_cfg = SEQUENCES[name] if frames is None else replace(SEQUENCES[name], frames=frames)
-        t0 = time.perf_counter()
-        if ensure_rendered(synth_cfg, data / name):
-            print(f"rendered {name} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-        for v in variants:
-            result = run_slam(open_sequence(data / name, kind=kind_for_sensor(configs[v.label].sensor)), configs[v.label], out / v.label / name,
-                              progress=False, report=False)
-            row = BenchRow(v.label, v.preset, list(v.overrides), name, synth_cfg.people, synth_cfg.motion, result)
-            rows.append(row)
-            if on_row is not None:
-                on_row(row)
-    return rows
+    layout = "{variant}/{sequence}" if repeats == 1 else "{variant}/{sequence}/r{repeat}"
+    return Plan([SequenceSpec(n, synth=n) for n in sequences], variants, repeats=repeats, frames=frames,
+                num_cpus=BENCH_JOB_CPUS, report=False, data=data, layout=layout, where="semslam bench")
 
 
-def machine() -> dict[str, Any]:
-    return {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
-            "cores": os.cpu_count()}
+@dataclass
+class BenchRun:
+    """What ``run_benchmark`` measured: one row per finished run (sequence, variant, repeat
+    order), and the batch summary (spread over repeats, failed jobs)."""
+
+    rows: list["BenchRow"]
+    summary: dict[str, Any]
+
+
+def run_benchmark(variants: list[Variant], sequences: list[str], data: Path, out: Path, frames: int | None = None,
+                  on_row: Callable[["BenchRow"], None] | None = None, repeats: int = 1,
+                  executor: Executor = Executor(ray=False)) -> BenchRun:
+    """Render each sequence (cached) and run every variant on it ``repeats`` times; a
+    failed run is in ``summary`` (with its one-line error), not a row."""
+    plan = bench_plan(variants, sequences, data, frames, repeats)
+    rows: dict[str, BenchRow] = {}
+
+    def add(record: JobRecord) -> None:
+        if not record.ok:
+            return
+        synth = SEQUENCES[record.sequence]
+        row = BenchRow(record.variant, record.preset, list(record.overrides), record.sequence, synth.people,
+                       synth.motion, read_stats(record.out_dir), repeat=record.repeat)
+        rows[record.key] = row
+        if on_row is not None:
+            on_row(row)
+
+    summary = run_batch(plan, out, executor, resume=False, progress=False, on_record=add)
+    v_order, s_order = [v.label for v in variants], list(sequences)
+    ordered = sorted(rows.values(), key=lambda r: (s_order.index(r.sequence), v_order.index(r.variant), r.repeat))
+    return BenchRun(ordered, summary)
 
 
 def targets_table(targets: list[dict[str, Any]], digits: int = 1) -> str:
@@ -121,21 +126,29 @@ def targets_table(targets: list[dict[str, Any]], digits: int = 1) -> str:
     return "\n".join(lines)
 
 
-def document(rows: list[BenchRow], sequences: list[str]) -> dict[str, Any]:
-    """The JSON document ``semslam bench`` prints."""
-    return {"machine": machine(), "results": [r.to_dict() for r in rows],
-            "synth_configs": {n: asdict(SEQUENCES[n]) for n in sequences}}
+def document(rows: list[BenchRow], sequences: list[str], summary: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The JSON document ``semslam bench`` prints; with the batch ``summary``, also the
+    spread over repeats per sequence x variant and the failed runs."""
+    doc = {"machine": machine(), "results": [r.to_dict() for r in rows],
+           "synth_configs": {n: asdict(SEQUENCES[n]) for n in sequences}}
+    if summary is not None:
+        doc["groups"] = summary["groups"]
+        doc["failed"] = [j for j in summary["jobs"] if j["status"] != "ok"]
+    return doc
 
 
 def markdown_table(rows: list[BenchRow]) -> str:
+    """One line per run (``(rK)`` after the variant when there are repeats)."""
     lines = ["| sequence | people | variant | frames (tracked) | KFs | loops | ATE RMSE (cm) | RPE 1 s (cm) | "
              "ms/frame median | p95 |", "|---|---|---|---|---|---|---|---|---|---|"]
+    repeated = any(row.repeat for row in rows)
     for row in rows:
         r = row.result
+        variant = f"{row.variant} (r{row.repeat})" if repeated else row.variant
         ate = "n/a" if r.ate_rmse is None else f"{r.ate_rmse * 100:.2f}"
         rpe = "n/a" if r.rpe_trans_rmse is None else f"{r.rpe_trans_rmse * 100:.2f}"
         loops = r.get("loops")
-        lines.append(f"| {row.sequence} | {row.people} | {row.variant} | {r.frames} ({r.tracked_frames}) | "
+        lines.append(f"| {row.sequence} | {row.people} | {variant} | {r.frames} ({r.tracked_frames}) | "
                      f"{r.keyframes} | {'-' if loops is None else loops} | {ate} | {rpe} | "
                      f"{r.ms_per_frame['median']:.1f} | {r.ms_per_frame['p95']:.1f} |")
     return "\n".join(lines)
