@@ -170,3 +170,11 @@ def test_no_keyframes_writes_nothing(tmp_path: Path) -> None:
     builder = TsdfMesh()
     builder.add_keyframe(KeyframeSnapshot(0, 0.0, np.eye(4), np.zeros((H, W, 3), np.uint8), None, None, None, CAM))
     assert builder.finish(tmp_path) == {} and not (tmp_path / "mesh.ply").exists()
+
+
+def test_no_surface_yet_writes_nothing(tmp_path: Path) -> None:
+    """One keyframe where the builder wants more observations per voxel (a run of a few
+    frames): no mesh.ply and no error (Open3D refuses to write an empty mesh)."""
+    builder = TsdfMesh(MapsConfig(mesh_voxel_m=VOXEL, max_depth_m=4.0), min_weight=5.0)  # type: ignore[arg-type]
+    builder.add_keyframe(_snapshots()[0])
+    assert builder.finish(tmp_path) == {} and not (tmp_path / "mesh.ply").exists()

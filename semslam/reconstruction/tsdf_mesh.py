@@ -147,6 +147,9 @@ class TsdfMesh:
                 self._integrate(self._grid, kept)
                 kept.T_wc_integrated = kept.T_wc
         mesh = self.mesh()
+        if not mesh.has_vertices():  # too few observations per voxel yet (a short run): no surface
+            log.warning("mesh: no voxel reached weight %s (a short run?); no mesh.ply written", self.min_weight)
+            return {}
         out_dir.mkdir(parents=True, exist_ok=True)
         path = out_dir / "mesh.ply"
         if not o3d.io.write_triangle_mesh(str(path), mesh):
