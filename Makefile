@@ -7,23 +7,32 @@ STAMP := $(VENV)/.installed
 # Debian packages the Python wheels need at run time (opencv is the headless build; open3d
 # loads libusb-1.0). Installed with apt-get when running as root.
 APT_PACKAGES := libusb-1.0-0
-# Headless Chromium: tests/test_batch.py renders semslam batch's summary.html in it.
-APT_PACKAGES += chromium
+# Tests only: headless Chromium renders semslam batch's summary.html (tests/test_batch.py).
+APT_TEST_PACKAGES := chromium
+TEST_STAMP := $(VENV)/.test-installed
 
 .PHONY: demo test lint bench setup clean
 
-$(STAMP): pyproject.toml
+# $(call apt_install,PACKAGES): the missing ones, with apt-get, when running as root.
+define apt_install
 	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
-		missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+		missing=""; for p in $(1); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 		if [ -n "$$missing" ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; fi; \
 	fi
+endef
+
+$(STAMP): pyproject.toml
+	$(call apt_install,$(APT_PACKAGES))
 	@command -v $(PY) >/dev/null || { echo "error: $(PY) not found (semslam needs Python 3.11)"; exit 1; }
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[test,nets]"
+	$(BIN)/pip install -q -e ".[test,nets,batch]"
 	$(BIN)/pip install -q --no-deps mediapipe==0.10.21
-	$(BIN)/pip install -q -e ".[batch]"  # Ray: semslam batch (tested in CI; optional for users)
 	@touch $(STAMP)
+
+$(TEST_STAMP): $(STAMP)
+	$(call apt_install,$(APT_TEST_PACKAGES))
+	@touch $(TEST_STAMP)
 
 setup: $(STAMP)
 
@@ -31,7 +40,7 @@ demo: $(STAMP)
 	$(BIN)/semslam demo
 
 # Guard rails first (seconds): lint and the import layers / no-cycles contracts (.importlinter).
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
