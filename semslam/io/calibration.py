@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import re
 from pathlib import Path
 
@@ -42,6 +43,8 @@ def camera_from_values(values: list[float] | tuple[float, ...], source: str) -> 
     """Build a camera from 4 (pinhole) or 9 (with k1 k2 p1 p2 k3) numbers."""
     if len(values) not in (4, 9):
         raise ConfigError(f"{source}: expected 4 numbers (fx fy cx cy) or 9 (with k1 k2 p1 p2 k3), got {len(values)}")
+    if not all(math.isfinite(float(v)) for v in values):
+        raise ConfigError(f"{source}: every value must be a finite number, got {' '.join(str(v) for v in values)}")
     fx, fy, cx, cy = (float(v) for v in values[:4])
     if fx <= 0 or fy <= 0:
         raise ConfigError(f"{source}: focal lengths must be positive, got fx={fx} fy={fy}")
@@ -61,7 +64,9 @@ def parse_camera_option(text: str) -> PinholeCamera:
 def read_calib_file(path: Path) -> PinholeCamera:
     """Read the first non-comment line of a ``calib.txt``."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
+    except UnicodeDecodeError:
+        raise DataError(path, "not a text file (cannot decode as UTF-8)") from None
     except OSError as exc:
         raise DataError(path, f"cannot read calibration file ({exc.strerror})") from None
     for line in lines:
