@@ -69,8 +69,9 @@ def _check_after(path: Path, lineno: int, text: str, stamp: float, previous: Lis
         raise DataError(path, f"line {lineno}: duplicate timestamp {text} (line {previous.line} has it too); "
                               "each image needs its own timestamp")
     if stamp < previous.timestamp:
-        raise DataError(path, f"line {lineno}: timestamp {text} is not after the previous one "
-                              f"({previous.timestamp:.6f}); timestamps must increase")
+        before = f"{previous.timestamp:.6f}" if abs(previous.timestamp) < 1e12 else f"{previous.timestamp:.6g}"
+        raise DataError(path, f"line {lineno}: timestamp {text} is not after the previous one ({before}, "
+                              f"line {previous.line}); timestamps must increase")
 
 
 def listed_path(list_file: Path, lineno: int, root: Path, name: str) -> Path:
