@@ -25,6 +25,7 @@ from semslam.semantics.ground_truth import GroundTruthSegmenter
 
 FRAMES = 10
 W, H = 320, 240
+TIFF_RAW = [cv2.IMWRITE_TIFF_COMPRESSION, 1]  # float TIFFs written as they are
 
 
 @dataclass
@@ -136,7 +137,7 @@ def _float_depth(seq: Path) -> None:
     for line in lines:
         stamp, name = line.split()
         tiff = name.replace(".png", ".tiff")
-        assert cv2.imwrite(str(seq / tiff), bad)
+        assert cv2.imwrite(str(seq / tiff), bad, TIFF_RAW)
         new.append(f"{stamp} {tiff}")
     (seq / "depth.txt").write_text("\n".join(comments + new) + "\n")
 
@@ -308,7 +309,9 @@ def _write_variant(path: Path, kind: str) -> None:
 
     bgr = cv2.imread(str(path))
     grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-    if kind == "16-bit":
+    if kind == "float-tiff":  # rgb.txt is rewritten to name these; uncompressed (OpenCV's default, LogLuv, is lossy)
+        assert cv2.imwrite(str(path.with_suffix(".tiff")), bgr.astype(np.float32) / 255.0, TIFF_RAW)
+    elif kind == "16-bit":
         cv2.imwrite(str(path), bgr.astype(np.uint16) * 257)
     elif kind == "grey":
         cv2.imwrite(str(path), grey)
@@ -318,25 +321,35 @@ def _write_variant(path: Path, kind: str) -> None:
         Image.fromarray(grey).convert("LA").save(path)
 
 
-@pytest.mark.parametrize("kind", ["16-bit", "grey", "rgba", "grey+alpha"])
+@pytest.mark.parametrize("kind", ["16-bit", "grey", "rgba", "grey+alpha", "float-tiff"])
 def test_png_variants_decode_to_the_same_run(kind: str, seq: Path, reference: tuple[str, Path],
                                              capsys: pytest.CaptureFixture[str]) -> None:
     """Converted losslessly, each variant decodes to the image ORB tracking saw (it tracks
     grey): the sequential run's trajectory is byte-identical to the original's."""
     for p in images(seq):
         _write_variant(p, kind)
+    if kind == "float-tiff":
+        (seq / "rgb.txt").write_text((seq / "rgb.txt").read_text().replace(".png", ".tiff"))
     r = run(seq, capsys)
     assert r.rc == 0 and (r.out / "trajectory.txt").read_text() == reference[0]
 
 
-@pytest.mark.parametrize("kind", ["rgb", "depth"])
-def test_truncated_png_is_skipped_and_counted(kind: str, seq: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    p = images(seq, kind)[5]
-    p.write_bytes(p.read_bytes()[:1000])
-    r = run(seq, capsys)
+@pytest.mark.parametrize("kind", ["rgb", "depth", "depth of another size"])
+def test_unusable_image_inside_is_skipped_and_counted(kind: str, seq: Path, capsys: pytest.CaptureFixture[str],
+                                                      caplog: pytest.LogCaptureFixture) -> None:
+    p = images(seq, kind.split()[0])[5]
+    if kind == "depth of another size":
+        cv2.imwrite(str(p), np.full((H // 2, W // 2), 10000, np.uint16))
+        problem = f"depth is {W // 2}x{H // 2} but rgb is {W}x{H}"
+    else:
+        p.write_bytes(p.read_bytes()[:1000])
+        problem = "truncated PNG (no IEND chunk at the end)"
+    with caplog.at_level(logging.WARNING):
+        r = run(seq, capsys)
     assert r.rc == 0 and r.stats is not None
     assert r.stats["skipped_frames"] == 1 and r.stats["frames"] == FRAMES - 1
-    assert r.stats["skipped"] == [f"{p}: truncated PNG (no IEND chunk at the end)"]
+    assert r.stats["skipped"] == [f"{p}: {problem}"]
+    assert f"skipping frame 5: {p}: {problem}" in caplog.text
 
 
 def test_every_png_truncated_is_an_error(seq: Path, capsys: pytest.CaptureFixture[str]) -> None:
