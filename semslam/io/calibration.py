@@ -16,6 +16,7 @@ from pathlib import Path
 
 from semslam.errors import ConfigError, DataError
 from semslam.geometry.camera import PinholeCamera
+from semslam.io.text import read_text_lines
 
 log = logging.getLogger(__name__)
 
@@ -63,13 +64,7 @@ def parse_camera_option(text: str) -> PinholeCamera:
 
 def read_calib_file(path: Path) -> PinholeCamera:
     """Read the first non-comment line of a ``calib.txt``."""
-    try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
-    except UnicodeDecodeError:
-        raise DataError(path, "not a text file (cannot decode as UTF-8)") from None
-    except OSError as exc:
-        raise DataError(path, f"cannot read calibration file ({exc.strerror})") from None
-    for line in lines:
+    for line in read_text_lines(path):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue

@@ -22,6 +22,7 @@ from semslam.errors import DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import resolve_camera
 from semslam.io.images import FrameReadError, read_depth, read_rgb
+from semslam.io.text import read_text_lines
 from semslam.io.trajectory import read_trajectory
 
 log = logging.getLogger(__name__)
@@ -38,15 +39,7 @@ class ListEntry:
 
 def _data_lines(path: Path) -> Iterator[tuple[int, str]]:
     """(line number, stripped line) of a list file's lines that are not blank or comments."""
-    if not path.is_file():
-        raise DataError(path, "file not found")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise DataError(path, "not a text file (cannot decode as UTF-8)") from None
-    except OSError as exc:
-        raise DataError(path, f"cannot read ({exc.strerror or exc})") from None
-    for lineno, raw in enumerate(text.splitlines(), start=1):
+    for lineno, raw in enumerate(read_text_lines(path), start=1):
         line = raw.strip()
         if line and not line.startswith("#"):
             yield lineno, line
