@@ -338,13 +338,19 @@ def test_png_variants_decode_to_the_same_run(kind: str, seq: Path, reference: tu
     assert r.rc == 0 and (r.out / "trajectory.txt").read_text() == reference[0]
 
 
-@pytest.mark.parametrize("kind", ["rgb", "depth", "depth of another size"])
+@pytest.mark.parametrize("kind", ["rgb", "depth", "depth of another size", "frame of another size"])
 def test_unusable_image_inside_is_skipped_and_counted(kind: str, seq: Path, capsys: pytest.CaptureFixture[str],
                                                       caplog: pytest.LogCaptureFixture) -> None:
-    p = images(seq, kind.split()[0])[5]
+    """A truncated image, a depth image that does not fit its colour image, a frame that
+    does not fit the camera (the first image's size): skipped, warned, counted."""
+    p = images(seq, "depth" if kind.startswith("depth") else "rgb")[5]
     if kind == "depth of another size":
         cv2.imwrite(str(p), np.full((H // 2, W // 2), 10000, np.uint16))
         problem = f"depth is {W // 2}x{H // 2} but rgb is {W}x{H}"
+    elif kind == "frame of another size":
+        cv2.imwrite(str(p), cv2.resize(cv2.imread(str(p)), (W // 2, H // 2)))
+        cv2.imwrite(str(images(seq, "depth")[5]), np.full((H // 2, W // 2), 10000, np.uint16))
+        problem = f"image is {W // 2}x{H // 2} but the sequence's first image is {W}x{H}"
     else:
         p.write_bytes(p.read_bytes()[:1000])
         problem = "truncated PNG (no IEND chunk at the end)"

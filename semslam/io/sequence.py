@@ -183,7 +183,7 @@ class Sequence:
         allowed = max(3, int(self.max_skip_fraction * max(stop - start, 1)))
         for i in range(start, stop):
             try:
-                frame = self.load(i)
+                frame = self._same_size(self.load(i))
             except FrameReadError as exc:
                 if i == start:
                     raise DataError(exc.path, f"first frame unreadable: {exc.problem}") from None
@@ -198,6 +198,16 @@ class Sequence:
 
     def __iter__(self) -> Iterator[Frame]:
         return self.frames()
+
+    def _same_size(self, frame: Frame) -> Frame:
+        """A frame of another size than the sequence's first (the camera's): its intrinsics
+        would not fit it, so it cannot be used."""
+        h, w = frame.rgb.shape[:2]
+        cam = self.camera
+        if cam.width > 0 and (w, h) != (cam.width, cam.height):
+            raise FrameReadError(frame.rgb_path or self.root,
+                                 f"image is {w}x{h} but the sequence's first image is {cam.width}x{cam.height}")
+        return frame
 
 
 class TumRgbdSequence(Sequence):
