@@ -119,6 +119,17 @@ def test_blank_frames_are_lost_counted_and_warned(kind: str, seq: Path, capsys: 
     assert f"frame 3 ({spoiled[0]})" in caplog.text and "frames_featureless" in caplog.text
 
 
+def test_blank_frames_with_a_learned_detector(seq: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``sdf`` (monocular; FPFDCNN finds "keypoints" even on black): blank frames are told by
+    their grey levels, not by the keypoint count."""
+    pytest.importorskip("torch")
+    for p in images(seq)[3:7]:
+        cv2.imwrite(str(p), BLANK["black"])
+    r = run(seq, capsys, preset="sdf")
+    assert r.rc == 0 and r.stats is not None
+    assert r.stats["frames_featureless"] == 4 and r.stats["tracked_frames"] <= FRAMES - 4
+
+
 def test_all_black_sequence_never_initialises(seq: Path, capsys: pytest.CaptureFixture[str]) -> None:
     for p in images(seq):
         cv2.imwrite(str(p), BLANK["black"])

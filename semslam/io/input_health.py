@@ -22,6 +22,10 @@ log = logging.getLogger(__name__)
 #: Fewer keypoints than this leave nothing to track with: no pose can be estimated from
 #: them (pose-only optimisation, PnP, relocalisation all need dozens of matches).
 FEW_KEYPOINTS = 20
+#: Standard deviation of the grey levels (0-255) below which an image is blank: a covered
+#: lens, a black or white frame (sensor noise alone). Learned detectors find "keypoints" even
+#: there, so the count above does not tell it for every extractor.
+BLANK_STD = 2.0
 #: Share of pixels with a depth measurement below which an RGB-D frame counts as without depth.
 MIN_DEPTH_SHARE = 0.01
 #: Share of the image the dynamic mask covers from which a frame counts as all dynamic
@@ -34,7 +38,8 @@ HALF_DYNAMIC = 0.5
 _WHY = {
     "frames_all_dynamic": "the dynamic mask covers {dyn:.0%} of the image (a person or mover fills the view): "
                           "no static keypoints to track with",
-    "frames_featureless": "{kps} keypoints: the image is blank (covered lens, black, white) or featureless",
+    "frames_featureless": "{kps} keypoints, grey levels spread {std:.1f}: the image is blank (covered lens, "
+                          "black, white) or featureless",
     "frames_without_depth": "{depth:.1%} of the pixels have a depth (0, NaN, inf and 65535 are no measurement)",
 }
 
@@ -51,8 +56,11 @@ class InputHealth:
         dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
         dyn = float(dynamic.mean()) if dynamic is not None and dynamic.size else result.dynamic_ratio
         depth = float((frame.depth > 0).mean()) if frame.depth is not None and frame.depth.size else None
+        std = float(frame.gray[::4, ::4].std())  # a sample is enough to tell a blank image
         found = []
-        if result.n_keypoints < FEW_KEYPOINTS:
+        if std < BLANK_STD:
+            found.append("frames_featureless")
+        elif result.n_keypoints < FEW_KEYPOINTS:
             found.append("frames_all_dynamic" if dyn >= HALF_DYNAMIC else "frames_featureless")
         elif dyn >= MOSTLY_DYNAMIC:
             found.append("frames_all_dynamic")
@@ -63,7 +71,7 @@ class InputHealth:
                 where = frame.depth_path if key == "frames_without_depth" else frame.rgb_path
                 log.warning("frame %d%s: %s; the run goes on, such frames are counted in stats.json (%s)",
                             frame.index, f" ({where})" if where is not None else "",
-                            _WHY[key].format(dyn=dyn, kps=result.n_keypoints, depth=depth or 0.0), key)
+                            _WHY[key].format(dyn=dyn, kps=result.n_keypoints, std=std, depth=depth or 0.0), key)
             self.counts[key] += 1
 
     def stats(self) -> dict[str, int]:
