@@ -1,8 +1,11 @@
 """Sequence readers: TUM RGB-D (and the datasets that share its layout) and image folders.
 
 A sequence is a list of frames with timestamps, a camera and, where it exists, a ground
-truth file. Frames are decoded on demand. Iterating skips a few unreadable frames with a
-warning and counts them in ``skipped``; too many, or an unreadable first frame, is an error.
+truth file. Frames are decoded on demand. Iterating skips a few unreadable frames (and
+frames of another size than the first) with a warning and counts them in ``skipped``; too
+many, or an unreadable first frame, is an error. List files may name only files inside the
+sequence folder, each at its own, increasing timestamp; a broken ground truth file is a
+warning (no evaluation), not an error.
 """
 
 from __future__ import annotations
@@ -80,7 +83,7 @@ def listed_path(list_file: Path, lineno: int, root: Path, name: str) -> Path:
         depth += -1 if part == ".." else 1
         if depth < 0:
             break
-    if posix.startswith("/") or re.match(r"^[A-Za-z]:", posix) or depth < 0 or Path(name).is_absolute():
+    if posix.startswith("/") or re.match(r"^[A-Za-z]:", posix) or depth < 0:
         raise DataError(list_file, f"line {lineno}: {name!r} points outside the sequence folder; "
                                    "list files must name files inside it, by relative paths")
     return root / Path(*parts) if parts else root
