@@ -45,8 +45,14 @@ def print_summary(result: RunResult) -> None:
     table.add_row("frames (tracked / total)", f"{r.tracked_frames} / {r.frames}")
     if r.lost_frames:
         table.add_row("lost frames (not in trajectory.txt)", str(r.lost_frames))
+    if r.uninitialized_frames:
+        table.add_row("frames before initialisation (not in trajectory.txt)", str(r.uninitialized_frames))
     if r.skipped_frames:
         table.add_row("skipped unreadable frames", str(r.skipped_frames))
+    for key, label in (("frames_featureless", "frames blank or featureless"), ("frames_without_depth",
+                       "frames without depth"), ("frames_all_dynamic", "frames all dynamic")):
+        if r.tracker.get(key):
+            table.add_row(label, str(r.tracker[key]))
     table.add_row("keyframes", str(r.keyframes))
     for key, label in (("map_points", "map points"), ("loops", "loops closed"), ("relocalisations", "relocalisations")):
         if key in r.tracker:

@@ -16,6 +16,7 @@ gets the newest finished mask, warped; its own mask serves the frames after it.
 
 from __future__ import annotations
 
+import logging
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -28,6 +29,8 @@ from semslam.core.protocols import FramePacket, MotionPrior
 from semslam.core.types import Frame, LabelMap
 from semslam.dynamics.warp import relative_pose, warp_mask
 from semslam.geometry.camera import PinholeCamera
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -77,6 +80,7 @@ class SemanticThread:
         self.warp_ms: list[float] = []  # tracking warping a skipped frame's mask
         self.frames_without_own_mask = 0  # ("latest") frames that did not wait for their own mask
         self._labels: dict[int, LabelMap] = {}  # segmented frames' labels until tracking takes them
+        self.resized_label_maps = 0  # backend answers of another size than the frame
         self._closed = False
 
     def _compute(self, frame: Frame) -> NDArray[np.bool_]:
@@ -84,6 +88,8 @@ class SemanticThread:
 
         t0 = time.perf_counter()
         labels = self.segmenter.segment(frame.rgb, frame)
+        if labels.shape != frame.rgb.shape[:2]:
+            labels = self._resized(labels, frame)
         self._labels[frame.index] = labels  # for the maps' classes (keyframes take it)
         mask = dynamic_mask(labels, list(self.cfg.dynamic_classes))
         t1 = time.perf_counter()
@@ -94,6 +100,19 @@ class SemanticThread:
             mask = refine_segmentation(mask, frame.depth, window=self.cfg.srm_window, tau=self.cfg.srm_tau_m)
             self.refine_ms.append((time.perf_counter() - t1) * 1e3)
         return mask
+
+    def _resized(self, labels: LabelMap, frame: Frame) -> LabelMap:
+        """A backend that answered at another size: its labels resized to the frame, with a
+        warning the first time and a count (``resized_label_maps``)."""
+        from semslam.semantics.base import fit_labels
+
+        if not self.resized_label_maps:
+            log.warning("semantics.backend=%s returned %dx%d labels for a %dx%d image (frame %d); resizing them "
+                        "(nearest neighbour), counted in stats.json as resized_label_maps",
+                        self.cfg.backend, labels.shape[1], labels.shape[0], frame.rgb.shape[1], frame.rgb.shape[0],
+                        frame.index)
+        self.resized_label_maps += 1
+        return fit_labels(labels, frame.rgb.shape[:2])
 
     def _on_stride(self, index: int) -> bool:
         return index % self.cfg.stride == 0
@@ -194,6 +213,7 @@ class SemanticThread:
             "warp_ms_median": median(self.warp_ms),
             "warp_ms_p95": p95(self.warp_ms),
             "frames_without_own_mask": self.frames_without_own_mask,
+            "resized_label_maps": self.resized_label_maps,
         }
 
     def close(self) -> None:

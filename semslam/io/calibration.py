@@ -10,11 +10,13 @@
 from __future__ import annotations
 
 import logging
+import math
 import re
 from pathlib import Path
 
 from semslam.errors import ConfigError, DataError
 from semslam.geometry.camera import PinholeCamera
+from semslam.io.text import read_text_lines
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +44,8 @@ def camera_from_values(values: list[float] | tuple[float, ...], source: str) -> 
     """Build a camera from 4 (pinhole) or 9 (with k1 k2 p1 p2 k3) numbers."""
     if len(values) not in (4, 9):
         raise ConfigError(f"{source}: expected 4 numbers (fx fy cx cy) or 9 (with k1 k2 p1 p2 k3), got {len(values)}")
+    if not all(math.isfinite(float(v)) for v in values):
+        raise ConfigError(f"{source}: every value must be a finite number, got {' '.join(str(v) for v in values)}")
     fx, fy, cx, cy = (float(v) for v in values[:4])
     if fx <= 0 or fy <= 0:
         raise ConfigError(f"{source}: focal lengths must be positive, got fx={fx} fy={fy}")
@@ -60,11 +64,7 @@ def parse_camera_option(text: str) -> PinholeCamera:
 
 def read_calib_file(path: Path) -> PinholeCamera:
     """Read the first non-comment line of a ``calib.txt``."""
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as exc:
-        raise DataError(path, f"cannot read calibration file ({exc.strerror})") from None
-    for line in lines:
+    for line in read_text_lines(path):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue

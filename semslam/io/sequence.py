@@ -1,8 +1,11 @@
 """Sequence readers: TUM RGB-D (and the datasets that share its layout) and image folders.
 
 A sequence is a list of frames with timestamps, a camera and, where it exists, a ground
-truth file. Frames are decoded on demand. Iterating skips a few unreadable frames with a
-warning and counts them in ``skipped``; too many, or an unreadable first frame, is an error.
+truth file. Frames are decoded on demand. Iterating skips a few unreadable frames (and
+frames of another size than the first) with a warning and counts them in ``skipped``; too
+many, or an unreadable first frame, is an error. List files may name only files inside the
+sequence folder, each at its own, increasing timestamp; a broken ground truth file is a
+warning (no evaluation), not an error.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from semslam.errors import DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import resolve_camera
 from semslam.io.images import FrameReadError, read_depth, read_rgb
+from semslam.io.text import read_text_lines
+from semslam.io.trajectory import read_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -37,40 +42,71 @@ class ListEntry:
     line: int
 
 
+def _data_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """(line number, stripped line) of a list file's lines that are not blank or comments."""
+    for lineno, raw in enumerate(read_text_lines(path), start=1):
+        line = raw.strip()
+        if line and not line.startswith("#"):
+            yield lineno, line
+
+
+def _timestamp(path: Path, lineno: int, text: str) -> float:
+    try:
+        stamp = float(text)
+    except ValueError:
+        raise DataError(path, f"line {lineno}: timestamp {text!r} is not a number") from None
+    if not np.isfinite(stamp):
+        raise DataError(path, f"line {lineno}: timestamp is not finite")
+    return stamp
+
+
+def _check_after(path: Path, lineno: int, text: str, stamp: float, previous: ListEntry) -> None:
+    """Timestamps must increase strictly: association pairs images by time, so two images
+    at one instant (a logger with a coarse clock, lists pasted together) cannot be told apart."""
+    if stamp == previous.timestamp:
+        raise DataError(path, f"line {lineno}: duplicate timestamp {text} (line {previous.line} has it too); "
+                              "each image needs its own timestamp")
+    if stamp < previous.timestamp:
+        before = f"{previous.timestamp:.6f}" if abs(previous.timestamp) < 1e12 else f"{previous.timestamp:.6g}"
+        raise DataError(path, f"line {lineno}: timestamp {text} is not after the previous one ({before}, "
+                              f"line {previous.line}); timestamps must increase")
+
+
+def listed_path(list_file: Path, lineno: int, root: Path, name: str) -> Path:
+    """``root / name`` for a file a list names; a name that leaves the sequence folder (an
+    absolute path, or ``..`` climbing out) is refused: a sequence is one self-contained folder,
+    and a list must not make the reader open files elsewhere on the machine. Checked on the
+    name, not the resolved path, so folders of symbolic links (a dataset kept on another
+    disk) still work."""
+    posix = name.replace("\\", "/")
+    parts = [p for p in posix.split("/") if p not in ("", ".")]
+    depth = 0
+    for part in parts:
+        depth += -1 if part == ".." else 1
+        if depth < 0:
+            break
+    if posix.startswith("/") or re.match(r"^[A-Za-z]:", posix) or depth < 0:
+        raise DataError(list_file, f"line {lineno}: {name!r} points outside the sequence folder; "
+                                   "list files must name files inside it, by relative paths")
+    return root / Path(*parts) if parts else root
+
+
 def read_file_list(path: Path, root: Path | None = None) -> list[ListEntry]:
     """Parse a TUM list file (``timestamp path`` per line, ``#`` comments).
 
     Timestamps must increase strictly: a list out of order means a broken file, and
     associating it would silently pair the wrong images.
     """
-    if not path.is_file():
-        raise DataError(path, "file not found")
     root = root or path.parent
     entries: list[ListEntry] = []
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(path, f"cannot read ({exc})") from None
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = re.split(r"[,\s]+", line)
+    for lineno, line in _data_lines(path):
+        parts = [p for p in re.split(r"[,\s]+", line) if p]
         if len(parts) < 2:
             raise DataError(path, f"line {lineno}: expected 'timestamp filename', got {line!r}")
-        try:
-            stamp = float(parts[0])
-        except ValueError:
-            raise DataError(path, f"line {lineno}: timestamp {parts[0]!r} is not a number") from None
-        if not np.isfinite(stamp):
-            raise DataError(path, f"line {lineno}: timestamp is not finite")
-        if entries and stamp <= entries[-1].timestamp:
-            raise DataError(
-                path,
-                f"line {lineno}: timestamp {parts[0]} is not after the previous one "
-                f"({entries[-1].timestamp:.6f}); timestamps must increase",
-            )
-        entries.append(ListEntry(stamp, root / parts[1], lineno))
+        stamp = _timestamp(path, lineno, parts[0])
+        if entries:
+            _check_after(path, lineno, parts[0], stamp, entries[-1])
+        entries.append(ListEntry(stamp, listed_path(path, lineno, root, parts[1]), lineno))
     if not entries:
         raise DataError(path, "no entries (only comments or blank lines)")
     return entries
@@ -80,22 +116,17 @@ def _read_associations(path: Path, root: Path) -> tuple[list[ListEntry], list[Li
     """Read an associations file (4 columns; the column whose path says 'depth' is depth)."""
     rgb: list[ListEntry] = []
     depth: list[ListEntry] = []
-    for lineno, raw in enumerate(path.read_text().splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
+    for lineno, line in _data_lines(path):
         parts = line.split()
         if len(parts) < 4:
             raise DataError(path, f"line {lineno}: expected 't_rgb rgb_file t_depth depth_file', got {line!r}")
-        try:
-            t1, t2 = float(parts[0]), float(parts[2])
-        except ValueError:
-            raise DataError(path, f"line {lineno}: timestamps are not numbers") from None
+        t1, t2 = _timestamp(path, lineno, parts[0]), _timestamp(path, lineno, parts[2])
         first_is_depth = "depth" in parts[1].lower() and "depth" not in parts[3].lower()
-        a, b = ListEntry(t1, root / parts[1], lineno), ListEntry(t2, root / parts[3], lineno)
+        a = ListEntry(t1, listed_path(path, lineno, root, parts[1]), lineno)
+        b = ListEntry(t2, listed_path(path, lineno, root, parts[3]), lineno)
         rgb_e, depth_e = (b, a) if first_is_depth else (a, b)
-        if rgb and rgb_e.timestamp <= rgb[-1].timestamp:
-            raise DataError(path, f"line {lineno}: timestamp is not after the previous one; timestamps must increase")
+        if rgb:
+            _check_after(path, lineno, parts[2] if first_is_depth else parts[0], rgb_e.timestamp, rgb[-1])
         rgb.append(rgb_e)
         depth.append(depth_e)
     if not rgb:
@@ -110,6 +141,21 @@ def find_groundtruth(root: Path) -> Path | None:
         return gt
     found = sorted(root.glob("*.gt.freiburg"))
     return found[0] if found else None
+
+
+def usable_groundtruth(root: Path) -> Path | None:
+    """The ground truth file if it can be read; a broken one is reported now, as a warning,
+    and the run goes on without evaluation (the trajectory is worth having without it, and
+    an error after an hour of tracking would lose stats.json)."""
+    gt = find_groundtruth(root)
+    if gt is None:
+        return None
+    try:
+        read_trajectory(gt)
+    except DataError as exc:
+        log.warning("%s; the run goes on without evaluation (no ATE/RPE)", exc)
+        return None
+    return gt
 
 
 class Sequence:
@@ -142,7 +188,7 @@ class Sequence:
         allowed = max(3, int(self.max_skip_fraction * max(stop - start, 1)))
         for i in range(start, stop):
             try:
-                frame = self.load(i)
+                frame = self._same_size(self.load(i))
             except FrameReadError as exc:
                 if i == start:
                     raise DataError(exc.path, f"first frame unreadable: {exc.problem}") from None
@@ -157,6 +203,16 @@ class Sequence:
 
     def __iter__(self) -> Iterator[Frame]:
         return self.frames()
+
+    def _same_size(self, frame: Frame) -> Frame:
+        """A frame of another size than the sequence's first (the camera's): its intrinsics
+        would not fit it, so it cannot be used."""
+        h, w = frame.rgb.shape[:2]
+        cam = self.camera
+        if cam.width > 0 and (w, h) != (cam.width, cam.height):
+            raise FrameReadError(frame.rgb_path or self.root,
+                                 f"image is {w}x{h} but the sequence's first image is {cam.width}x{cam.height}")
+        return frame
 
 
 class TumRgbdSequence(Sequence):
@@ -218,7 +274,7 @@ class TumRgbdSequence(Sequence):
         self._drop_missing_files()
         self._timestamps = np.array([e.timestamp for e in self._rgb])
         self.camera = with_image_size(resolve_camera(self.root, camera), self._rgb[0].path if self._rgb else None)
-        self.groundtruth_path = find_groundtruth(self.root)
+        self.groundtruth_path = usable_groundtruth(self.root)
 
     def _drop_missing_files(self) -> None:
         """Listed files that do not exist: a few are skipped, many mean a broken download."""
@@ -245,7 +301,8 @@ class TumRgbdSequence(Sequence):
         rgb = read_rgb(rgb_e.path)
         depth = read_depth(depth_e.path, self.depth_scale)
         if depth.shape != rgb.shape[:2]:
-            raise DataError(depth_e.path, f"depth is {depth.shape[1]}x{depth.shape[0]} but rgb is {rgb.shape[1]}x{rgb.shape[0]}")
+            raise FrameReadError(depth_e.path, f"depth is {depth.shape[1]}x{depth.shape[0]} but rgb is "
+                                               f"{rgb.shape[1]}x{rgb.shape[0]}")
         return Frame(index, rgb_e.timestamp, rgb, depth, rgb_e.path, depth_e.path)
 
 
@@ -255,8 +312,11 @@ def with_image_size(camera: PinholeCamera, first_image: Path | None) -> PinholeC
     reader then reports the file)."""
     if camera.width > 0 or first_image is None:
         return camera
-    img = cv2.imread(str(first_image), cv2.IMREAD_UNCHANGED)
-    if img is None:
+    try:
+        img = cv2.imread(str(first_image), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        img = None
+    if img is None or img.ndim < 2 or img.size == 0:
         return camera
     return camera.with_image_size(img.shape[1], img.shape[0])
 
@@ -290,7 +350,7 @@ class ImageFolderSequence(Sequence):
                 raise DataError(folder, f"no images ({', '.join(IMAGE_SUFFIXES)}) in folder")
             self._timestamps = self._folder_timestamps(fps)
         self.camera = with_image_size(resolve_camera(self.root, camera), self._paths[0] if self._paths else None)
-        self.groundtruth_path = find_groundtruth(self.root)
+        self.groundtruth_path = usable_groundtruth(self.root)
 
     def _folder_timestamps(self, fps: float) -> NDArray[np.float64]:
         times = self.root / "times.txt"

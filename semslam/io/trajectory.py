@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from semslam.errors import TrajectoryError
 from semslam.geometry.se3 import make_pose, pose_to_tum, quat_to_rot
+from semslam.io.text import read_text_lines
 
 Array = NDArray[np.float64]
 
@@ -77,17 +78,7 @@ class Trajectory:
 
 
 def _read_lines(path: Path) -> list[str]:
-    if not path.exists():
-        raise TrajectoryError(path, "file not found")
-    if not path.is_file():
-        raise TrajectoryError(path, "not a regular file")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise TrajectoryError(path, "not a text file (cannot decode as UTF-8)") from None
-    except OSError as exc:
-        raise TrajectoryError(path, f"cannot read ({exc.strerror or exc})") from None
-    return text.splitlines()
+    return read_text_lines(path, TrajectoryError)
 
 
 def _data_rows(path: Path, lines: Sequence[str]) -> list[tuple[int, list[str]]]:

@@ -132,9 +132,9 @@ def _segment(st: _MapState, snapshot: KeyframeSnapshot) -> KeyframeSnapshot:
     """A keyframe tracking did not wait to segment (``semantics.schedule: latest`` and
     ``stride``: its mask was warped from an earlier frame) is segmented here, off the
     tracking path; its classes join the mask tracking used (which holds the moving regions)."""
-    from semslam.semantics.base import dynamic_mask
+    from semslam.semantics.base import dynamic_mask, fit_labels
 
-    labels = st.segmenter.segment(snapshot.rgb)
+    labels = fit_labels(st.segmenter.segment(snapshot.rgb), snapshot.rgb.shape[:2])
     own = dynamic_mask(labels, st.dynamic_classes)
     st.segmented_keyframes += 1
     return replace(snapshot, labels=labels, dynamic=own if snapshot.dynamic is None else own | snapshot.dynamic)

@@ -147,8 +147,9 @@ class TsdfMesh:
                 self._integrate(self._grid, kept)
                 kept.T_wc_integrated = kept.T_wc
         mesh = self.mesh()
-        if not mesh.has_vertices():  # too few observations per voxel yet (a short run): no surface
-            log.warning("mesh: no voxel reached weight %s (a short run?); no mesh.ply written", self.min_weight)
+        if not mesh.has_vertices():  # a short run: no voxel seen by enough keyframes (a one-frame sequence)
+            log.warning("mesh: no surface was seen by %g keyframes or more; no mesh.ply written",
+                        self.min_weight)
             return {}
         out_dir.mkdir(parents=True, exist_ok=True)
         path = out_dir / "mesh.ply"

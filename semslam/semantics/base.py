@@ -93,6 +93,21 @@ def dynamic_mask(label_map: LabelMap, dynamic_classes: Iterable[str]) -> NDArray
     return lut[label_map.labels]
 
 
+def fit_labels(label_map: LabelMap, shape: tuple[int, int]) -> LabelMap:
+    """A backend's labels at the image's size ``(H, W)``: a network that answers at its own
+    resolution still covers the whole image, so nearest-neighbour resizing puts each label
+    back where it belongs (label ids are not interpolated). Labels read from files are
+    checked by their reader instead: a file of another size belongs to another image."""
+    if label_map.shape == shape:
+        return label_map
+    h, w = shape
+    labels = cv2.resize(label_map.labels, (w, h), interpolation=cv2.INTER_NEAREST)
+    conf = label_map.confidence
+    if conf is not None:
+        conf = cv2.resize(conf, (w, h), interpolation=cv2.INTER_LINEAR)
+    return LabelMap(labels, label_map.names, conf)
+
+
 def inference_size(shape: tuple[int, int], input_width: int) -> tuple[int, int]:
     """(height, width) to run a network at: native for 0, else ``input_width`` wide, same aspect."""
     h, w = shape

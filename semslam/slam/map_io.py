@@ -9,6 +9,8 @@ extractor makes the same features.
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,8 @@ from semslam.errors import ConfigError, DataError
 from semslam.slam.map import KeyFrame, Map
 
 FORMAT = "semslam-map-1"
+#: How a zip archive (an .npz) starts: a file record, or the end record of an empty archive.
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
 
 
 def save_map(slam_map: Map, path: str | Path) -> Path:
@@ -72,25 +76,113 @@ def _spec_meta(spec: FeatureSpec) -> dict[str, object]:
             "n_levels": spec.n_levels}
 
 
-def load_map(path: str | Path, spec: FeatureSpec) -> Map:
-    """Read a map written by :func:`save_map` into a run whose extractor makes ``spec``'s
-    features (ConfigError if the map's are others: they could not be matched)."""
-    path = Path(path)
+#: Every array a map file holds, with its shape: numbers are sizes, letters name the counts
+#: (K keyframes, N keypoints over all keyframes, P points, E loop edges, D descriptor size).
+_ARRAYS: dict[str, tuple[object, ...]] = {
+    "kf_id": ("K",), "kf_frame_index": ("K",), "kf_timestamp": ("K",), "kf_T_cw": ("K", 4, 4), "kf_parent": ("K",),
+    "kf_n_keypoints": ("K",), "kf_loop_edges": ("E", 2),
+    "kp_xy_raw": ("N", 2), "kp_xy": ("N", 2), "kp_octave": ("N",), "kp_response": ("N",), "kp_angle": ("N",),
+    "kp_descriptors": ("N", "D"), "kp_depth": ("N",), "kp_ur": ("N",), "kp_point": ("N",),
+    "pt_id": ("P",), "pt_pos": ("P", 3), "pt_descriptor": ("P", "D"), "pt_n_visible": ("P",), "pt_n_found": ("P",),
+    "pt_ref_kf": ("P",), "pt_first_kf": ("P",),
+}
+
+
+def _read_map_file(path: Path) -> tuple[dict[str, object], dict[str, np.ndarray]]:
+    """The file's metadata and every array, read in full now: a truncated or damaged file
+    (zip CRC-32 per array) fails here, as one DataError, not halfway through building a map."""
     if not path.is_file():
         raise DataError(path, "map file not found")
     try:
-        data = np.load(path, allow_pickle=False)
-        meta = json.loads(str(data["meta"]))
-    except (OSError, ValueError, KeyError) as exc:
-        raise DataError(path, f"not a semslam map ({exc})") from None
-    if meta.get("format") != FORMAT:
-        raise DataError(path, f"unsupported map format {meta.get('format')!r} (expected {FORMAT})")
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except OSError as exc:
+        raise DataError(path, f"cannot read the map ({exc.strerror or exc})") from None
+    if magic not in _ZIP_MAGIC:
+        raise DataError(path, "not a semslam map (not the .npz archive --save-map writes)")
+    try:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):
+            raise DataError(path, "not a semslam map (one .npy array, not the .npz archive --save-map writes)")
+        with loaded as data:
+            names = set(data.files)
+            if "meta" not in names:
+                raise DataError(path, "not a semslam map (no 'meta' entry; maps are written by --save-map)")
+            meta = json.loads(str(data["meta"]))
+            if not isinstance(meta, dict):
+                raise DataError(path, "not a semslam map (its 'meta' entry is not a JSON object)")
+            _check_format(path, meta)
+            missing = sorted(set(_ARRAYS) - names)
+            if missing:
+                raise DataError(path, f"damaged map: no {', '.join(missing)}")
+            arrays = {name: data[name] for name in _ARRAYS}
+    except DataError:
+        raise
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error) as exc:
+        raise DataError(path, f"truncated or damaged map ({_first_line(exc)})") from None
+    return meta, arrays
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def _check_format(path: Path, meta: dict[str, object]) -> None:
+    fmt = meta.get("format")
+    if fmt != FORMAT:
+        written = meta.get("semslam_version")
+        by = f" (written by semslam {written})" if written else ""
+        raise DataError(path, f"unsupported map format {fmt!r}{by}; semslam {semslam.__version__} reads {FORMAT}")
+
+
+def _check_arrays(path: Path, arrays: dict[str, np.ndarray], spec: FeatureSpec) -> None:
+    """Shapes, types and cross-references of the arrays agree, so building the map cannot
+    index out of range."""
+    n_kp = arrays["kf_n_keypoints"]
+    if n_kp.ndim != 1 or (n_kp.size and n_kp.min() < 0):
+        raise DataError(path, "damaged map: kf_n_keypoints is not a list of counts")
+    sizes = {"K": len(arrays["kf_id"]) if arrays["kf_id"].ndim == 1 else -1, "N": int(n_kp.sum()),
+             "P": len(arrays["pt_id"]) if arrays["pt_id"].ndim == 1 else -1,
+             "E": len(arrays["kf_loop_edges"]), "D": spec.dim}
+    for name, shape in _ARRAYS.items():
+        want = tuple(sizes[d] if isinstance(d, str) else d for d in shape)
+        a = arrays[name]
+        if a.shape != want:
+            raise DataError(path, f"damaged map: {name} has shape {a.shape}, expected {want}")
+        if a.dtype.kind not in "iuf":
+            raise DataError(path, f"damaged map: {name} holds {a.dtype}, not numbers")
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            raise DataError(path, f"damaged map: {name} holds NaN or inf")
+    if sizes["K"] == 0:
+        raise DataError(path, "the map holds no keyframes (its run never initialised): nothing to relocalise in")
+    kf_ids, pt_ids = arrays["kf_id"], arrays["pt_id"]
+    if len(np.unique(kf_ids)) != len(kf_ids) or len(np.unique(pt_ids)) != len(pt_ids):
+        raise DataError(path, "damaged map: keyframe or point ids repeat")
+    kp_point, octave = arrays["kp_point"], arrays["kp_octave"]
+    if kp_point.size and (kp_point.min() < -1 or kp_point.max() >= sizes["P"]):
+        raise DataError(path, "damaged map: kp_point refers to points the map does not hold")
+    if octave.size and (octave.min() < 0 or octave.max() >= spec.n_levels):
+        raise DataError(path, f"damaged map: kp_octave outside the {spec.n_levels} pyramid levels")
+    if arrays["kp_descriptors"].dtype != spec.dtype or arrays["pt_descriptor"].dtype != spec.dtype:
+        raise DataError(path, f"damaged map: descriptors are {arrays['kp_descriptors'].dtype}, "
+                              f"the features are {np.dtype(spec.dtype)}")
+
+
+def load_map(path: str | Path, spec: FeatureSpec) -> Map:
+    """Read a map written by :func:`save_map` into a run whose extractor makes ``spec``'s
+    features (ConfigError if the map's are others: they could not be matched). A file that
+    is not such a map, is truncated or damaged, or comes from another format version is one
+    DataError naming it."""
+    path = Path(path)
+    meta, data = _read_map_file(path)
     # Maps written before the spec was stored hold ORB-SLAM's ORB features.
     saved = meta.get("features", {"kind": "binary", "dim": 32, "scale_factor": spec.scale_factor,
                                   "n_levels": spec.n_levels})
     if saved != _spec_meta(spec):
         raise ConfigError(f"--load-map: {path} holds {saved} features, this run's extractor makes "
                           f"{_spec_meta(spec)}")
+    _check_arrays(path, data, spec)
     m = Map(spec)
     offsets = np.r_[0, np.cumsum(data["kf_n_keypoints"])]
     kfs: dict[int, KeyFrame] = {}
@@ -132,5 +224,6 @@ def load_map(path: str | Path, spec: FeatureSpec) -> Map:
         kf.update_connections()
     for p in points:
         p.update_normal_and_depth(spec.pyramid.scales)
-    m.n_loops = int(meta.get("loops", 0))
+    loops = meta.get("loops", 0)
+    m.n_loops = loops if isinstance(loops, int) else 0
     return m

@@ -21,6 +21,7 @@ from semslam.dynamics.stage import create_dynamic_stage
 from semslam.errors import ConfigError
 from semslam.features.jit import warm_up as warm_up_kernels
 from semslam.geometry.camera import PinholeCamera
+from semslam.io.input_health import InputHealth
 from semslam.io.trajectory import Trajectory
 
 
@@ -55,6 +56,7 @@ class System:
             self._close_parts()
             raise
         self.results: list[TrackResult] = []
+        self.input_health = InputHealth()  # why frames could not be tracked (blank, no depth, all dynamic)
 
     @property
     def has_map(self) -> bool:
@@ -73,6 +75,7 @@ class System:
         packet = frame if isinstance(frame, FramePacket) else FramePacket(frame)
         result = self.tracker.track(packet)
         self.results.append(result)
+        self.input_health.observe(packet, result)
         return result
 
     @property
@@ -106,7 +109,7 @@ class System:
         for builder in self.inputs.map_builders:
             maps.update(getattr(builder, "stats", dict)())
         return {**self.tracker.stats(), **(self.dynamics.stats() if self.dynamics is not None else {}), **maps,
-                "jit_warmup_s": self.jit_warmup_s}
+                **self.input_health.stats(), "jit_warmup_s": self.jit_warmup_s}
 
     def save_map(self, path: Path) -> None:
         if not self.has_map:
