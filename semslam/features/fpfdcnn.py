@@ -73,7 +73,7 @@ class FpfdcnnExtractor:
     def model(self) -> "Net":
         """The network (loaded on first use)."""
         if self._model is None:
-            from semslam.nets.onnx_runtime import load_net
+            from semslam.nets.onnx_load import load_net
 
             self._model = load_net(self.weights, "fpfdcnn")
             self.meta = self._model.meta

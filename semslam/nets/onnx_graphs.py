@@ -166,6 +166,25 @@ def example_input(arch: str, meta: dict[str, Any], size: tuple[int, int] | None 
     return np.random.default_rng(seed).integers(0, 256, shape, dtype=np.uint8)
 
 
+def _drop_identities(model: Any) -> None:
+    """Point the users of ``Identity(initializer)`` nodes at the initializer itself. The
+    exporter writes such nodes for parameters with equal values (e.g. untrained BatchNorms,
+    all ones), and ONNX Runtime 1.32 refuses the graph when they feed a later node."""
+    inits = {i.name for i in model.graph.initializer}
+    alias = {n.output[0]: n.input[0] for n in model.graph.node if n.op_type == "Identity" and n.input[0] in inits}
+    if not alias:
+        return
+    outputs = {o.name for o in model.graph.output}
+    kept = [n for n in model.graph.node if not (n.op_type == "Identity" and n.output[0] in alias
+                                                 and n.output[0] not in outputs)]
+    for node in kept:
+        for k, name in enumerate(node.input):
+            if name in alias and name not in outputs:
+                node.input[k] = alias[name]
+    del model.graph.node[:]
+    model.graph.node.extend(kept)
+
+
 def _store_half(model: Any) -> None:
     """Float32 initializers that float16 represents exactly become float16 + Cast."""
     import onnx
@@ -216,6 +235,7 @@ def export_onnx(checkpoint: str | Path, out: str | Path, arch: str | None = None
                           output_names=list(outputs), dynamic_axes=dynamic, opset_version=OPSET,
                           do_constant_folding=False, dynamo=False)
     proto = onnx.load(str(out))
+    _drop_identities(proto)
     if half:
         _store_half(proto)
     digest = hashlib.sha256(checkpoint.read_bytes()).hexdigest()

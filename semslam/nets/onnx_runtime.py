@@ -1,12 +1,11 @@
 """Running the shipped networks with ONNX Runtime, so that inference needs no torch.
 
-``load_net(path, arch)`` gives a :class:`Net`: ``run(*arrays)`` returns the graph's outputs
-as NumPy arrays and ``meta`` is the checkpoint's metadata (architecture, classes, input
-size, how it was trained). An ``.onnx`` file (the shipped ones, or one written by
-``semslam export-onnx``) runs in an ONNX Runtime session on the CPU; any other file is taken
-for a PyTorch checkpoint and runs the same graph in torch (``nets.onnx_graphs.TorchNet``),
-which needs the ``train`` extra. The graphs and their inputs and outputs are described in
-``nets.onnx_graphs``.
+:class:`OnnxNet` is the :class:`Net` of an ``.onnx`` file (the shipped ones, or one written
+by ``semslam export-onnx``): ``run(*arrays)`` returns the graph's outputs as NumPy arrays
+from an ONNX Runtime session on the CPU, and ``meta`` is the checkpoint's metadata
+(architecture, classes, input size, how it was trained). ``nets.onnx_load.load_net`` picks
+it or torch (for a ``.pt``) by the file. The graphs, their inputs and outputs are described
+in ``nets.onnx_graphs``.
 
 Threads: a session's intra-op pool has ``SEMSLAM_ONNX_THREADS`` threads if set, else
 ``OMP_NUM_THREADS`` (what torch's intra-op pool reads, and what the CLI's
@@ -96,28 +95,3 @@ class OnnxNet:
             raise ValueError(f"{self.path.name}: expects inputs {self.input_names}, got {len(inputs)} arrays")
         feeds = {name: np.ascontiguousarray(a) for name, a in zip(self.input_names, inputs)}
         return tuple(self.session.run(self.output_names, feeds))
-
-
-def load_net(path: str | Path, arch: str) -> Net:
-    """The network in ``path`` (``.onnx``: ONNX Runtime; else a PyTorch checkpoint, run by
-    torch), checked to be an ``arch`` network. DataError naming the file if it is missing,
-    unreadable, of another architecture, or a checkpoint while torch is not installed."""
-    path = Path(path)
-    label = LABELS.get(arch, arch)
-    if not path.is_file():
-        raise DataError(path, f"{label} weights not found (semslam/data/NETS.md says how to train and export them)")
-    if path.suffix == ".onnx":
-        net: Net = OnnxNet(path)
-    else:
-        try:
-            from semslam.nets.onnx_graphs import TorchNet
-        except ImportError as exc:
-            if (exc.name or "").split(".")[0] != "torch":
-                raise
-            raise DataError(path, f"is a PyTorch checkpoint, which needs torch (pip install 'semslam[train]'); "
-                                  f"or convert it once with `semslam export-onnx {path}` and use the .onnx") from None
-        net = TorchNet(path, arch)
-    found = net.meta.get("arch")
-    if found != arch:
-        raise DataError(path, f"holds a {found} network, not {arch}")
-    return net

@@ -22,7 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.errors import ConfigError
-from semslam.nets.onnx_runtime import input_multiple, load_net
+from semslam.nets.onnx_load import load_net
+from semslam.nets.onnx_runtime import input_multiple
 from semslam.nets.outputs import upsample
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"

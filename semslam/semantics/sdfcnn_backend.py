@@ -92,7 +92,7 @@ class SdfcnnPredictor:
     def _load(self) -> Net:
         with self._lock:
             if self._net is None:
-                from semslam.nets.onnx_runtime import load_net
+                from semslam.nets.onnx_load import load_net
 
                 net = load_net(self.weights, "sdfcnn")
                 ids = [int(i) for i in net.meta["class_ids"]]
