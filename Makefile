@@ -7,8 +7,12 @@ STAMP := $(VENV)/.installed
 # Debian packages the Python wheels need at run time (opencv is the headless build; open3d
 # loads libusb-1.0). Installed with apt-get when running as root.
 APT_PACKAGES := libusb-1.0-0
+# Installed with --no-deps (see pyproject.toml's `person` extra).
+MEDIAPIPE := mediapipe==0.10.21
+WHEEL_DIR := out/wheel
+WHEEL_VENV := out/wheel-venv
 
-.PHONY: demo test lint bench setup clean
+.PHONY: demo test lint bench setup clean wheel-test
 
 $(STAMP): pyproject.toml
 	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
@@ -18,8 +22,8 @@ $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null || { echo "error: $(PY) not found (semslam needs Python 3.11)"; exit 1; }
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[test,nets]"
-	$(BIN)/pip install -q --no-deps mediapipe==0.10.21
+	$(BIN)/pip install -q -e ".[test,train]"
+	$(BIN)/pip install -q --no-deps $(MEDIAPIPE)
 	@touch $(STAMP)
 
 setup: $(STAMP)
@@ -32,6 +36,7 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
+	$(MAKE) --no-print-directory wheel-test
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -39,6 +44,19 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/semslam bench --presets f2kf,orb --variant "orb-noloop:orb:slam.loop_closing=false" --json out/bench/results.json
+
+# The wheel as a user installs it: built, installed with its dependencies (no torch) and
+# mediapipe into a fresh venv, then tests/test_wheel.py runs `semslam` from there
+# (~3 min: pip and numba's first compile).
+wheel-test: $(STAMP)
+	rm -rf build $(WHEEL_DIR) $(WHEEL_VENV)
+	$(BIN)/python -m build --wheel --outdir $(WHEEL_DIR) .
+	rm -rf build
+	$(PY) -m venv $(WHEEL_VENV)
+	$(WHEEL_VENV)/bin/pip install -q --upgrade pip
+	$(WHEEL_VENV)/bin/pip install -q $(WHEEL_DIR)/semslam-*.whl
+	$(WHEEL_VENV)/bin/pip install -q --no-deps $(MEDIAPIPE)
+	SEMSLAM_WHEEL_VENV=$(WHEEL_VENV) $(BIN)/python -m pytest -q tests/test_wheel.py
 
 clean:
 	rm -rf $(VENV) out
