@@ -10,8 +10,12 @@ APT_PACKAGES := libusb-1.0-0
 # Tests only: headless Chromium renders semslam batch's summary.html (tests/test_batch.py).
 APT_TEST_PACKAGES := chromium
 TEST_STAMP := $(VENV)/.test-installed
+# Installed with --no-deps (see pyproject.toml's `person` extra).
+MEDIAPIPE := mediapipe==0.10.21
+WHEEL_DIR := out/wheel
+WHEEL_VENV := out/wheel-venv
 
-.PHONY: demo test lint bench setup clean
+.PHONY: demo test lint bench setup clean wheel-test
 
 # $(call apt_install,PACKAGES): the missing ones, with apt-get, when running as root.
 define apt_install
@@ -26,8 +30,8 @@ $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null || { echo "error: $(PY) not found (semslam needs Python 3.11)"; exit 1; }
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[test,nets,batch]"
-	$(BIN)/pip install -q --no-deps mediapipe==0.10.21
+	$(BIN)/pip install -q -e ".[test,train,batch]"
+	$(BIN)/pip install -q --no-deps $(MEDIAPIPE)
 	@touch $(STAMP)
 
 $(TEST_STAMP): $(STAMP)
@@ -44,6 +48,7 @@ test: $(TEST_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
+	$(MAKE) --no-print-directory wheel-test
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -51,6 +56,19 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/semslam bench --presets f2kf,orb --variant "orb-noloop:orb:slam.loop_closing=false" --json out/bench/results.json
+
+# The wheel as a user installs it: built, installed with its dependencies (no torch) and
+# mediapipe into a fresh venv, then tests/test_wheel.py runs `semslam` from there
+# (~3 min: pip and numba's first compile).
+wheel-test: $(STAMP)
+	rm -rf build $(WHEEL_DIR) $(WHEEL_VENV)
+	$(BIN)/python -m build --wheel --outdir $(WHEEL_DIR) .
+	rm -rf build
+	$(PY) -m venv $(WHEEL_VENV)
+	$(WHEEL_VENV)/bin/pip install -q --upgrade pip
+	$(WHEEL_VENV)/bin/pip install -q $(WHEEL_DIR)/semslam-*.whl
+	$(WHEEL_VENV)/bin/pip install -q --no-deps $(MEDIAPIPE)
+	SEMSLAM_WHEEL_VENV=$(WHEEL_VENV) $(BIN)/python -m pytest -q tests/test_wheel.py
 
 clean:
 	rm -rf $(VENV) out

@@ -15,6 +15,7 @@ already scores high deltas, so a depth net's numbers mean something only next to
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any, Optional
@@ -35,9 +36,11 @@ def evaluate_sequences(paths: list[Path], weights: Path | None, every: int = 1, 
     from semslam.io.sequence import TumRgbdSequence
     from semslam.nets.datasets import read_label
     from semslam.nets.sdf_dataset import label_lut
+    from semslam.nets.onnx_runtime import THREADS_VARIABLE
     from semslam.semantics.sdfcnn_backend import SdfcnnPredictor
 
     torch.set_num_threads(threads)
+    os.environ[THREADS_VARIABLE] = str(threads)  # the ONNX Runtime session of the shipped .onnx
     predictor = SdfcnnPredictor(weights)
     n = len(NYU40_CLASSES)
     total_conf = np.zeros((n, n), np.int64)
@@ -98,11 +101,11 @@ def register(app: typer.Typer) -> None:
     @app.command("eval-sdfcnn")
     def eval_sdfcnn(
         sequences: list[Path] = typer.Argument(..., help="TUM-layout folders with depth and semantic/ labels"),
-        weights: Optional[Path] = typer.Option(None, "--weights", help="checkpoint (default: the shipped "
-                                                                       "semslam/data/sdfcnn.pt)"),
+        weights: Optional[Path] = typer.Option(None, "--weights", help="weights, .onnx or .pt (default: "
+                                                                       "the shipped semslam/data/sdfcnn.onnx)"),
         every: int = typer.Option(1, "--every", min=1, help="evaluate every N-th frame"),
         limit: int = typer.Option(0, "--limit", min=0, help="at most this many frames per sequence (0 = all)"),
-        threads: int = typer.Option(1, "--threads", min=1, help="torch threads (timing: 1, as in a SLAM run)"),
+        threads: int = typer.Option(1, "--threads", min=1, help="inference threads (timing: 1, as in a SLAM run)"),
         json_out: Optional[Path] = typer.Option(None, "--json", help="also write the numbers as JSON"),
     ) -> None:
         """SDFCNN's semantic (Table 8) and depth (Table 9) accuracy, time and size."""

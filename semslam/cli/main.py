@@ -25,9 +25,10 @@ app = typer.Typer(
 def _register_commands() -> None:
     from semslam.cli import (bench_cmd, eval_cmd, eval_features_cmd, eval_map_cmd, eval_sdfcnn_cmd, map_cmd,
                              run_cmd, synth_cmd, train_cmd, train_fpfdcnn_cmd, train_nets_cmd, train_sdfcnn_cmd)
+    from semslam.cli import export_onnx_cmd
 
     for module in (run_cmd, map_cmd, eval_cmd, eval_map_cmd, synth_cmd, train_cmd, train_nets_cmd, bench_cmd,
-                   train_sdfcnn_cmd, eval_sdfcnn_cmd, train_fpfdcnn_cmd, eval_features_cmd):
+                   train_sdfcnn_cmd, eval_sdfcnn_cmd, train_fpfdcnn_cmd, eval_features_cmd, export_onnx_cmd):
         module.register(app)
     from semslam.cli import dataset_cmd  # semslam dataset list | get | path
     dataset_cmd.register(app)

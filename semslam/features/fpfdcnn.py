@@ -16,9 +16,13 @@ uses), measured for the shipped weights by ``python benchmarks/sift_thresholds.p
 fpfdcnn``: 0.55 / 1.20. At those, 97.8 % / 99.98 % of the true matches of freiburg2_desk
 pairs 3 and 10 frames apart are kept (ORB: 51 % / 84 %).
 
-Weights (``semslam/data/fpfdcnn.pt`` unless given) are loaded at the first ``extract``,
-so building an extractor (e.g. to read its spec) needs neither torch's time nor the file;
-a missing file is one ``DataError`` line naming it.
+Weights (``semslam/data/fpfdcnn.onnx``, run by ONNX Runtime without torch, unless given:
+an ``.onnx`` from ``semslam export-onnx`` or a ``.pt`` checkpoint, which torch runs) are
+loaded at the first ``extract``, so building an extractor (e.g. to read its spec) needs
+neither the session's time nor the file; a missing file is one ``DataError`` line naming it.
+The network's graph gives the probability map and the coarse descriptor map
+(``nets.onnx_graphs``); points and descriptors are taken from them in NumPy
+(``nets.outputs``).
 """
 
 from __future__ import annotations
@@ -34,11 +38,11 @@ from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
 from semslam.features.inputs import check_extractor_inputs
 
 if TYPE_CHECKING:
-    from semslam.nets.fpfdcnn import FPFDCNN
+    from semslam.nets.onnx_runtime import Net
 
 __all__ = ["DEFAULT_WEIGHTS", "FpfdcnnExtractor", "create_extractor"]
 
-DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "fpfdcnn.pt"
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "fpfdcnn.onnx"
 DIM = 256
 THRESHOLD = 0.015  # keypoint probability floor
 NMS_RADIUS = 4
@@ -62,21 +66,21 @@ class FpfdcnnExtractor:
         self.threshold = float(threshold)
         self.nms_radius = int(nms_radius)
         self.spec = FeatureSpec(DescriptorKind.FLOAT, DIM, 1.2, 1, th_low=TH_LOW, th_high=TH_HIGH)
-        self._model: FPFDCNN | None = None
+        self._model: Net | None = None
         self.meta: dict[str, Any] = {}
 
     @property
-    def model(self) -> "FPFDCNN":
+    def model(self) -> "Net":
+        """The network (loaded on first use)."""
         if self._model is None:
-            from semslam.nets.fpfdcnn import load_fpfdcnn
+            from semslam.nets.onnx_load import load_net
 
-            self._model, self.meta = load_fpfdcnn(self.weights)
+            self._model = load_net(self.weights, "fpfdcnn")
+            self.meta = self._model.meta
         return self._model
 
     def extract(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None = None) -> Keypoints:
-        import torch
-
-        from semslam.nets.fpfdcnn import CELL, sample_descriptors, select_points, to_tensor
+        from semslam.nets.outputs import CELL, descriptors_at, select_points
 
         gray, mask = check_extractor_inputs(gray, mask)
         model = self.model
@@ -89,11 +93,9 @@ class FpfdcnnExtractor:
             return Keypoints.empty(DIM, np.float32)
         ph, pw = -h % CELL, -w % CELL  # the network needs sides that are multiples of 16
         padded = np.pad(gray, ((0, ph), (0, pw)), mode="edge") if ph or pw else gray
-        with torch.inference_mode():
-            prob, coarse = model(to_tensor(padded))
-            xy, p = select_points(prob[0, 0, :h, :w].numpy(), self.n_features, self.threshold,
-                                  self.nms_radius, mask)
-            desc = sample_descriptors(coarse, torch.from_numpy(xy)[None])[0].numpy()
+        prob, coarse = model.run(padded[None, None])
+        xy, p = select_points(prob[0, 0, :h, :w], self.n_features, self.threshold, self.nms_radius, mask)
+        desc = descriptors_at(coarse[0], xy, CELL)
         n = len(xy)
         return Keypoints(xy=xy, octave=np.zeros(n, np.int32), response=p, angle=np.zeros(n, np.float32),
                          descriptors=np.ascontiguousarray(desc, np.float32))

@@ -4,8 +4,11 @@ Modules: ``stdc`` (STDC1 backbone, ARM, FFM, heads, detail guidance loss), ``def
 (hand-written DCNv2), ``dunet`` (deformable U-Net), ``datasets`` (TUM/semantic and VOC
 folders, augmentation), ``train`` (CPU training loop), ``models`` (build/save/load
 checkpoints), ``segmenters`` (``StdcSegmenter``/``DunetSegmenter`` backends) and
-``evaluate`` (metrics on folders, the real-frame check). Torch is imported lazily so that
-``import semslam.nets`` stays cheap.
+``evaluate`` (metrics on folders, the real-frame check). Inference needs no torch:
+``onnx_runtime`` runs the shipped ``.onnx`` files, ``outputs`` holds the NumPy output
+layers, and ``onnx_graphs`` (torch) defines and exports the graphs (``semslam export-onnx``)
+and runs a user's ``.pt`` through them. Torch is imported lazily so that ``import
+semslam.nets`` stays cheap.
 """
 
 from __future__ import annotations

@@ -38,11 +38,11 @@ from numpy.typing import NDArray
 from torch import nn
 
 from semslam.errors import DataError
+from semslam.nets.outputs import CELL, nms_points, select_points  # torch-free, shared with inference
 
 __all__ = ["CELL", "DESC_DIM", "FORMAT", "FPFDCNN", "load_fpfdcnn", "nms_points", "sample_descriptors",
            "save_fpfdcnn", "select_points"]
 
-CELL = 16  # 640 / 40 = 480 / 30: one coarse cell is 16 x 16 pixels, 256 pixel-shuffle channels
 DESC_DIM = 256
 FORMAT = "semslam-fpfdcnn-1"
 
@@ -115,29 +115,6 @@ def sample_descriptors(coarse: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
     desc = F.grid_sample(coarse, grid[:, :, None, :].to(coarse.dtype), mode="bilinear",
                          padding_mode="border", align_corners=False)
     return F.normalize(desc[..., 0].transpose(1, 2), dim=-1)
-
-
-def nms_points(prob: NDArray[np.float32], radius: int) -> NDArray[np.bool_]:
-    """Local maxima of a probability map in a (2r+1)^2 window (ties all kept)."""
-    if radius <= 0:
-        return np.ones(prob.shape, bool)
-    t = torch.from_numpy(np.ascontiguousarray(prob, np.float32))[None, None]
-    peak = F.max_pool2d(t, 2 * radius + 1, stride=1, padding=radius)
-    return (t == peak)[0, 0].numpy()
-
-
-def select_points(prob: NDArray[np.float32], n_points: int, threshold: float, nms_radius: int,
-                  mask: NDArray[np.uint8] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """(xy (N, 2) float32 pixels, probability (N,)) of the ``n_points`` most probable local
-    maxima above ``threshold``, outside ``mask == 0``, strongest first (ties: row-major)."""
-    keep = nms_points(prob, nms_radius) & (prob >= threshold)
-    if mask is not None:
-        keep &= mask > 0
-    ys, xs = np.nonzero(keep)
-    p = prob[ys, xs]
-    order = np.argsort(-p, kind="stable")[:max(0, int(n_points))]
-    xy = np.stack([xs[order], ys[order]], axis=1).astype(np.float32)
-    return xy, p[order].astype(np.float32)
 
 
 def count_parameters(model: nn.Module) -> int:

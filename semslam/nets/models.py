@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from semslam.errors import DataError
+from semslam.nets.onnx_runtime import input_multiple  # noqa: F401 - torch-free, shared with inference
 
 FORMAT = "semslam-net-1"
 ARCHS = ("stdc1", "dunet", "sdfcnn")
@@ -41,16 +42,6 @@ def build_model(arch: str, n_classes: int, width: float, **options: Any) -> nn.M
 
         return SDFCNN(n_classes, width, **options)
     raise ValueError(f"unknown architecture {arch!r} (choose from {', '.join(ARCHS)})")
-
-
-def input_multiple(arch: str) -> int:
-    """Input sides are kept multiples of this.
-
-    STDC resizes its context features to the recorded sizes of the finer ones (as the
-    original code), so any size runs; multiples of 8 keep the 1/8 head aligned
-    (240 = 7.5 * 32 is fine). The U-Net's 4 poolings need multiples of 16 to align skips.
-    """
-    return 8 if arch == "stdc1" else 16
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -48,12 +48,11 @@ from __future__ import annotations
 
 from typing import Sequence
 
-import numpy as np
 import torch
 import torch.nn.functional as F
-from numpy.typing import NDArray
 from torch import Tensor, nn
 
+from semslam.nets.outputs import upsampled_argmax  # noqa: F401 - the output layer, torch-free
 from semslam.nets.stdc import scaled
 
 #: What Tables 8 and 9 give as SDFCNN's "Parameter".
@@ -233,48 +232,6 @@ class SDFCNN(nn.Module):
     def inference_parameters(self) -> int:
         """Every parameter is used at inference (no training-only heads)."""
         return sum(p.numel() for p in self.parameters())
-
-
-# --- output layer on the CPU (inference) ----------------------------------------------
-
-def _source_index(n_out: int, n_in: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float32]]:
-    """Bilinear sampling of an axis (half-pixel centres, clamped, as F.interpolate with
-    align_corners=False): the two source indices and the weight of the second."""
-    src = np.maximum((np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5, 0.0)
-    i0 = np.minimum(np.floor(src).astype(np.intp), n_in - 1)
-    i1 = np.minimum(i0 + 1, n_in - 1)
-    return i0, i1, (src - i0).astype(np.float32)
-
-
-def upsampled_argmax(logits: NDArray[np.float32], size: tuple[int, int]) -> NDArray[np.intp]:
-    """argmax over classes of ``logits`` (C, h, w) bilinearly upsampled to ``size`` (w, h),
-    without upsampling all C channels.
-
-    Exact: where the four source pixels of an output pixel share one argmax, that class
-    wins the interpolated logits too (a convex combination of vectors whose largest entry
-    is the same class keeps it largest); only output pixels on class boundaries are
-    interpolated (35 ms instead of 100 ms for 40 classes at 640x480 on one core).
-    """
-    c, h, w = logits.shape
-    y0, y1, wy = _source_index(size[1], h)
-    x0, x1, wx = _source_index(size[0], w)
-    low = logits.argmax(0)
-    out = low[y0][:, x0]
-    mixed = (out != low[y0][:, x1]) | (out != low[y1][:, x0]) | (out != low[y1][:, x1])
-    yy, xx = np.nonzero(mixed)
-    if yy.size:
-        hwc = np.ascontiguousarray(logits.transpose(1, 2, 0))  # gathers then read whole rows
-        ay, ax = wy[yy, None], wx[xx, None]
-        ya, yb, xa, xb = y0[yy], y1[yy], x0[xx], x1[xx]
-        top = hwc[ya, xa]
-        top += ax * (hwc[ya, xb] - top)  # in place: fewer (K, C) temporaries
-        v = hwc[yb, xa]
-        v += ax * (hwc[yb, xb] - v)
-        v -= top
-        v *= ay
-        v += top
-        out[yy, xx] = v.argmax(1)
-    return out
 
 
 # --- the paper's 11.8 M ---------------------------------------------------------------

@@ -2,14 +2,14 @@
 
 ``segment(rgb)`` resizes the frame to the network input (the checkpoint's training width
 unless ``input_width`` says otherwise; sides rounded to the network's multiple), runs the
-network under ``torch.inference_mode``, upsamples the class probabilities bilinearly to
-the frame size and labels each pixel with its most likely non-background class if that
-class's probability exceeds ``threshold`` (else background). ``input_width=0`` means the
-width the network was trained at (320 for the shipped weights), not the frame's native
-width: the nets are scale-specific, and 640 px costs 4x the time. Labels are the
-checkpoint's dataset ids (VOC ids: person = 15), so the output plugs into code that
-expects VOC/synthetic label maps. Torch thread settings are left to the caller (the SLAM
-runtime uses ``torch.set_num_threads(1)``; everything here works with one thread).
+network (``nets.onnx_runtime``: the shipped ``.onnx`` in ONNX Runtime, or a ``.pt`` given
+as weights in torch), upsamples the class probabilities bilinearly to the frame size and
+labels each pixel with its most likely non-background class if that class's probability
+exceeds ``threshold`` (else background). ``input_width=0`` means the width the network was
+trained at (320 for the shipped weights), not the frame's native width: the nets are
+scale-specific, and 640 px costs 4x the time. Labels are the checkpoint's dataset ids (VOC
+ids: person = 15), so the output plugs into code that expects VOC/synthetic label maps.
+No torch is imported for ``.onnx`` weights. Thread settings: ``nets.onnx_runtime``.
 """
 
 from __future__ import annotations
@@ -19,16 +19,16 @@ from typing import Any
 
 import cv2
 import numpy as np
-import torch
-import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from semslam.errors import ConfigError
-from semslam.nets.models import input_multiple, load_checkpoint
+from semslam.nets.onnx_load import load_net
+from semslam.nets.onnx_runtime import input_multiple
+from semslam.nets.outputs import upsample
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
-#: Weights shipped with the package.
-DEFAULT_WEIGHTS = {"stdc1": DATA_DIR / "stdc_person.pt", "dunet": DATA_DIR / "dunet_person.pt"}
+#: Weights shipped with the package (``semslam export-onnx`` writes them from the ``.pt``).
+DEFAULT_WEIGHTS = {"stdc1": DATA_DIR / "stdc_person.onnx", "dunet": DATA_DIR / "dunet_person.onnx"}
 
 
 class NetSegmenter:
@@ -39,19 +39,16 @@ class NetSegmenter:
 
     def __init__(self, weights_path: str | Path | None = None, threshold: float = 0.5, input_width: int = 0) -> None:
         path = Path(weights_path) if weights_path else DEFAULT_WEIGHTS[self.arch]
-        self.model, self.meta = load_checkpoint(path)
-        if self.arch and self.meta["arch"] != self.arch:
-            raise ConfigError(f"{path}: holds a {self.meta['arch']} network, not {self.arch}")
         if not 0.0 <= threshold < 1.0:
             raise ConfigError(f"segmenter threshold must be in [0, 1), got {threshold}")
+        self.net = load_net(path, self.arch)
+        self.meta = self.net.meta
         self.weights_path = path
         self.threshold = float(threshold)
         self.input_width = int(input_width) or int(self.meta["input_size"][0])
         self.class_ids = np.array(self.meta["class_ids"], np.uint8)
         self.names: dict[int, str] = {int(i): str(n) for i, n in zip(self.meta["class_ids"], self.meta["class_names"])}
-        self.mean = torch.tensor(self.meta["mean"], dtype=torch.float32).view(1, 3, 1, 1)
-        self.std = torch.tensor(self.meta["std"], dtype=torch.float32).view(1, 3, 1, 1)
-        self.multiple = input_multiple(self.meta["arch"])
+        self.multiple = input_multiple(self.arch)
 
     def input_size(self, w: int, h: int) -> tuple[int, int]:
         """Network input (w, h) for a w x h frame: ``input_width`` wide, same aspect, rounded."""
@@ -60,21 +57,15 @@ class NetSegmenter:
         nh = max(m, int(round(self.input_width * h / w / m)) * m)
         return nw, nh
 
-    @torch.inference_mode()
-    def probabilities(self, rgb: NDArray[np.uint8]) -> torch.Tensor:
+    def probabilities(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
         """Class probabilities (C, H, W) at the frame's size."""
         if rgb.ndim != 3 or rgb.shape[2] != 3:
             raise ValueError(f"segment: expected an RGB image (H, W, 3), got shape {rgb.shape}")
         h, w = rgb.shape[:2]
         nw, nh = self.input_size(w, h)
         small = cv2.resize(rgb, (nw, nh), interpolation=cv2.INTER_AREA if nw < w else cv2.INTER_LINEAR)
-        x = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1)[None].float().div_(255.0)
-        x = (x - self.mean) / self.std
-        logits = self.model(x)
-        prob = torch.softmax(logits, dim=1)
-        if (nh, nw) != (h, w):
-            prob = F.interpolate(prob, (h, w), mode="bilinear", align_corners=False)
-        return prob[0]
+        (prob,) = self.net.run(small[None])
+        return upsample(prob[0], (w, h))
 
     def segment(self, rgb: NDArray[np.uint8], frame: Any = None) -> tuple[NDArray[np.uint8], dict[int, str]]:
         """(label map uint8 HxW with the checkpoint's class ids, {id: name}); ``frame`` is unused."""
@@ -86,23 +77,23 @@ class NetSegmenter:
     ) -> tuple[NDArray[np.uint8], dict[int, str], NDArray[np.float32]]:
         """Like :meth:`segment`, plus the probability of each pixel's chosen label (float32 HxW)."""
         prob = self.probabilities(rgb)
-        fg_prob, fg_idx = prob[1:].max(dim=0)
+        fg_idx = prob[1:].argmax(axis=0)
+        fg_prob = np.take_along_axis(prob[1:], fg_idx[None], axis=0)[0]
         is_fg = fg_prob > self.threshold
-        idx = torch.where(is_fg, fg_idx + 1, torch.zeros_like(fg_idx))
-        conf = torch.where(is_fg, fg_prob, prob[0])
-        labels = self.class_ids[idx.numpy()]
-        return labels, dict(self.names), conf.numpy().astype(np.float32, copy=False)
+        labels = self.class_ids[np.where(is_fg, fg_idx + 1, 0)]
+        conf = np.where(is_fg, fg_prob, prob[0]).astype(np.float32, copy=False)
+        return labels, dict(self.names), conf
 
 
 class StdcSegmenter(NetSegmenter):
-    """STDC1-Seg (STDC-SLAM's network); default weights ``semslam/data/stdc_person.pt``."""
+    """STDC1-Seg (STDC-SLAM's network); default weights ``semslam/data/stdc_person.onnx``."""
 
     arch = "stdc1"
     name = "stdc"
 
 
 class DunetSegmenter(NetSegmenter):
-    """Deformable U-Net (DDL-SLAM's network); default weights ``semslam/data/dunet_person.pt``."""
+    """Deformable U-Net (DDL-SLAM's network); default weights ``semslam/data/dunet_person.onnx``."""
 
     arch = "dunet"
     name = "dunet"

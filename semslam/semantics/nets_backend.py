@@ -1,6 +1,7 @@
 """The papers' own networks as segmenter backends: ``stdc`` (STDC-SLAM) and ``dunet``
 (DDL-SLAM), with the small person models the project trains and ships
-(``semslam/data/NETS.md``) or a checkpoint given in ``semantics.weights``."""
+(``semslam/data/NETS.md``; run by ONNX Runtime, no torch) or the weights given in
+``semantics.weights`` (``.onnx``, or a ``.pt`` checkpoint, which needs torch)."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ class _NetSegmenter:
         return LabelMap(labels, dict(names), confidence)
 
     def close(self) -> None:
-        """Nothing to free: the network is plain PyTorch memory."""
+        """Nothing to free: the session is released with the object."""
 
 
 def create_stdc(cfg: SemanticsConfig) -> _NetSegmenter:

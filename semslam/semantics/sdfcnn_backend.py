@@ -10,10 +10,11 @@ of the image. Concurrent requests for the same image wait for the one inference.
 
 The network output stays at its own resolution (1/4 of Layer 0) in the cache; depth is
 upsampled bilinearly to the frame's size and labels by an exact bilinear-logits argmax
-(``nets.sdfcnn.upsampled_argmax``) when first asked for. Weights are
-``semslam/data/sdfcnn.pt`` unless ``semantics.weights`` names others; the file must exist
-when the backend is built (one clear error before the run starts) and is loaded at the
-first frame. The backend lives here, above ``nets``, so it needs no change to the import
+(``nets.outputs.upsampled_argmax``) when first asked for. Weights are
+``semslam/data/sdfcnn.onnx`` (run by ONNX Runtime, no torch) unless ``semantics.weights``
+names others (an ``.onnx`` from ``semslam export-onnx``, or a ``.pt`` checkpoint, which
+torch runs); the file must exist when the backend is built (one clear error before the
+run starts) and is loaded at the first frame. The backend lives here, above ``nets``, so it needs no change to the import
 layers: the System finds depth sources through the registry by name.
 """
 
@@ -24,7 +25,7 @@ import threading
 from collections import OrderedDict
 from concurrent.futures import Future
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -35,7 +36,10 @@ from semslam.core.labels import NYU40_CLASSES
 from semslam.core.types import Frame, LabelMap
 from semslam.errors import DataError
 
-DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "sdfcnn.pt"
+if TYPE_CHECKING:
+    from semslam.nets.onnx_runtime import Net
+
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "sdfcnn.onnx"
 #: Results kept per predictor: the semantic thread may run a few frames ahead of tracking.
 CACHE_FRAMES = 8
 
@@ -59,7 +63,7 @@ class Prediction:
     def labels(self) -> NDArray[np.uint8]:
         """NYU-40 ids (1..40) at the frame's size."""
         if self._labels is None:
-            from semslam.nets.sdfcnn import upsampled_argmax
+            from semslam.nets.outputs import upsampled_argmax
 
             self._labels = self.class_ids[upsampled_argmax(self.seg, self.size)]
         return self._labels
@@ -79,30 +83,28 @@ class SdfcnnPredictor:
         if not self.weights.is_file():
             raise DataError(self.weights, "SDFCNN weights not found; train them with `semslam train sdfcnn` "
                                           "(semslam/data/NETS.md) or set semantics.weights")
-        self._model: Any = None
+        self._net: Net | None = None
         self._class_ids: NDArray[np.uint8] | None = None
         self._lock = threading.Lock()
         self._cache: OrderedDict[Any, Future[Prediction]] = OrderedDict()
         self.inferences = 0  # forward passes run (for tests and stats)
 
-    def _load(self) -> Any:
+    def _load(self) -> Net:
         with self._lock:
-            if self._model is None:
-                from semslam.nets.models import load_checkpoint
+            if self._net is None:
+                from semslam.nets.onnx_load import load_net
 
-                model, meta = load_checkpoint(self.weights)
-                if meta.get("arch") != "sdfcnn":
-                    raise DataError(self.weights, f"holds a {meta.get('arch')} network, not sdfcnn")
-                ids = [int(i) for i in meta["class_ids"]]
+                net = load_net(self.weights, "sdfcnn")
+                ids = [int(i) for i in net.meta["class_ids"]]
                 if ids != sorted(NYU40_CLASSES):
                     raise DataError(self.weights, "SDFCNN weights must predict the 40 NYU classes (ids 1..40)")
                 self._class_ids = np.array(ids, np.uint8)
-                self._model = model
-            return self._model
+                self._net = net
+            return self._net
 
     def parameter_count(self) -> int:
-        """Parameters of the loaded network (loads it)."""
-        return sum(p.numel() for p in self._load().parameters())
+        """Parameters of the loaded network (loads it; recorded in its metadata)."""
+        return int(self._load().meta["parameters"])
 
     def predict(self, rgb: NDArray[np.uint8]) -> Prediction:
         """The cached prediction of this image, or one forward pass."""
@@ -129,18 +131,11 @@ class SdfcnnPredictor:
         return fut.result()
 
     def _run(self, rgb: NDArray[np.uint8]) -> Prediction:
-        import torch
-
-        from semslam.nets.sdfcnn import normalise
-
-        model = self._load()
-        x = normalise(torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1)[None])
-        with torch.inference_mode():
-            seg, depth = model.heads(x)
+        seg, depth = self._load().run(rgb[None])
         self.inferences += 1
         assert self._class_ids is not None
         h, w = rgb.shape[:2]
-        return Prediction(seg[0].numpy(), depth[0, 0].numpy(), (w, h), self._class_ids)
+        return Prediction(seg[0], depth[0, 0], (w, h), self._class_ids)
 
 
 _PREDICTORS: dict[Path, SdfcnnPredictor] = {}
@@ -179,7 +174,7 @@ class SdfcnnSegmenter:
         return LabelMap(self.predictor.predict(rgb).labels(), dict(NYU40_CLASSES))
 
     def close(self) -> None:
-        """Nothing to free: the shared predictor is plain PyTorch memory, kept for the other backend."""
+        """Nothing to free: the shared predictor's session is kept for the other backend."""
 
 
 def create_depth() -> SdfcnnDepth:
