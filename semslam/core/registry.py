@@ -26,6 +26,7 @@ PLUGINS: dict[str, dict[str, str]] = {
         "qtree_orb": "semslam.features.qtree_orb:create_extractor",
         "sift": "semslam.features.sift:create_extractor",
         "fpfdcnn": "semslam.features.fpfdcnn:create_extractor",
+        "xfeat": "semslam.features.xfeat:create_extractor",
     },
     "matcher": {
         "binary": "semslam.features.matching:HammingMatcher",
