@@ -37,6 +37,7 @@ from semslam.core.protocols import FramePacket
 from semslam.core.types import Frame, RunResult, TrackResult
 from semslam.errors import ConfigError, DataError, SemslamError
 from semslam.geometry.camera import PinholeCamera
+from semslam.io.images import depth_to_metres
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
 from semslam.io.trajectory import Trajectory, write_tum
 from semslam.run_record import RunTiming, evaluate, timing_stats
@@ -411,11 +412,10 @@ def _as_metres(depth: Any, scale: float, shape: tuple[int, ...], where: str) -> 
     if depth.shape != tuple(shape):
         raise DataError(where, f"depth is {depth.shape[1]}x{depth.shape[0]} but rgb is {shape[1]}x{shape[0]}")
     if depth.dtype == np.uint16:
-        return depth.astype(np.float32) * np.float32(1.0 / scale)
+        return depth_to_metres(depth, scale)
     if depth.dtype in (np.float32, np.float64):
-        metres = np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-        if (metres < 0).any():
+        if (depth < 0).any():
             raise DataError(where, "depth has negative values (expected metres, 0 = no measurement)")
-        return metres
+        return depth_to_metres(depth, scale)
     raise DataError(where, f"depth is {depth.dtype}; expected uint16 ({scale:g} units per metre, depth_scale) "
                            "or float metres")

@@ -102,12 +102,19 @@ def read_depth(path: Path, scale: float) -> NDArray[np.float32]:
         raise DataError(path, f"depth image has {img.shape[2]} channels; expected a single-channel 16-bit image")
     if img.dtype == np.uint8:
         raise DataError(path, "depth image is 8-bit; expected 16-bit depth (TUM: metres x 5000)")
+    if img.dtype not in (np.float32, np.float64, np.uint16):
+        raise DataError(path, f"unsupported depth image type {img.dtype}; expected uint16")
+    return depth_to_metres(img, scale)
+
+
+def depth_to_metres(img: NDArray[np.generic], scale: float) -> NDArray[np.float32]:
+    """uint16 depth (``scale`` units per metre) or float metres as float32 metres, 0 for no
+    measurement (the 16-bit sentinel, NaN, inf, negative): one rule for depth files and for
+    depth handed in by user code (``semslam.System``)."""
     if img.dtype in (np.float32, np.float64):
         depth = np.nan_to_num(img.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
         depth[depth < 0] = 0.0
         return depth
-    if img.dtype != np.uint16:
-        raise DataError(path, f"unsupported depth image type {img.dtype}; expected uint16")
     depth = img.astype(np.float32) * np.float32(1.0 / scale)
     depth[img == DEPTH_SENTINEL] = 0.0
     return depth
