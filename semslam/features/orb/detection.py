@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Any
 
 import cv2
 import numpy as np
@@ -158,25 +159,11 @@ def detect_levels(images: list[NDArray[np.uint8]], fast_threshold: int, fast_min
     suppression) decide whether a cell counts as empty. Same keypoints, scores and order
     as ``detect_level_reference`` (tests), in one compiled call for all levels (levels
     of one stacked pyramid are read in place)."""
-    for t in (fast_threshold, fast_min_threshold):
-        if not 0 <= t <= 255:
-            raise ValueError(f"FAST thresholds must be in [0, 255], got {t}")
+    _check_thresholds(fast_threshold, fast_min_threshold)
     if not images:
         return EMPTY_DETECTION + (np.zeros(0, np.int64),)
-    scratch = scratch or Scratch()
-    sizes = [detection_region(image) or (0, 0) for image in images]
-    grids = np.array([_grid_numbers(cell_grid(w, h)) for w, h in sizes], np.int64).reshape(-1, 4)
-    widths = np.array([w for w, _ in sizes], np.int64)
-    heights = np.array([h for _, h in sizes], np.int64)
-    src, stride, origins = _shared_buffer(images)
-    bases = origins + BORDER * stride + BORDER
-    mask, rows, cols, first = _stacked_maps(masks, sizes)
-    size = max(int(widths.max() * heights.max()), 1)
-    x, y, score, _, level = detect_pyramid(
-        src, bases, stride, widths, heights, grids, int(fast_threshold), int(fast_min_threshold), mask, rows, cols,
-        first, masks is not None, scratch.get("fast_work", (size,), np.uint8),
-        scratch.get("fast_flags", (size,), np.uint8), scratch.get("fast_keep", (size,), np.uint8),
-        scratch.get("fast_positions", (size,), np.int64), scratch.get("fast_cells", (size,), np.int64))
+    levels, mask_maps, buffers = _kernel_layout(images, masks, scratch or Scratch())
+    x, y, score, _, level = detect_pyramid(*levels, int(fast_threshold), int(fast_min_threshold), *mask_maps, *buffers)
     return x, y, score.astype(np.float32), level
 
 
@@ -193,13 +180,29 @@ def detect_levels_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDAr
     ORB-SLAM's cells. Returns x, y (distribution frame), score, high, level, level by
     level in (cell, y, x) order, and per level the high points found and the low points
     inserted. Levels without a detection region must have been left out."""
-    for t in (fast_threshold, fast_min_threshold):
-        if not 0 <= t <= 255:
-            raise ValueError(f"FAST thresholds must be in [0, 255], got {t}")
+    _check_thresholds(fast_threshold, fast_min_threshold)
     empty = np.zeros(0, np.int64)
     if not images:
         return empty, empty, np.zeros(0, np.float32), np.zeros(0, bool), empty, empty, empty
-    scratch = scratch or Scratch()
+    levels, mask_maps, buffers = _kernel_layout(images, masks, scratch or Scratch())
+    x, y, score, high, level, n_high, n_low = detect_two_thresholds_pyramid(
+        *levels, int(fast_threshold), int(fast_min_threshold), kernel_array(n_wanted, np.int64), *mask_maps, *buffers)
+    return x, y, score.astype(np.float32), high.astype(bool), level, n_high, n_low
+
+
+def _check_thresholds(*thresholds: int) -> None:
+    for t in thresholds:
+        if not 0 <= t <= 255:
+            raise ValueError(f"FAST thresholds must be in [0, 255], got {t}")
+
+
+def _kernel_layout(images: list[NDArray[np.uint8]], masks: list[MaskSampler] | None, scratch: Scratch
+                   ) -> tuple[tuple[Any, ...], tuple[Any, ...], tuple[Any, ...]]:
+    """The arguments both pyramid kernels (``detect_pyramid``,
+    ``detect_two_thresholds_pyramid``) take, in their order: the levels' regions (flat
+    buffer, region starts, row stride, widths, heights, cell grids), the mask maps (mask,
+    row / column maps, where each level's maps start, whether to use them) and the work
+    buffers (sized for the largest region, reused through ``scratch``)."""
     sizes = [detection_region(image) or (0, 0) for image in images]
     grids = np.array([_grid_numbers(cell_grid(w, h)) for w, h in sizes], np.int64).reshape(-1, 4)
     widths = np.array([w for w, _ in sizes], np.int64)
@@ -208,13 +211,10 @@ def detect_levels_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDAr
     bases = origins + BORDER * stride + BORDER
     mask, rows, cols, first = _stacked_maps(masks, sizes)
     size = max(int(widths.max() * heights.max()), 1)
-    x, y, score, high, level, n_high, n_low = detect_two_thresholds_pyramid(
-        src, bases, stride, widths, heights, grids, int(fast_threshold), int(fast_min_threshold),
-        kernel_array(n_wanted, np.int64), mask, rows, cols, first, masks is not None,
-        scratch.get("fast_work", (size,), np.uint8), scratch.get("fast_flags", (size,), np.uint8),
-        scratch.get("fast_keep", (size,), np.uint8), scratch.get("fast_positions", (size,), np.int64),
-        scratch.get("fast_cells", (size,), np.int64))
-    return x, y, score.astype(np.float32), high.astype(bool), level, n_high, n_low
+    buffers = (scratch.get("fast_work", (size,), np.uint8), scratch.get("fast_flags", (size,), np.uint8),
+               scratch.get("fast_keep", (size,), np.uint8), scratch.get("fast_positions", (size,), np.int64),
+               scratch.get("fast_cells", (size,), np.int64))
+    return (src, bases, stride, widths, heights, grids), (mask, rows, cols, first, masks is not None), buffers
 
 
 def _grid_numbers(grid: CellGrid) -> tuple[int, int, int, int]:
