@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from semslam.features.orb import brief_kernels, fast_kernels, pyramid_kernels, quadtree_kernels, warm_up
+from semslam.features.orb import brief_kernels, fast_kernels, harris_kernels, pyramid_kernels, quadtree_kernels, warm_up
 from semslam.features.orb_slam2 import OrbSlamExtractor
 from semslam.features.qtree_orb import QtreeOrbExtractor
 
-_KERNELS = [fast_kernels.detect_cells, fast_kernels.detect_pyramid, brief_kernels.ic_moments, brief_kernels.steered_brief,
-            quadtree_kernels.quadtree_levels, pyramid_kernels.reflect_pad_levels]
+_KERNELS = [fast_kernels.detect_cells, fast_kernels.detect_pyramid, fast_kernels.detect_two_thresholds_pyramid,
+            brief_kernels.ic_moments, brief_kernels.steered_brief, quadtree_kernels.quadtree_levels,
+            pyramid_kernels.reflect_pad_levels, harris_kernels.harris_at]
 
 
 def _signatures() -> list[int]:

@@ -147,8 +147,9 @@ def test_low_pass_only_when_needed_and_stops_at_budget(real_gray: np.ndarray) ->
 
 def test_two_thresholds_same_with_opencv_fast(real_gray: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
     """Algorithm 2 on the compiled FAST gives exactly what it gave on OpenCV's FAST (the
-    detector it used before), with and without a mask, low pass included."""
-    from semslam.features import qtree_orb
+    detector it used before), with and without a mask, low pass included: the numpy
+    reference run on OpenCV's FAST, against the compiled one-call version."""
+    from semslam.features import qtree_detection
     from semslam.features.orb import level_mask_samplers, scale_factors
 
     def opencv_fast(image, threshold, mask=None, scratch=None):
@@ -164,8 +165,8 @@ def test_two_thresholds_same_with_opencv_fast(real_gray: np.ndarray, monkeypatch
             samplers = level_mask_samplers(m, levels, scale_factors(6, 1.2))
             ours = detect_two_thresholds(levels, wanted, 20, 7, samplers)
             with monkeypatch.context() as patch:
-                patch.setattr(qtree_orb, "fast_points", opencv_fast)
-                theirs = detect_two_thresholds(levels, wanted, 20, 7, samplers)
+                patch.setattr(qtree_detection, "fast_points", opencv_fast)
+                theirs = qtree_detection.detect_two_thresholds_numpy(levels, wanted, 20, 7, samplers)
             for name in ("x", "y", "score", "high", "level", "n_high", "n_low"):
                 assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
             assert ours.n_low.sum() > 0 or gray is real_gray

@@ -10,8 +10,13 @@ threshold) corners in texture-poor cells; the paper trades a little uniformity f
 strong corners (its Table 2: 155 -> 183 high, 63 -> 35 low of ~218 per frame).
 
 What is reused (imported from ``semslam.features.orb``, not copied): the stacked pyramid,
-the FAST wrapper and ORB-SLAM's cell grid and detection region, the vectorised quadtree
-(Algorithm 3 is its ``SplitRule.HIGH_QUALITY``), IC angle and steered rBRIEF.
+the compiled FAST and ORB-SLAM's cell grid and detection region, the compiled quadtree
+(Algorithm 3 is its ``SplitRule.HIGH_QUALITY``), IC angle and steered rBRIEF. Every
+per-pixel and per-keypoint loop runs compiled (numba): Algorithm 2 in one call for all
+levels (``semslam.features.qtree_detection``, on the FAST kernels of ``orb.fast_kernels``),
+Harris at the candidates (``orb.harris``). ``QtreeOrbExtractor(reference=True)`` runs
+the numpy versions they replaced instead (Algorithm 2's Python loop, Harris by matmul);
+same keypoints and descriptors (tests), 2-3x slower.
 
 The paper's equations and how ``s`` relates to ORB-SLAM's ``scale_factor``:
 - eq. 2: ``M = Round(max(W, H) / 100)`` levels (6 at 640x480, 12 at 1241x376);
@@ -43,8 +48,8 @@ Choices where the paper is vague (all commented where they are made):
   the splittable nodes with the most points first, one at a time, until ``N_i`` (may
   overshoot by <= 3). A node of 1x1 px is never split (it cannot separate points).
 - Harris: OpenCV ORB's ``HarrisResponses`` (7x7 block of 3x3 Sobel gradients,
-  k = 0.04, same scaling) on the level image, evaluated at the candidate points only
-  (one small matmul per chunk; ``cv2.cornerHarris`` over all levels costs ~15 ms).
+  k = 0.04, same scaling, integer sums) on the level image, evaluated at the candidate
+  points only (``cv2.cornerHarris`` over all levels costs ~15 ms).
 - Quality of a kept point: high iff its FAST score >= ``T_H`` (i.e. it is in ``P^H``).
   The same rule classifies ORB-SLAM's keypoints (their response is the FAST score),
   see ``fast_quality``.
@@ -71,17 +76,15 @@ from semslam.core.types import FeatureSpec, Keypoints, orb_spec
 from semslam.features.inputs import check_extractor_inputs
 from semslam.features.orb import (
     BORDER,
-    MaskSampler,
     Scratch,
     SplitRule,
     SteeredBrief,
     build_pyramid,
-    cell_grid,
     detection_levels,
-    detection_region,
     distribute_quadtree_leaves,
-    fast_points,
     features_per_level,
+    harris_responses,
+    harris_responses_numpy,
     level0_xy,
     level_mask_samplers,
     region_sizes,
@@ -89,10 +92,12 @@ from semslam.features.orb import (
     warm_up,
 )
 from semslam.features.orb.timing import StageClock
+from semslam.features.qtree_detection import Detection, detect_two_thresholds, detect_two_thresholds_numpy
 
 __all__ = [
-    "Detection", "QtreeOrbCounts", "QtreeOrbExtractor", "detect_two_thresholds", "distribute_improved_quadtree",
-    "distribution_uniformity", "fast_quality", "harris_responses", "levels_for_image", "paper_features_per_level",
+    "Detection", "QtreeOrbCounts", "QtreeOrbExtractor", "detect_two_thresholds", "detect_two_thresholds_numpy",
+    "distribute_improved_quadtree", "harris_responses", "harris_responses_numpy",
+    "distribution_uniformity", "fast_quality", "levels_for_image", "paper_features_per_level",
     "create_extractor",
 ]
 
@@ -120,134 +125,6 @@ def paper_features_per_level(n_features: int, n_levels: int, scale_factor: float
     counts = np.rint(exact).astype(np.int64)
     counts[-1] = max(n_features - int(counts[:-1].sum()), 0)
     return counts
-
-
-# --------------------------------------------------------------------------- Harris
-
-def _harris_kernel() -> NDArray[np.float32]:
-    """(81, 98) matrix mapping a 9x9 patch (row-major) to the 7x7 Sobel x then y
-    gradients around its centre (OpenCV ORB ``HarrisResponses``' dx, dy)."""
-    k = np.zeros((9, 9, 2, 7, 7), np.float32)
-    for i in range(7):
-        for j in range(7):
-            for d, w in ((-1, 1.0), (0, 2.0), (1, 1.0)):
-                k[i + 1 + d, j + 2, 0, i, j] += w  # dx: right column minus left column
-                k[i + 1 + d, j, 0, i, j] -= w
-                k[i + 2, j + 1 + d, 1, i, j] += w  # dy: bottom row minus top row
-                k[i, j + 1 + d, 1, i, j] -= w
-    return k.reshape(81, 98)
-
-
-_HARRIS_KERNEL = _harris_kernel()
-_HARRIS_CHUNK = 512
-
-
-def harris_responses(image: NDArray[np.uint8], x: NDArray[np.integer], y: NDArray[np.integer],
-                     k: float = 0.04, scratch: Scratch | None = None) -> NDArray[np.float64]:
-    """OpenCV ORB's ``HarrisResponses`` (block 7) at integer pixels at least 4 px from
-    the border: ``(a b - c^2 - k (a + b)^2) / (4 * 7 * 255)^4`` with a, b, c the sums of
-    dx^2, dy^2, dx dy of 3x3 Sobel gradients over the 7x7 block.
-
-    Vectorised: the 9x9 windows are copied in chunks and turned into both gradient
-    blocks by one float32 matmul (exact: integers < 2^24); per point, not per pixel,
-    because the candidates cover a few thousand of the pyramid's ~1.2 M pixels."""
-    n = len(x)
-    if n == 0:
-        return np.zeros(0, np.float64)
-    scratch = scratch or Scratch()
-    windows = np.lib.stride_tricks.sliding_window_view(image, (9, 9))
-    wy = np.asarray(y, np.intp) - 4
-    wx = np.asarray(x, np.intp) - 4
-    pbuf = scratch.get("h_p", (_HARRIS_CHUNK, 81), np.float32)
-    gbuf = scratch.get("h_g", (_HARRIS_CHUNK, 98), np.float32)
-    abc = np.empty((n, 3), np.float64)
-    for i in range(0, n, _HARRIS_CHUNK):
-        j = min(i + _HARRIS_CHUNK, n)
-        p, g = pbuf[: j - i], gbuf[: j - i]
-        np.copyto(p, windows[wy[i:j], wx[i:j]].reshape(j - i, 81))
-        np.matmul(p, _HARRIS_KERNEL, out=g)
-        gx, gy = g[:, :49], g[:, 49:]
-        abc[i:j, 0] = np.einsum("ij,ij->i", gx, gx)
-        abc[i:j, 1] = np.einsum("ij,ij->i", gy, gy)
-        abc[i:j, 2] = np.einsum("ij,ij->i", gx, gy)
-    a, b, c = abc[:, 0], abc[:, 1], abc[:, 2]
-    scale = 1.0 / (4.0 * 7.0 * 255.0)
-    return (a * b - c * c - k * (a + b) ** 2) * scale**4
-
-
-# --------------------------------------------------------------------------- Algorithm 2
-
-@dataclass
-class Detection:
-    """Candidates of all levels, level by level in ORB-SLAM's order (cell by cell,
-    row-major inside a cell): x, y in each level's distribution frame (level pixels -
-    EDGE_THRESHOLD + 3), FAST score, quality (True = in ``P^H``) and level; per level
-    ``|P^H|`` and ``|P^L|`` (the low points actually inserted)."""
-
-    x: NDArray[np.int64]
-    y: NDArray[np.int64]
-    score: NDArray[np.float32]
-    high: NDArray[np.bool_]
-    level: NDArray[np.int64]
-    n_high: NDArray[np.int64]
-    n_low: NDArray[np.int64]
-
-
-def detect_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.integer],
-                          fast_threshold: int, fast_min_threshold: int,
-                          masks: list[MaskSampler] | None = None, scratch: Scratch | None = None) -> Detection:
-    """Algorithm 2 on every level: ``P^H`` = FAST at ``T_H`` (``fast_threshold``) on all
-    cells; if ``|P^H| < N_i``, insert the cells' low points (FAST at ``T_L``, score <
-    ``T_H``) cell by cell in raster order until ``|P^H| + |P^L| >= N_i``. Levels must all
-    have a detection region; ``masks``: one per level (``level_mask_samplers``). See the
-    module doc for the choices."""
-    scratch = scratch or Scratch()
-    t_high = np.float32(fast_threshold)
-    xs, ys, ss, hs, cells = [], [], [], [], []
-    n_high = np.zeros(len(images), np.int64)
-    n_low = np.zeros(len(images), np.int64)
-    level_first_cell = []
-    cell_base = 0
-    for level, image in enumerate(images):
-        region = detection_region(image)
-        assert region is not None, "levels without a detection region must be left out"
-        width, height = region
-        crop = image[BORDER:BORDER + height, BORDER:BORDER + width]
-        cmask = None if masks is None else masks[level].crop(BORDER, BORDER, width, height)
-        grid = cell_grid(width, height)
-        x, y, s = fast_points(crop, fast_threshold, cmask, scratch)
-        n_high[level] = len(x)
-        xs.append(x)
-        ys.append(y)
-        ss.append(s)
-        hs.append(np.ones(len(x), bool))
-        cells.append(grid.cell_of(x, y) + cell_base)
-        deficit = int(n_wanted[level]) - len(x)
-        if deficit > 0:
-            lx, ly, ls = fast_points(crop, fast_min_threshold, cmask, scratch)
-            low = ls < t_high  # the others are exactly P^H again
-            lx, ly, ls = lx[low], ly[low], ls[low]
-            lcell = grid.cell_of(lx, ly)
-            per_cell = np.bincount(lcell, minlength=grid.n_cells)
-            # Cell j is inserted iff the check after cell j-1 had not reached N_i.
-            before = np.cumsum(per_cell) - per_cell
-            take = (before < deficit)[lcell]
-            n_low[level] = int(take.sum())
-            xs.append(lx[take])
-            ys.append(ly[take])
-            ss.append(ls[take])
-            hs.append(np.zeros(int(take.sum()), bool))
-            cells.append(lcell[take] + cell_base)
-        level_first_cell.append(cell_base)
-        cell_base += grid.n_cells
-    x, y, score = np.concatenate(xs), np.concatenate(ys), np.concatenate(ss)
-    high, cell = np.concatenate(hs), np.concatenate(cells)
-    # ORB-SLAM's order, (cell, y, x) as one integer key; cells are numbered level by level.
-    side = np.int64(max(max(im.shape) for im in images))
-    order = np.argsort((cell * side + y) * side + x, kind="stable")
-    cell = cell[order]
-    level = np.searchsorted(np.array(level_first_cell), cell, side="right") - 1
-    return Detection(x[order], y[order], score[order], high[order], level.astype(np.int64), n_high, n_low)
 
 
 # --------------------------------------------------------------------------- Algorithm 3
@@ -352,12 +229,14 @@ class QtreeOrbExtractor:
     ``levels_from_image_size=False`` uses ``n_levels`` instead of eq. 2;
     ``budget="orb_slam"`` uses ORB-SLAM's per-level budgets instead of eq. 5.
     ``image_size`` (width, height) fixes the image size: with eq. 2 the pyramid, hence
-    ``spec``, depends on it, so ``spec`` needs it and ``extract`` then refuses other sizes."""
+    ``spec``, depends on it, so ``spec`` needs it and ``extract`` then refuses other sizes.
+    ``reference=True`` runs Algorithm 2 and Harris in numpy (the versions the compiled
+    ones replaced; same output, slower; kept to check against)."""
 
     def __init__(self, n_features: int = 1000, scale_factor: float = 1.2, n_levels: int = 8,
                  fast_threshold: int = 20, fast_min_threshold: int = 7, levels_from_image_size: bool = True,
                  budget: Literal["paper", "orb_slam"] = "paper",
-                 image_size: tuple[int, int] | None = None) -> None:
+                 image_size: tuple[int, int] | None = None, reference: bool = False) -> None:
         if n_levels < 1 or scale_factor <= 1.0 or n_features < 0:
             raise ValueError("need n_levels >= 1, scale_factor > 1 and n_features >= 0")
         if not 0 < fast_min_threshold <= fast_threshold:
@@ -372,6 +251,9 @@ class QtreeOrbExtractor:
         self.levels_from_image_size = bool(levels_from_image_size)
         self.budget = budget
         self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
+        self.reference = bool(reference)
+        self._detect = detect_two_thresholds_numpy if reference else detect_two_thresholds
+        self._harris = harris_responses_numpy if reference else harris_responses
         warm_up()  # compile the kernels now, not in the first frame
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
@@ -431,13 +313,12 @@ class QtreeOrbExtractor:
         n_used = len(images)
         wanted = wanted_all[:n_used]
         masks = level_mask_samplers(mask, images, scales)
-        det = detect_two_thresholds(images, wanted, self.fast_threshold, self.fast_min_threshold, masks,
-                                    self._brief.scratch)
+        det = self._detect(images, wanted, self.fast_threshold, self.fast_min_threshold, masks, self._brief.scratch)
         clock.lap()
         # Harris on the level images in the stacked buffer (the points are >= 19 px inside
         # their level, so the 9x9 windows never reach the padding or another level).
         sx_all, sy_all = det.x + BORDER + pyr.pad, det.y + BORDER + pyr.rows[det.level]
-        harris = harris_responses(pyr.buffer, sx_all, sy_all, scratch=self._brief.scratch)
+        harris = self._harris(pyr.buffer, sx_all, sy_all, scratch=self._brief.scratch)
         clock.lap()
         widths, heights = region_sizes(images)
         keep, _ = distribute_improved_quadtree(det.x, det.y, harris, det.high, det.level, widths, heights, wanted,

@@ -12,17 +12,18 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.features.orb.fast_kernels import detect_cells, detect_pyramid
+from semslam.features.orb.fast_kernels import detect_cells, detect_pyramid, detect_two_thresholds_pyramid
 from semslam.features.orb.pyramid import EDGE_THRESHOLD, MaskSampler
 from semslam.features.orb.scratch import Scratch, kernel_array
 
 __all__ = ["BORDER", "CELL_SIZE", "CellGrid", "EMPTY_DETECTION", "cell_grid", "detect_level",
-           "detect_level_reference", "detect_levels", "detection_levels", "detection_region",
+           "detect_level_reference", "detect_levels", "detect_levels_two_thresholds", "detection_levels", "detection_region",
            "fast_points", "fast_points_cv2", "region_sizes"]
 
 CELL_SIZE = 30  # ORB-SLAM's W: side of the FAST cells in level pixels
@@ -158,12 +159,50 @@ def detect_levels(images: list[NDArray[np.uint8]], fast_threshold: int, fast_min
     suppression) decide whether a cell counts as empty. Same keypoints, scores and order
     as ``detect_level_reference`` (tests), in one compiled call for all levels (levels
     of one stacked pyramid are read in place)."""
-    for t in (fast_threshold, fast_min_threshold):
-        if not 0 <= t <= 255:
-            raise ValueError(f"FAST thresholds must be in [0, 255], got {t}")
+    _check_thresholds(fast_threshold, fast_min_threshold)
     if not images:
         return EMPTY_DETECTION + (np.zeros(0, np.int64),)
-    scratch = scratch or Scratch()
+    levels, mask_maps, buffers = _kernel_layout(images, masks, scratch or Scratch())
+    x, y, score, _, level = detect_pyramid(*levels, int(fast_threshold), int(fast_min_threshold), *mask_maps, *buffers)
+    return x, y, score.astype(np.float32), level
+
+
+def detect_levels_two_thresholds(images: list[NDArray[np.uint8]], n_wanted: NDArray[np.integer], fast_threshold: int,
+                                 fast_min_threshold: int, masks: list[MaskSampler] | None = None,
+                                 scratch: Scratch | None = None
+                                 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32], NDArray[np.bool_],
+                                            NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """STDC-SLAM's two-threshold FAST (Algorithm 2, ``semslam.features.qtree_orb``) on
+    all levels in one compiled call (``fast_kernels.detect_two_thresholds_pyramid``):
+    plain FAST at ``fast_threshold`` on each level's whole detection region; where that
+    leaves the level short of ``n_wanted``, the low points (FAST at
+    ``fast_min_threshold``, score below ``fast_threshold``) of a raster-order prefix of
+    ORB-SLAM's cells. Returns x, y (distribution frame), score, high, level, level by
+    level in (cell, y, x) order, and per level the high points found and the low points
+    inserted. Levels without a detection region must have been left out."""
+    _check_thresholds(fast_threshold, fast_min_threshold)
+    empty = np.zeros(0, np.int64)
+    if not images:
+        return empty, empty, np.zeros(0, np.float32), np.zeros(0, bool), empty, empty, empty
+    levels, mask_maps, buffers = _kernel_layout(images, masks, scratch or Scratch())
+    x, y, score, high, level, n_high, n_low = detect_two_thresholds_pyramid(
+        *levels, int(fast_threshold), int(fast_min_threshold), kernel_array(n_wanted, np.int64), *mask_maps, *buffers)
+    return x, y, score.astype(np.float32), high.astype(bool), level, n_high, n_low
+
+
+def _check_thresholds(*thresholds: int) -> None:
+    for t in thresholds:
+        if not 0 <= t <= 255:
+            raise ValueError(f"FAST thresholds must be in [0, 255], got {t}")
+
+
+def _kernel_layout(images: list[NDArray[np.uint8]], masks: list[MaskSampler] | None, scratch: Scratch
+                   ) -> tuple[tuple[Any, ...], tuple[Any, ...], tuple[Any, ...]]:
+    """The arguments both pyramid kernels (``detect_pyramid``,
+    ``detect_two_thresholds_pyramid``) take, in their order: the levels' regions (flat
+    buffer, region starts, row stride, widths, heights, cell grids), the mask maps (mask,
+    row / column maps, where each level's maps start, whether to use them) and the work
+    buffers (sized for the largest region, reused through ``scratch``)."""
     sizes = [detection_region(image) or (0, 0) for image in images]
     grids = np.array([_grid_numbers(cell_grid(w, h)) for w, h in sizes], np.int64).reshape(-1, 4)
     widths = np.array([w for w, _ in sizes], np.int64)
@@ -172,12 +211,10 @@ def detect_levels(images: list[NDArray[np.uint8]], fast_threshold: int, fast_min
     bases = origins + BORDER * stride + BORDER
     mask, rows, cols, first = _stacked_maps(masks, sizes)
     size = max(int(widths.max() * heights.max()), 1)
-    x, y, score, _, level = detect_pyramid(
-        src, bases, stride, widths, heights, grids, int(fast_threshold), int(fast_min_threshold), mask, rows, cols,
-        first, masks is not None, scratch.get("fast_work", (size,), np.uint8),
-        scratch.get("fast_flags", (size,), np.uint8), scratch.get("fast_keep", (size,), np.uint8),
-        scratch.get("fast_positions", (size,), np.int64), scratch.get("fast_cells", (size,), np.int64))
-    return x, y, score.astype(np.float32), level
+    buffers = (scratch.get("fast_work", (size,), np.uint8), scratch.get("fast_flags", (size,), np.uint8),
+               scratch.get("fast_keep", (size,), np.uint8), scratch.get("fast_positions", (size,), np.int64),
+               scratch.get("fast_cells", (size,), np.int64))
+    return (src, bases, stride, widths, heights, grids), (mask, rows, cols, first, masks is not None), buffers
 
 
 def _grid_numbers(grid: CellGrid) -> tuple[int, int, int, int]:

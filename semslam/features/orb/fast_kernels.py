@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["CIRCLE", "detect_cells", "detect_pyramid", "score_corners"]
+__all__ = ["CIRCLE", "detect_cells", "detect_pyramid", "detect_two_thresholds_pyramid", "score_corners"]
 
 # OpenCV's offsets16 (x, y), in circle order.
 CIRCLE = np.array([[0, 3], [1, 3], [2, 2], [3, 1], [3, 0], [3, -1], [2, -2], [1, -3],
@@ -579,3 +579,120 @@ def detect_pyramid(src, bases, stride, widths, heights, grids, t_hi, t_lo, mask,
                                 mcols[map_first[lv, 1]:map_first[lv, 1] + w], use_mask, work, flags, keep,
                                 positions, cells, out, n, lv)
     return _split_columns(out, n)
+
+
+# --------------------------------------------------------------------------- STDC-SLAM
+
+@njit(cache=True, nogil=True)
+def _plain_fast(src, base, stride, width, height, t, mask, mrows, mcols, use_mask, work, flags, keep, positions,
+                cells, out, level):
+    """Plain OpenCV FAST at ``t`` on the whole region (one cell, so non-max suppression
+    sees across ORB-SLAM's cell borders), masked after suppression: rows (x, y, score,
+    0, level) of ``out`` in row-major order; returns (out, count)."""
+    return _detect_region(src, base, stride, width, height, t, -1, 1, 1, max(width - 6, 1), max(height - 6, 1),
+                          mask, mrows, mcols, use_mask, work, flags, keep, positions, cells, out, 0, level)
+
+
+@njit(cache=True, nogil=True)
+def _low_prefix(lo, m, t_hi, n_cols, w_cell, h_cell, n_cells, deficit):
+    """Algorithm 2's low points, in place in ``lo[:m]`` (row-major): those of score below
+    ``t_hi`` (the others are the high pass's points again), then only those of the cells
+    inserted in raster order while the level was short of ``deficit``: cell ``c`` is
+    inserted iff the low points of the cells before it number fewer than ``deficit``.
+    Their cells go to column 3. Returns how many remain."""
+    k_out = 0
+    per_cell = np.zeros(n_cells, np.int64)
+    for k in range(m):
+        if lo[k, 2] < t_hi:
+            c = ((lo[k, 1] - 3) // h_cell) * n_cols + (lo[k, 0] - 3) // w_cell
+            lo[k_out] = lo[k]
+            lo[k_out, 3] = c
+            per_cell[c] += 1
+            k_out += 1
+    inserted = np.zeros(n_cells, np.bool_)
+    before = 0
+    for c in range(n_cells):
+        inserted[c] = before < deficit
+        before += per_cell[c]
+    m = 0
+    for k in range(k_out):
+        if inserted[lo[k, 3]]:
+            lo[m] = lo[k]
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _append_in_cell_order(hi, m_hi, lo, m_lo, width, n_cols, w_cell, h_cell, n_cells, out, n):
+    """Append the high (``hi[:m_hi]``) and low (``lo[:m_lo]``) points of a level to
+    ``out`` from row ``n`` on as rows (x, y, score, high, level), sorted by (cell, y, x):
+    the two row-major lists merged (high first on a tie, which cannot happen), then a
+    stable counting sort by cell. Returns (out, new row count)."""
+    m = m_hi + m_lo
+    if out.shape[0] < n + m:
+        out = _grown_rows(out, n + m)
+    merged = np.empty((m, 6), np.int64)  # x, y, score, cell, level, high
+    i = j = 0
+    for k in range(m):
+        take_hi = j >= m_lo or (i < m_hi and hi[i, 1] * width + hi[i, 0] <= lo[j, 1] * width + lo[j, 0])
+        row = hi[i] if take_hi else lo[j]
+        for col in range(5):
+            merged[k, col] = row[col]
+        merged[k, 5] = 1 if take_hi else 0
+        if take_hi:
+            merged[k, 3] = ((row[1] - 3) // h_cell) * n_cols + (row[0] - 3) // w_cell
+            i += 1
+        else:
+            j += 1
+    first = np.zeros(n_cells + 1, np.int64)
+    for k in range(m):
+        first[merged[k, 3] + 1] += 1
+    for c in range(n_cells):
+        first[c + 1] += first[c]
+    for k in range(m):
+        c = merged[k, 3]
+        r = n + first[c]
+        first[c] += 1
+        out[r, 0], out[r, 1], out[r, 2] = merged[k, 0], merged[k, 1], merged[k, 2]
+        out[r, 3], out[r, 4] = merged[k, 5], merged[k, 4]
+    return out, n + m
+
+
+@njit(cache=True, nogil=True)
+def detect_two_thresholds_pyramid(src, bases, stride, widths, heights, grids, t_hi, t_lo, n_wanted, mask, mrows,
+                                  mcols, map_first, use_mask, work, flags, keep, positions, cells):
+    """STDC-SLAM's Algorithm 2 (two-threshold FAST) on every level of a pyramid laid out
+    as for ``detect_pyramid`` (same arguments, plus ``n_wanted``: each level's budget
+    ``N_i``): ``P^H`` = plain FAST at ``t_hi`` on the level's whole region; if
+    ``|P^H| < N_i``, plain FAST at ``t_lo`` on it, whose points of score < ``t_hi`` are
+    ``P^L``, inserted cell by cell (ORB-SLAM's cells ``grids[l]``) in raster order until
+    ``|P^H| + |P^L| >= N_i``. The mask drops points after suppression, before counting.
+
+    Returns x, y, score (uint8), high (0/1), level (int64 each) of the points, level by
+    level and in (cell, y, x) order inside a level, and per level ``|P^H|`` and the
+    number of low points inserted."""
+    n_levels = bases.size
+    n_high = np.zeros(n_levels, np.int64)
+    n_low = np.zeros(n_levels, np.int64)
+    out = np.empty((4096, 5), np.int64)
+    hi = np.empty((4096, 5), np.int64)
+    lo = np.empty((64, 5), np.int64)
+    n = 0
+    for lv in range(n_levels):
+        h, w = heights[lv], widths[lv]
+        n_cols, n_rows, w_cell, h_cell = grids[lv, 0], grids[lv, 1], grids[lv, 2], grids[lv, 3]
+        mr = mrows[map_first[lv, 0]:map_first[lv, 0] + h]
+        mc = mcols[map_first[lv, 1]:map_first[lv, 1] + w]
+        hi, m_hi = _plain_fast(src, bases[lv], stride, w, h, t_hi, mask, mr, mc, use_mask, work, flags, keep,
+                               positions, cells, hi, lv)
+        n_high[lv] = m_hi
+        m_lo = 0
+        deficit = n_wanted[lv] - m_hi
+        if deficit > 0:
+            lo, m_all = _plain_fast(src, bases[lv], stride, w, h, t_lo, mask, mr, mc, use_mask, work, flags, keep,
+                                    positions, cells, lo, lv)
+            m_lo = _low_prefix(lo, m_all, t_hi, n_cols, w_cell, h_cell, n_cols * n_rows, deficit)
+        n_low[lv] = m_lo
+        out, n = _append_in_cell_order(hi, m_hi, lo, m_lo, w, n_cols, w_cell, h_cell, n_cols * n_rows, out, n)
+    xs, ys, ss, high, ls = _split_columns(out, n)
+    return xs, ys, ss, high, ls, n_high, n_low

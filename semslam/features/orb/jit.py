@@ -9,7 +9,8 @@ extractors call it from their constructor. Call it yourself to do it earlier, e.
 starting the tracking thread.
 
 numba keys a cached kernel by the file it is defined in, so each kernel module
-(``fast_kernels``, ``brief_kernels``, ``quadtree_kernels``, ``pyramid_kernels``) only
+(``fast_kernels``, ``brief_kernels``, ``quadtree_kernels``, ``pyramid_kernels``,
+``harris_kernels``) only
 calls kernels of its own module: editing one can never leave a stale copy inlined in
 another.
 """
@@ -43,7 +44,8 @@ def warm_up() -> float:
 def _run_kernels() -> None:
     """Every kernel once, on inputs of the types the extractors pass."""
     from semslam.features.orb.descriptors import ic_angles, orb_descriptors
-    from semslam.features.orb.detection import detect_levels, fast_points
+    from semslam.features.orb.detection import detect_levels, detect_levels_two_thresholds, fast_points
+    from semslam.features.orb.harris import harris_responses
     from semslam.features.orb.pyramid import MaskSampler, build_pyramid
     from semslam.features.orb.quadtree import SplitRule, distribute_quadtree_leaves
 
@@ -53,6 +55,9 @@ def _run_kernels() -> None:
     build_pyramid(image, 2, 1.2, pad=3)
     fast_points(image, 20)
     x, y, score, level = detect_levels([image], 20, 7, [MaskSampler.same_size(mask)])
+    for masks in (None, [MaskSampler.same_size(mask)]):
+        detect_levels_two_thresholds([image], np.array([10_000]), 20, 7, masks)  # low pass included
+    harris_responses(image, np.array([24]), np.array([24]))
     for rule in (SplitRule.ORB_SLAM, SplitRule.HIGH_QUALITY):
         distribute_quadtree_leaves(x, y, score, level, np.array([16]), np.array([16]), np.array([4]),
                                    score >= 20, rule)
