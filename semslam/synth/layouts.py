@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from semslam.errors import ConfigError
-from semslam.synth import layout_lounge, scene
+from semslam.synth import layout_lounge, layout_random, scene
 from semslam.synth.atlas import Lights
 from semslam.synth.scene import Box
 
@@ -39,12 +39,16 @@ LAYOUTS: dict[int, Layout] = {
     0: Layout("office", scene.static_boxes, scene.LIGHTS),
     1: Layout("lounge", layout_lounge.lounge_boxes, layout_lounge.LIGHTS),
 }
+#: Layouts 2..MAX_LAYOUT are furnished at random, seeded by their number (for training).
+MAX_LAYOUT = 99
 
 
 def get_layout(number: int) -> Layout:
-    """Layout ``number``; :class:`ConfigError` listing the layouts otherwise."""
-    try:
+    """Layout ``number``; :class:`ConfigError` naming the layouts otherwise."""
+    if number in LAYOUTS:
         return LAYOUTS[number]
-    except KeyError:
-        known = ", ".join(f"{k} ({v.name})" for k, v in LAYOUTS.items())
-        raise ConfigError(f"synth: unknown layout {number} (choose from {known})") from None
+    if 2 <= number <= MAX_LAYOUT:
+        boxes, lights = layout_random.random_room(number)
+        return Layout(f"random {number}", lambda: layout_random.random_room(number)[0], lights)
+    raise ConfigError(f"synth: unknown layout {number} (choose from 0 (office), 1 (lounge), "
+                      f"2-{MAX_LAYOUT} (furnished at random))")
