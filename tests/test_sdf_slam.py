@@ -3,9 +3,9 @@ corrections on analytic cases, the ``sdf`` preset as shipped (SDFCNN's depth and
 short render, and recovery with the oracle depth (``ground_truth_depth``: the render's own
 depth, which bounds the tracker, not SDFCNN).
 
-The render is of the room SDFCNN was trained in (the synthetic room has one layout; other
-seeds, textures and paths): the preset's bound here is a regression check, not the held-out
-measurement of the issue's target.
+The render is of the room SDFCNN was trained in (layout 0; other seeds, textures and paths):
+the preset's bound here is a regression check, not the held-out measurement of the issue's
+target (``test_sdf_held_out.py`` runs in layout 1, which no shipped network saw).
 """
 
 from __future__ import annotations

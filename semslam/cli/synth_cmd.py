@@ -79,6 +79,10 @@ def synth_command(
         None, "--depth-delay-ms", help="Depth captured up to this long after RGB, 35-100 %% of it per frame "
         "(default: 0)."
     ),
+    layout: int | None = typer.Option(
+        None, "--layout", help="Room layout: 0 the office (every preset), 1 the lounge, held out "
+        "of the shipped networks' training (default: 0)."
+    ),
     workers: int = typer.Option(2, "--workers", help="Frames rendered in parallel (threads)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -110,11 +114,13 @@ def synth_command(
         rolling_shutter_ms=rolling_shutter_ms,
         gain_swing=gain_swing,
         depth_delay_ms=depth_delay_ms,
+        layout=layout,
     ).validate()
     start = time.perf_counter()
     path = render_sequence(cfg, out, progress=not quiet, workers=workers)
     secs = time.perf_counter() - start
     mover_note = (", mover" if cfg.mover else "") + (", background" if cfg.background else "")
+    mover_note += f", layout {cfg.layout}" if cfg.layout else ""
     typer.echo(
         f"synth: {cfg.frames} frames ({cfg.motion}, {cfg.people} people{mover_note}) "
         f"in {secs:.1f} s ({secs / cfg.frames:.3f} s/frame) -> {path}"

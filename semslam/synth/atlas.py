@@ -21,6 +21,8 @@ from semslam.synth.scene import LIGHTS, Box
 PAD = 8  # texels of replicated border around each face (enough for mip level 2)
 ATLAS_WIDTH = 4096
 LEVELS = 3
+#: Ceiling lights: (position, relative intensity) per light.
+Lights = tuple[tuple[NDArray[np.float64], float], ...]
 
 
 @dataclass
@@ -43,7 +45,7 @@ def _face_rng(seed: int, box: Box, f: int) -> np.random.Generator:
 
 
 def _shading(
-    box: Box, f: int, wpx: int, hpx: int, w: float, h: float, others: list[Box]
+    box: Box, f: int, wpx: int, hpx: int, w: float, h: float, others: list[Box], lights: Lights = LIGHTS
 ) -> NDArray[np.float32]:
     """Per-texel light factor of face ``f``: Lambert from ceiling lights, wall-base darkening
     and soft contact shadows of objects standing on an upward face."""
@@ -55,7 +57,7 @@ def _shading(
     pts = box.face_point(f, aa, bb)  # (gh, gw, 3)
     n = box.world_normal(f)
     light = np.full((gh, gw), 0.52)
-    for pos, inten in LIGHTS:
+    for pos, inten in lights:
         d = pos - pts
         dist = np.linalg.norm(d, axis=-1)
         cos = np.clip((d @ n) / np.maximum(dist, 1e-6), 0.0, 1.0)
@@ -87,9 +89,12 @@ def _shading(
     return cv2.resize(light.astype(np.float32), (wpx, hpx), interpolation=cv2.INTER_LINEAR)
 
 
-def build_atlas(boxes: list[Box], seed: int, casters: list[Box] | None = None) -> Atlas:
+def build_atlas(
+    boxes: list[Box], seed: int, casters: list[Box] | None = None, lights: Lights = LIGHTS
+) -> Atlas:
     """Generate, light and pack the textures of all faces of ``boxes``; contact shadows
-    are baked in from ``casters`` (default: all of ``boxes``)."""
+    are baked in from ``casters`` (default: all of ``boxes``), light from ``lights``
+    (default: layout 0's)."""
     others = boxes if casters is None else casters
     items = []  # (box index, face, texture)
     for i, box in enumerate(boxes):
@@ -97,7 +102,7 @@ def build_atlas(boxes: list[Box], seed: int, casters: list[Box] | None = None) -
             _, _, _, w, h = box.face_frame(f)
             wpx, hpx = max(2, round(w * box.ppm)), max(2, round(h * box.ppm))
             tex = textures.generate(box.faces[f], _face_rng(seed, box, f), wpx, hpx, box.ppm)
-            lit = tex.astype(np.float32) * _shading(box, f, wpx, hpx, w, h, others)[..., None]
+            lit = tex.astype(np.float32) * _shading(box, f, wpx, hpx, w, h, others, lights)[..., None]
             items.append((i, f, np.clip(lit + 0.5, 0, 255).astype(np.uint8), w, h))
     # shelf packing, tallest first
     order = sorted(range(len(items)), key=lambda k: -items[k][2].shape[0])

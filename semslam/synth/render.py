@@ -39,13 +39,14 @@ from semslam.synth.raycast import (
     cast_box,
     sample_atlas,
 )
-from semslam.synth.scene import LABEL_PERSON, Box, mover_box, static_boxes
+from semslam.synth.layouts import get_layout
+from semslam.synth.scene import LABEL_PERSON, Box, mover_box
 from semslam.synth.sequences import SynthConfig
 from semslam.synth.static_geometry import MOVERS_FILE, SCENE_FILE, movers_json, scene_json
 
 #: SynthConfig fields added after renders were first cached (absent there = default).
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
-                 "blackout_start_s", "blackout_s")
+                 "blackout_start_s", "blackout_s", "layout")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -60,16 +61,17 @@ class Frame:
 
 
 @functools.lru_cache(maxsize=2)
-def scene_for_seed(seed: int, carried: bool = False) -> tuple[list[Box], Atlas]:
-    """Static boxes and the atlas, cached. The atlas also holds the mover's faces (after
-    the static boxes) and, with ``carried``, the carried box's (last). The carried box
-    casts no baked contact shadow (it does not stay where it stands at t = 0); the atlas
-    of sequences without it is unchanged by its existence."""
-    boxes = static_boxes()
+def scene_for_seed(seed: int, carried: bool = False, layout: int = 0) -> tuple[list[Box], Atlas]:
+    """Static boxes of room ``layout`` and the atlas, cached. The atlas also holds the
+    mover's faces (after the static boxes) and, with ``carried``, the carried box's (last).
+    The carried box casts no baked contact shadow (it does not stay where it stands at
+    t = 0); the atlas of sequences without it is unchanged by its existence."""
+    room = get_layout(layout)
+    boxes = room.boxes()
     if not carried:
-        return boxes, build_atlas(boxes + [mover_box(0.0)], seed)
+        return boxes, build_atlas(boxes + [mover_box(0.0)], seed, lights=room.lights)
     casters = boxes + [mover_box(0.0)]
-    return boxes, build_atlas(casters + [carried_box(0.0)], seed, casters=casters)
+    return boxes, build_atlas(casters + [carried_box(0.0)], seed, casters=casters, lights=room.lights)
 
 
 class Renderer:
@@ -79,7 +81,7 @@ class Renderer:
         self.cfg = cfg.validate()
         fx, fy, cx, cy = cfg.intrinsics()
         self.cam = Camera(fx, fy, cx, cy, cfg.width, cfg.height)
-        self.boxes, self.atlas = scene_for_seed(cfg.seed, cfg.box_carrier)
+        self.boxes, self.atlas = scene_for_seed(cfg.seed, cfg.box_carrier, cfg.layout)
         self.times = np.arange(cfg.frames) / cfg.fps
         self.poses = camera_trajectory(cfg.motion, self.times, cfg.duration)
         self.people = People(
@@ -283,7 +285,8 @@ def render_sequence(
     writer.write_list(out / "depth.txt", "depth", depth_stamps, "depth")
     writer.write_groundtruth(out / "groundtruth.txt", rgb_stamps, renderer.poses)
     writer.write_calib(out / "calib.txt", cfg.intrinsics())
-    writer.write_json(out / "semantic" / "labels.json", writer.LABELS)
+    labels = writer.labels_for(renderer.boxes)
+    writer.write_json(out / "semantic" / "labels.json", labels)
     writer.write_json(out / SCENE_FILE, scene_json(renderer.boxes))
     movers = [renderer.mover_boxes(i) for i in range(cfg.frames)]
     writer.write_json(out / MOVERS_FILE, movers_json(rgb_stamps, movers), indent=None)
@@ -301,7 +304,7 @@ def render_sequence(
                 f"rgb timestamp + {imaging.DELAY_MIN_SHARE:.0%}-100 % of {cfg.depth_delay_ms} ms, seeded "
                 "per frame (depth.txt stamps do not say so: an uncalibrated depth-colour offset)"
                 if cfg.depth_delay_ms > 0 else "rgb timestamp (registered to the RGB camera)"),
-            "labels": writer.LABELS,
+            "labels": labels,
             **(
                 {"background_depth": "exact: no noise, no holes (range limits, 0.2 mm steps)"}
                 if cfg.background

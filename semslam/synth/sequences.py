@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from semslam.errors import ConfigError
+from semslam.synth.layouts import get_layout
 
 MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop", "fast_turns", "jump_back")
 PEOPLE_MODES = ("walking", "idle")
@@ -63,6 +64,9 @@ class SynthConfig:
     # is covered (black RGB, no depth) while it keeps moving. 0 = none.
     blackout_start_s: float = 0.0
     blackout_s: float = 0.0
+    # Room layout (synth/layouts.py): 0 the office every preset uses, 1 the lounge that no
+    # shipped network was trained in (held out for evaluation).
+    layout: int = 0
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""
@@ -92,6 +96,7 @@ class SynthConfig:
         if self.blackout_start_s < 0 or self.blackout_s < 0:
             raise ConfigError(f"synth: blackout_start_s and blackout_s must be >= 0, got "
                               f"{self.blackout_start_s} and {self.blackout_s}")
+        get_layout(self.layout)  # raises ConfigError naming the layouts
         if not 0.0 <= self.gain_swing < 1.0:
             raise ConfigError(f"synth: gain_swing must be in [0, 1), got {self.gain_swing}")
         return self

@@ -17,12 +17,18 @@ from numpy.typing import NDArray
 from semslam.core.labels import SYNTH_CLASSES
 from semslam.errors import DataError
 from semslam.geometry.se3 import pose_to_tum
-from semslam.synth.scene import static_boxes, static_class_names
+from semslam.synth.scene import Box, static_boxes, static_class_names
 
-#: ``semantic/labels.json``: every id a sequence can contain. The dynamic ids (0 nothing
-#: hit, 15 person, 21 unlabelled mover) and the NYU-40 classes of the static scene at
-#: 100 + NYU id (the layout is fixed, so every sequence has the same set).
-LABELS = {str(k): v for k, v in {**SYNTH_CLASSES, **static_class_names(static_boxes())}.items()}
+
+def labels_for(boxes: list[Box]) -> dict[str, str]:
+    """``semantic/labels.json`` of a room: every id a sequence in it can contain. The
+    dynamic ids (0 nothing hit, 15 person, 21 unlabelled mover) and the NYU-40 classes of
+    the room's static boxes at 100 + NYU id."""
+    return {str(k): v for k, v in {**SYNTH_CLASSES, **static_class_names(boxes)}.items()}
+
+
+#: The labels of layout 0 (the office), which every sequence had before layouts existed.
+LABELS = labels_for(static_boxes())
 
 
 def stamp(t: float) -> str:
