@@ -128,8 +128,7 @@ class Tracking:
         depth = self.depth.depth(frame)
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         if self.cfg.rolling_shutter_ms > 0 and self.velocity is not None and self.velocity_dt > 0:
-            cur.to_middle_row(self.velocity, self.velocity_dt, self.cfg.rolling_shutter_ms / 1e3, self.camera,
-                              self.cfg.bf)
+            self._to_middle_row(cur, self.velocity, self.velocity_dt, depth)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
         is_kf = False
         t_wait = time.perf_counter()
@@ -145,6 +144,8 @@ class Tracking:
                     return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings)
             else:
                 ok = self._track_frame(cur, timings)
+                if ok:
+                    self._refine_rolling_shutter(cur, depth)
                 timings["track"] = (time.perf_counter() - t0) * 1e3
                 if ok:
                     t0 = time.perf_counter()
@@ -188,6 +189,25 @@ class Tracking:
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
                            timings=timings)
+
+    # ------------------------------------------------------------------ rolling shutter
+    def _to_middle_row(self, cur: FrameState, velocity: NDArray[np.float64], dt: float,
+                       depth: NDArray[np.float32] | None) -> None:
+        cur.to_middle_row(velocity, dt, self.cfg.rolling_shutter_ms / 1e3, self.camera, self.cfg.bf,
+                          depth if self.cfg.rolling_shutter_global_depth else None)
+
+    def _refine_rolling_shutter(self, cur: FrameState, depth: NDArray[np.float32] | None) -> None:
+        """Redo the rolling-shutter move with the velocity of the pose just tracked (from
+        the last frame to this one) and refit the pose on the moved keypoints; the local map
+        search then runs on them. Alternating pose and velocity this way is a first step of
+        their joint fit (rolling-shutter VO), at one more pose-only solve."""
+        last = self.last
+        if (self.cfg.rolling_shutter_ms <= 0 or not self.cfg.rolling_shutter_refine or cur.T_cw is None
+                or last is None or last.T_cw is None or cur.timestamp <= last.timestamp):
+            return
+        self._to_middle_row(cur, cur.T_cw @ invert(last.T_cw), cur.timestamp - last.timestamp, depth)
+        self._optimize(cur)
+        self._discard_outliers(cur)
 
     # ------------------------------------------------------------------ atlas
     def _follow_atlas(self, timestamp: float) -> None:
