@@ -144,6 +144,10 @@ class SlamConfig:
     # with the velocity that pose gives (the previous frame's is wrong when a turn starts or
     # stops) before searching the local map.
     rolling_shutter_refine: bool = True
+    # With a rolling shutter: that velocity fitted with the pose to the raw matches (each row
+    # its own pose, backend/rolling_shutter_pose.py), after the first match and again after
+    # the local map.
+    rolling_shutter_solve: bool = True
     # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
     th_depth: float = 40.0
     # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).

@@ -150,6 +150,8 @@ class Tracking:
                 if ok:
                     t0 = time.perf_counter()
                     ok = self._track_local_map(cur)
+                    if ok and self.cfg.rolling_shutter_solve:
+                        self._refine_rolling_shutter(cur, depth)  # again, on the local map's matches
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
                 if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
                     t0 = time.perf_counter()
@@ -197,17 +199,40 @@ class Tracking:
                           depth if self.cfg.rolling_shutter_global_depth else None)
 
     def _refine_rolling_shutter(self, cur: FrameState, depth: NDArray[np.float32] | None) -> None:
-        """Redo the rolling-shutter move with the velocity of the pose just tracked (from
-        the last frame to this one) and refit the pose on the moved keypoints; the local map
-        search then runs on them. Alternating pose and velocity this way is a first step of
-        their joint fit (rolling-shutter VO), at one more pose-only solve."""
+        """Redo the rolling-shutter move with a better velocity and refit the pose on the
+        moved keypoints. The velocity is the tracked pose's (from the last frame to this
+        one), or with ``slam.rolling_shutter_solve`` the one fitted jointly with the pose to
+        the raw matches (``backend/rolling_shutter_pose.py``): the previous interval's
+        average is wrong while a turn speeds up or slows down."""
         last = self.last
         if (self.cfg.rolling_shutter_ms <= 0 or not self.cfg.rolling_shutter_refine or cur.T_cw is None
                 or last is None or last.T_cw is None or cur.timestamp <= last.timestamp):
             return
-        self._to_middle_row(cur, cur.T_cw @ invert(last.T_cw), cur.timestamp - last.timestamp, depth)
+        dt = cur.timestamp - last.timestamp
+        velocity = cur.T_cw @ invert(last.T_cw)
+        if self.cfg.rolling_shutter_solve:
+            velocity = self._solve_velocity(cur, velocity, dt)
+        self._to_middle_row(cur, velocity, dt, depth)
         self._optimize(cur)
         self._discard_outliers(cur)
+
+    def _solve_velocity(self, cur: FrameState, guess: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+        """The frame's velocity fitted with its pose to the raw keypoints of its matches."""
+        from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
+        from semslam.geometry.rolling_shutter import row_time_fraction
+
+        assert cur.T_cw is not None
+        idx = cur.matched_indices(self.map.store)
+        idx = idx[~cur.outlier[idx]]
+        if len(idx) < 20:
+            return guess
+        raw = self.camera.undistort_points(cur.keypoints.xy[idx])
+        frac = row_time_fraction(cur.keypoints.xy[idx, 1], int(round(self.camera.image_size[1])),
+                                 self.cfg.rolling_shutter_ms / 1e3, dt)
+        res = solve_rolling_shutter_pose(cur.T_cw, guess, self.map.store.pos[cur.points.rows[idx]], raw, frac,
+                                         self.pyr.inv_sigma2[cur.keypoints.octave[idx]],
+                                         (self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy))
+        return res.velocity_cw
 
     # ------------------------------------------------------------------ atlas
     def _follow_atlas(self, timestamp: float) -> None:
