@@ -37,6 +37,8 @@ if TYPE_CHECKING:
 #: The longest gap (seconds) between the last frame tracked in one map and a relocalisation
 #: in another over which the motion model still bridges the two (``Tracking._bridge_to``).
 BRIDGE_MAX_GAP_S = 0.5
+#: Matches the joint rolling-shutter fit uses at most (its cost grows with them).
+RS_SOLVE_MAX_POINTS = 200
 
 
 @dataclass(frozen=True)
@@ -226,6 +228,8 @@ class Tracking:
         idx = idx[~cur.outlier[idx]]
         if len(idx) < 20:
             return guess
+        if len(idx) > RS_SOLVE_MAX_POINTS:  # 12 unknowns: a spread subset fixes them as well
+            idx = idx[np.linspace(0, len(idx) - 1, RS_SOLVE_MAX_POINTS).astype(np.intp)]
         raw = self.camera.undistort_points(cur.keypoints.xy[idx])
         frac = row_time_fraction(cur.keypoints.xy[idx, 1], int(round(self.camera.image_size[1])),
                                  self.cfg.rolling_shutter_ms / 1e3, dt)
