@@ -13,6 +13,10 @@ middle row's time (the frame's timestamp) would have seen it.
 = V T_cw(t)``). Fractional motion: rotation by the scaled rotation vector, translation
 scaled linearly (first order; exact for rotation, within millimetres for the translations
 of one frame). Points without depth are moved by the rotation only (their ray).
+``to_middle_row_with_depth_image`` is the RGB-D case: the depth frame is global, so depths
+are read where the keypoints land, not under their raw pixels. The velocity comes from the
+motion model, then from the tracked pose, then from ``backend/rolling_shutter_pose.py``
+(``slam.rolling_shutter_refine`` / ``rolling_shutter_solve``; ``slam/tracking.py``).
 """
 
 from __future__ import annotations
