@@ -207,8 +207,11 @@ class Tracking:
         the raw matches (``backend/rolling_shutter_pose.py``): the previous interval's
         average is wrong while a turn speeds up or slows down."""
         last = self.last
+        # Only from a tracked last frame: a lost one keeps a stale pose, and the "velocity" to
+        # it (a relocalisation's pose against it) would move every keypoint by a wrong amount.
         if (self.cfg.rolling_shutter_ms <= 0 or not self.cfg.rolling_shutter_refine or cur.T_cw is None
-                or last is None or last.T_cw is None or cur.timestamp <= last.timestamp):
+                or self.state is not TrackingState.OK or last is None or last.T_cw is None
+                or cur.timestamp <= last.timestamp):
             return
         dt = cur.timestamp - last.timestamp
         velocity = cur.T_cw @ invert(last.T_cw)
