@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from semslam.geometry.camera import PinholeCamera
-from semslam.geometry.rolling_shutter import row_time_fraction, to_middle_row
+from semslam.geometry.rolling_shutter import row_time_fraction, to_middle_row, to_middle_row_with_depth_image
 from semslam.geometry.se3 import make_pose
 from scipy.spatial.transform import Rotation
 
@@ -63,3 +63,46 @@ def test_a_global_shutter_or_a_still_camera_changes_nothing() -> None:
         out, zz = to_middle_row(uv, z, frac, V, CAM)
         np.testing.assert_allclose(out, uv, atol=1e-9)
         np.testing.assert_allclose(zz, z, atol=1e-12)
+
+
+def _scene_depth(uv: np.ndarray) -> np.ndarray:
+    """A global depth frame at the middle row's time: a tilted wall 3-4 m away with a box
+    1.2 m away in front of its left part (a depth edge at u = 300)."""
+    wall = 3.0 + uv[:, 0] / 640 + 0.3 * uv[:, 1] / 480
+    return np.where(uv[:, 0] < 300, 1.2, wall)
+
+
+def test_depth_is_read_where_the_keypoint_lands_not_under_its_raw_pixel() -> None:
+    rng = np.random.default_rng(1)
+    uv = rng.uniform([40, 20], [600, 460], (400, 2))
+    uv = uv[np.abs(uv[:, 0] - 300) > 6]  # not within the slide's parallax of the edge
+    z = _scene_depth(uv)
+    V = _velocity(200.0, 0.5)
+    obs, _ = _rolling_observations(V, CAM.backproject(uv, z))
+    frac = row_time_fraction(obs[:, 1], 480, READOUT, DT)
+    # Under the raw pixel the depth frame holds another point: across the edge, metres off.
+    raw_err = np.abs(_scene_depth(obs) - z)
+    assert raw_err.max() > 1.0
+    fixed, z_fixed = to_middle_row_with_depth_image(obs, frac, V, CAM, _scene_depth)
+    np.testing.assert_allclose(fixed, uv, atol=1e-3)
+    np.testing.assert_allclose(z_fixed, z, atol=1e-4)
+
+
+def test_frame_state_redoes_the_move_from_the_raw_keypoints() -> None:
+    from semslam.core.types import Keypoints
+    from semslam.slam.frame_state import FrameState
+
+    rng = np.random.default_rng(2)
+    uv = rng.uniform([40, 20], [600, 460], (50, 2))
+    pts_mid = CAM.backproject(uv, rng.uniform(1.0, 3.0, 50))
+    V = _velocity(150.0, 0.3)
+    obs, z_obs = _rolling_observations(V, pts_mid)
+    kps = Keypoints(xy=obs.astype(np.float32), octave=np.zeros(50, np.int32), angle=np.zeros(50, np.float32),
+                    response=np.ones(50, np.float32), descriptors=np.zeros((50, 32), np.uint8))
+    depth_img = np.zeros((480, 640), np.float32)
+    iu, iv = np.rint(obs[:, 0]).astype(int), np.rint(obs[:, 1]).astype(int)
+    depth_img[iv, iu] = z_obs
+    f = FrameState.create(0, 0.0, kps, depth_img, CAM, 40.0)
+    f.to_middle_row(np.eye(4), DT, READOUT, CAM, 40.0)  # a wrong (zero) velocity first
+    f.to_middle_row(V, DT, READOUT, CAM, 40.0)  # then the right one: from the raw keypoints
+    np.testing.assert_allclose(f.xy, uv, atol=0.05)  # float32 keypoints, rounded depth pixels

@@ -136,6 +136,18 @@ class SlamConfig:
     # calibration value: keypoints are moved to the middle row's time with the motion
     # model's velocity before tracking (geometry/rolling_shutter.py).
     rolling_shutter_ms: float = 0.0
+    # With a rolling shutter: the depth image is a global frame at the colour frame's
+    # timestamp (RGB-D sensors), so keypoints' depths are read where they land after the move,
+    # not under their raw pixel (which held another point then).
+    rolling_shutter_global_depth: bool = True
+    # With a rolling shutter: once the frame has a pose from the motion model, redo the move
+    # with the velocity that pose gives (the previous frame's is wrong when a turn starts or
+    # stops) before searching the local map.
+    rolling_shutter_refine: bool = True
+    # With a rolling shutter: that velocity fitted with the pose to the raw matches (each row
+    # its own pose, backend/rolling_shutter_pose.py), after the first match and again after
+    # the local map.
+    rolling_shutter_solve: bool = True
     # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
     th_depth: float = 40.0
     # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).

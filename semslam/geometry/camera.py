@@ -59,6 +59,15 @@ class PinholeCamera:
         und = cv2.undistortPoints(xy.reshape(-1, 1, 2), self.K, self.dist_coeffs, P=self.K)
         return und.reshape(-1, 2)
 
+    def distort_points(self, xy: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Raw image pixels of undistorted ones (the inverse of ``undistort_points``)."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        if not self.is_distorted or len(xy) == 0:
+            return xy.copy()
+        rays = np.stack([(xy[:, 0] - self.cx) / self.fx, (xy[:, 1] - self.cy) / self.fy, np.ones(len(xy))], 1)
+        out, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K, self.dist_coeffs)
+        return out.reshape(-1, 2)
+
     def backproject(self, xy: NDArray[np.floating], depth: NDArray[np.floating]) -> NDArray[np.float64]:
         """Camera-frame 3D points from undistorted pixels ``(N, 2)`` and depths ``(N,)``."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)

@@ -13,9 +13,15 @@ middle row's time (the frame's timestamp) would have seen it.
 = V T_cw(t)``). Fractional motion: rotation by the scaled rotation vector, translation
 scaled linearly (first order; exact for rotation, within millimetres for the translations
 of one frame). Points without depth are moved by the rotation only (their ray).
+``to_middle_row_with_depth_image`` is the RGB-D case: the depth frame is global, so depths
+are read where the keypoints land, not under their raw pixels. The velocity comes from the
+motion model, then from the tracked pose, then from ``backend/rolling_shutter_pose.py``
+(``slam.rolling_shutter_refine`` / ``rolling_shutter_solve``; ``slam/tracking.py``).
 """
 
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,3 +59,31 @@ def to_middle_row(xy: NDArray[np.float64], depth: NDArray[np.floating], fraction
     uv[ok, 0] = camera.fx * moved[ok, 0] / moved[ok, 2] + camera.cx
     uv[ok, 1] = camera.fy * moved[ok, 1] / moved[ok, 2] + camera.cy
     return uv, out_z
+
+
+def to_middle_row_with_depth_image(xy: NDArray[np.float64], fraction: NDArray[np.float64],
+                                   velocity_cw: NDArray[np.float64], camera: PinholeCamera,
+                                   depth_at: Callable[[NDArray[np.float64]], NDArray[np.floating]],
+                                   iterations: int = 2) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """As ``to_middle_row`` for a rolling-shutter colour camera beside a global-shutter depth
+    image taken at the middle row's time (RGB-D sensors register a global depth frame to the
+    colour camera). The depth under a raw keypoint belongs to whatever was at that pixel at the
+    middle row's time, not to the keypoint's point: on a 200 deg/s turn the two are up to
+    ~30 px apart, across depth edges. So the keypoint is moved first (rotation), the depth read
+    at the moved pixel (``depth_at``: undistorted pixels -> metres, 0 = none), and the move
+    redone with that depth, ``iterations`` times. Returns (xy, depth) at the middle row's time."""
+    if not len(xy):
+        return xy.copy(), np.zeros(0)
+    uv, _ = to_middle_row(xy, np.zeros(len(xy)), fraction, velocity_cw, camera)
+    rotvec = Rotation.from_matrix(velocity_cw[:3, :3]).as_rotvec()
+    z_mid = np.asarray(depth_at(uv), np.float64)
+    for _ in range(iterations):
+        # Depth of the point at its row's time, from its position at the middle row's time:
+        # P_s = V^s P_mid (rotation by the scaled rotation vector, translation scaled).
+        p_mid = camera.backproject(uv, z_mid)
+        p_s = Rotation.from_rotvec(fraction[:, None] * rotvec[None, :]).apply(p_mid) \
+            + fraction[:, None] * velocity_cw[:3, 3][None, :]
+        z_s = np.where(z_mid > 0, p_s[:, 2], 0.0)
+        uv, _ = to_middle_row(xy, z_s, fraction, velocity_cw, camera)
+        z_mid = np.asarray(depth_at(uv), np.float64)
+    return uv, z_mid

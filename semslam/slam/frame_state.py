@@ -30,6 +30,7 @@ class FrameState:
     bow: Any = None
     featvec: dict[int, Any] | None = None
     _grid: KeypointGrid | None = field(default=None, repr=False)
+    _raw_depth: NDArray[np.float32] | None = field(default=None, repr=False)  # before to_middle_row
 
     @classmethod
     def create(cls, index: int, timestamp: float, kps: Keypoints, depth_img: NDArray[np.float32] | None,
@@ -47,13 +48,23 @@ class FrameState:
         return len(self.keypoints)
 
     def to_middle_row(self, velocity_cw: NDArray[np.float64], frame_dt_s: float, readout_s: float,
-                      camera: PinholeCamera, bf: float) -> None:
+                      camera: PinholeCamera, bf: float, depth_img: NDArray[np.float32] | None = None) -> None:
         """Move the keypoints (and their depths) to the middle row's capture time, for a
-        rolling-shutter camera moving at ``velocity_cw`` per ``frame_dt_s``."""
-        from semslam.geometry.rolling_shutter import row_time_fraction, to_middle_row
+        rolling-shutter camera moving at ``velocity_cw`` per ``frame_dt_s``. Starts from the raw
+        keypoints each time, so a better velocity can redo it. With ``depth_img`` (a global
+        depth frame at the middle row's time) the depths are read where the keypoints land."""
+        from semslam.geometry.rolling_shutter import (row_time_fraction, to_middle_row,
+                                                      to_middle_row_with_depth_image)
 
+        raw = camera.undistort_points(self.keypoints.xy)
         frac = row_time_fraction(self.keypoints.xy[:, 1], int(round(camera.image_size[1])), readout_s, frame_dt_s)
-        xy, z = to_middle_row(self.xy, self.depth, frac, velocity_cw, camera)
+        if depth_img is None:
+            if self._raw_depth is None:
+                self._raw_depth = self.depth.copy()
+            xy, z = to_middle_row(raw, self._raw_depth, frac, velocity_cw, camera)
+        else:
+            xy, z = to_middle_row_with_depth_image(raw, frac, velocity_cw, camera,
+                                                   lambda uv: sample_depth(depth_img, camera.distort_points(uv)))
         self.xy, self.depth = xy, z.astype(np.float32)
         self.ur = np.where(self.depth > 0, xy[:, 0] - bf / np.maximum(self.depth, 1e-6), -1.0)
         self._grid = None
@@ -63,6 +74,8 @@ class FrameState:
         idx = np.nonzero(keep)[0]
         self.keypoints = self.keypoints.subset(idx)
         self.xy, self.depth, self.ur = self.xy[idx], self.depth[idx], self.ur[idx]
+        if self._raw_depth is not None:
+            self._raw_depth = self._raw_depth[idx]
         self.points = PointSlots([self.points[i] for i in idx.tolist()])
         self.outlier = self.outlier[idx]
         self.bow = self.featvec = None

@@ -37,6 +37,8 @@ if TYPE_CHECKING:
 #: The longest gap (seconds) between the last frame tracked in one map and a relocalisation
 #: in another over which the motion model still bridges the two (``Tracking._bridge_to``).
 BRIDGE_MAX_GAP_S = 0.5
+#: Matches the joint rolling-shutter fit uses at most (its cost grows with them).
+RS_SOLVE_MAX_POINTS = 200
 
 
 @dataclass(frozen=True)
@@ -128,8 +130,7 @@ class Tracking:
         depth = self.depth.depth(frame)
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         if self.cfg.rolling_shutter_ms > 0 and self.velocity is not None and self.velocity_dt > 0:
-            cur.to_middle_row(self.velocity, self.velocity_dt, self.cfg.rolling_shutter_ms / 1e3, self.camera,
-                              self.cfg.bf)
+            self._to_middle_row(cur, self.velocity, self.velocity_dt, depth)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
         is_kf = False
         t_wait = time.perf_counter()
@@ -145,10 +146,14 @@ class Tracking:
                     return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings)
             else:
                 ok = self._track_frame(cur, timings)
+                if ok:
+                    self._refine_rolling_shutter(cur, depth)
                 timings["track"] = (time.perf_counter() - t0) * 1e3
                 if ok:
                     t0 = time.perf_counter()
                     ok = self._track_local_map(cur)
+                    if ok and self.cfg.rolling_shutter_solve:
+                        self._refine_rolling_shutter(cur, depth)  # again, on the local map's matches
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
                 if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
                     t0 = time.perf_counter()
@@ -188,6 +193,53 @@ class Tracking:
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
                            timings=timings)
+
+    # ------------------------------------------------------------------ rolling shutter
+    def _to_middle_row(self, cur: FrameState, velocity: NDArray[np.float64], dt: float,
+                       depth: NDArray[np.float32] | None) -> None:
+        cur.to_middle_row(velocity, dt, self.cfg.rolling_shutter_ms / 1e3, self.camera, self.cfg.bf,
+                          depth if self.cfg.rolling_shutter_global_depth else None)
+
+    def _refine_rolling_shutter(self, cur: FrameState, depth: NDArray[np.float32] | None) -> None:
+        """Redo the rolling-shutter move with a better velocity and refit the pose on the
+        moved keypoints. The velocity is the tracked pose's (from the last frame to this
+        one), or with ``slam.rolling_shutter_solve`` the one fitted jointly with the pose to
+        the raw matches (``backend/rolling_shutter_pose.py``): the previous interval's
+        average is wrong while a turn speeds up or slows down."""
+        last = self.last
+        # Only from a tracked last frame: a lost one keeps a stale pose, and the "velocity" to
+        # it (a relocalisation's pose against it) would move every keypoint by a wrong amount.
+        if (self.cfg.rolling_shutter_ms <= 0 or not self.cfg.rolling_shutter_refine or cur.T_cw is None
+                or self.state is not TrackingState.OK or last is None or last.T_cw is None
+                or cur.timestamp <= last.timestamp):
+            return
+        dt = cur.timestamp - last.timestamp
+        velocity = cur.T_cw @ invert(last.T_cw)
+        if self.cfg.rolling_shutter_solve:
+            velocity = self._solve_velocity(cur, velocity, dt)
+        self._to_middle_row(cur, velocity, dt, depth)
+        self._optimize(cur)
+        self._discard_outliers(cur)
+
+    def _solve_velocity(self, cur: FrameState, guess: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+        """The frame's velocity fitted with its pose to the raw keypoints of its matches."""
+        from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
+        from semslam.geometry.rolling_shutter import row_time_fraction
+
+        assert cur.T_cw is not None
+        idx = cur.matched_indices(self.map.store)
+        idx = idx[~cur.outlier[idx]]
+        if len(idx) < 20:
+            return guess
+        if len(idx) > RS_SOLVE_MAX_POINTS:  # 12 unknowns: a spread subset fixes them as well
+            idx = idx[np.linspace(0, len(idx) - 1, RS_SOLVE_MAX_POINTS).astype(np.intp)]
+        raw = self.camera.undistort_points(cur.keypoints.xy[idx])
+        frac = row_time_fraction(cur.keypoints.xy[idx, 1], int(round(self.camera.image_size[1])),
+                                 self.cfg.rolling_shutter_ms / 1e3, dt)
+        res = solve_rolling_shutter_pose(cur.T_cw, guess, self.map.store.pos[cur.points.rows[idx]], raw, frac,
+                                         self.pyr.inv_sigma2[cur.keypoints.octave[idx]],
+                                         (self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy))
+        return res.velocity_cw
 
     # ------------------------------------------------------------------ atlas
     def _follow_atlas(self, timestamp: float) -> None:
