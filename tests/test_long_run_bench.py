@@ -24,7 +24,7 @@ def long_run() -> Any:
 
 
 def _row(k: int, rss: float, workers: float, ms: float, n: int = 1000) -> dict[str, Any]:
-    return {"frames": f"{k * 1000}-{k * 1000 + n - 1}", "n": n, "ms_median": ms, "ms_p95": 2 * ms, "rss_mb": rss,
+    return {"frames": f"{k * 1000}-{k * 1000 + n - 1}", "n": n, "ms_median": ms, "ms_p95": 2 * ms, "cpu_ms_median": ms / 2, "rss_mb": rss,
             "workers_rss_mb": workers, "keyframes": 40, "map_points": 6000, "culled_keyframes": 0, "loops": 1,
             "lost": 0}
 
@@ -42,7 +42,7 @@ def test_growth_compares_the_second_and_the_last_full_window(long_run: Any) -> N
     assert long_run.growth([*first_is_warm_up, _row(4, 900, 900, 90, n=10)]) == []
     assert long_run.growth(first_is_warm_up[:2]) == []
     table = long_run.table(first_is_warm_up).splitlines()
-    assert len(table) == 6 and table[3].startswith("| 1000-1999 | 30.0 | 60.0 | 400 | 250 | 40 |")
+    assert len(table) == 6 and table[3].startswith("| 1000-1999 | 30.0 | 60.0 | 15.0 | 400 | 250 | 40 |")
 
 
 def test_a_longer_cached_render_is_reused(long_run: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
