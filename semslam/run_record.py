@@ -4,6 +4,8 @@ against ground truth: the numbers ``stats.json`` and the report are written from
 from __future__ import annotations
 
 import logging
+from array import array
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -17,13 +19,15 @@ log = logging.getLogger(__name__)
 
 
 class RunTiming:
-    """Per-frame wall times, per-stage times and dynamic ratios of one run."""
+    """Per-frame wall times, per-stage times and dynamic ratios of one run, as packed
+    float64 arrays (8 bytes a value; a list of floats takes 32): a 20-minute run keeps
+    about a million of them (benchmarks/long_run.py)."""
 
     def __init__(self) -> None:
-        self.frame_ms: list[float] = []
-        self.dynamic_ratio: list[float] = []
-        self.stage_ms: dict[str, list[float]] = {}
-        self.latency_ms: list[float] = []
+        self.frame_ms: array[float] = array("d")
+        self.dynamic_ratio: array[float] = array("d")
+        self.stage_ms: dict[str, array[float]] = {}
+        self.latency_ms: array[float] = array("d")
         self.late_frames = 0
         self.interrupted = False
         self.t_first: float | None = None
@@ -37,7 +41,10 @@ class RunTiming:
         self.frame_ms.append((done - t0) * 1e3)
         self.dynamic_ratio.append(result.dynamic_ratio)
         for stage, v in result.timings.items():
-            self.stage_ms.setdefault(stage, []).append(v)
+            values = self.stage_ms.get(stage)
+            if values is None:
+                values = self.stage_ms[stage] = array("d")
+            values.append(v)
         if arrived is not None:  # camera rate: the previous frame was still being tracked when it arrived
             self.late_frames += int(self.last_done > arrived)
             self.latency_ms.append((done - arrived) * 1e3)
@@ -45,7 +52,7 @@ class RunTiming:
         self.wall_s = done - self.t_first
 
 
-def timing_stats(values: list[float]) -> dict[str, float]:
+def timing_stats(values: Sequence[float]) -> dict[str, float]:
     if not values:
         return {"median": 0.0, "mean": 0.0, "p95": 0.0, "max": 0.0}
     a = np.asarray(values)

@@ -411,6 +411,12 @@ def _spoil_map(good: Path, bad: Path, kind: str) -> None:
         arrays["meta"] = np.array(json.dumps(meta))
         with open(bad, "wb") as f:
             np.savez_compressed(f, **arrays)
+    elif kind == "rewritten":  # a point moved, written back as a valid zip (new CRCs): the checksum catches it
+        with np.load(good) as z:
+            arrays = {k: z[k] for k in z.files}
+        arrays["pt_pos"] = arrays["pt_pos"] + np.array([0.01, 0.0, 0.0])
+        with open(bad, "wb") as f:
+            np.savez_compressed(f, **arrays)
     elif kind == "npz_not_a_map":
         with open(bad, "wb") as f:
             np.savez(f, weights=np.zeros(3))
@@ -426,6 +432,7 @@ MAP_ERRORS = {
     "truncated": "truncated or damaged map (File is not a zip file)",
     "damaged": "truncated or damaged map (",
     "other_version": "unsupported map format 'semslam-map-0' (written by semslam ",
+    "rewritten": "damaged map: the arrays' SHA-256 ",
     "npz_not_a_map": "not a semslam map (no 'meta' entry; maps are written by --save-map)",
     "png": "not a semslam map (not the .npz archive --save-map writes)",
     "bad_meta": "truncated or damaged map (",

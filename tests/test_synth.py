@@ -181,7 +181,7 @@ def test_mover_labelled() -> None:
     assert max((r.render(i).semantic == 21).mean() for i in (0, 30, 59)) > 0.05
 
 
-@pytest.mark.parametrize("motion", ["static", "xyz", "rpy", "halfsphere", "loop"])
+@pytest.mark.parametrize("motion", ["static", "xyz", "rpy", "halfsphere", "loop", "room_revisit"])
 def test_motion_speed_bounded(motion: str) -> None:
     t = np.arange(600) / 30.0
     poses = camera_trajectory(motion, t, 20.0)
@@ -214,6 +214,24 @@ def test_static_and_loop_endpoints() -> None:
         assert np.rad2deg(rotation_angle(lp[-1, :3, :3].T @ lp[0, :3, :3])) < 1.0
         if frames == 600:
             assert np.ptp(lp[:, 0, 3]) > 1.5  # a real loop through the room
+
+
+def test_room_revisit_repeats_its_turn() -> None:
+    """The long-run benchmark's motion: one full turn every 30 s at a steady 12 deg/s, so
+    the same views come back exactly; a short render's poses are the start of a long one's."""
+    from semslam.synth.camera_motion import ROOM_REVISIT_PERIOD_S
+
+    t = np.arange(0.0, 100.0, 1 / 30.0)
+    long = camera_trajectory("room_revisit", t, 1200.0)
+    assert np.array_equal(camera_trajectory("room_revisit", t[:300], 10.0), long[:300])
+    k = int(round(ROOM_REVISIT_PERIOD_S * 30))  # frames per turn
+    late = slice(90, len(t) - k)  # after the smooth start
+    assert np.abs(long[late] - long[late.start + k:]).max() < 1e-9  # the same poses a turn later
+    rel = invert(long[:-1]) @ long[1:]
+    rate = np.rad2deg(rotation_angle(rel[:, :3, :3])) * 30.0
+    assert np.allclose(rate[90:], 360.0 / ROOM_REVISIT_PERIOD_S, atol=0.01)
+    half = long[90 + k // 2]  # half a turn later it looks the other way
+    assert half[:2, 2] @ long[90][:2, 2] < -0.97  # horizontal headings opposite (both tilted down)
 
 
 def test_depth_noise_model() -> None:

@@ -4,13 +4,21 @@ as one compressed ``.npz`` file, so a later run can relocalise in it.
 Covisibility is not stored: it is recomputed from the observations on load. The feature
 spec (descriptor kind and size, pyramid) is stored, and a map only loads into a run whose
 extractor makes the same features.
+
+Format 2 (issue 13): ``meta`` carries a SHA-256 over every array (name, dtype, shape, bytes),
+checked on load, so a file whose arrays were changed (and the zip CRCs recomputed) is refused
+rather than loaded; and the archive is written entry by entry in a fixed order with a fixed
+date, so the same map gives the same bytes (save -> load -> save is byte-identical).
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import zipfile
 import zlib
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +28,7 @@ from semslam.core.types import FeatureSpec, Keypoints
 from semslam.errors import ConfigError, DataError
 from semslam.slam.map import KeyFrame, Map
 
-FORMAT = "semslam-map-1"
+FORMAT = "semslam-map-2"
 #: How a zip archive (an .npz) starts: a file record, or the end record of an empty archive.
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
 
@@ -44,7 +52,8 @@ def save_map(slam_map: Map, path: str | Path) -> Path:
             "kf_T_cw": np.stack([k.T_cw for k in kfs]) if kfs else np.zeros((0, 4, 4)),
             "kf_parent": np.array([k.parent.id if k.parent is not None and not k.parent.bad else -1 for k in kfs], np.int64),
             "kf_n_keypoints": counts,
-            "kf_loop_edges": np.array([(k.id, e.id) for k in kfs for e in k.loop_edges if not e.bad], np.int64).reshape(-1, 2),
+            "kf_loop_edges": np.array([(k.id, e.id) for k in kfs for e in sorted(k.loop_edges, key=lambda e: e.id)
+                                       if not e.bad], np.int64).reshape(-1, 2),
             "kp_xy_raw": np.concatenate([k.keypoints.xy for k in kfs]) if kfs else np.zeros((0, 2), np.float32),
             "kp_xy": np.concatenate([k.xy for k in kfs]) if kfs else np.zeros((0, 2)),
             "kp_octave": np.concatenate([k.keypoints.octave for k in kfs]) if kfs else np.zeros(0, np.int32),
@@ -65,10 +74,42 @@ def save_map(slam_map: Map, path: str | Path) -> Path:
             "pt_first_kf": np.array([p.first_kf_id for p in pts], np.int64),
         }
         meta = {"format": FORMAT, "semslam_version": semslam.__version__, "keyframes": len(kfs), "points": len(pts),
-                "loops": slam_map.n_loops, "features": _spec_meta(slam_map.spec)}
-    with open(path, "wb") as f:
-        np.savez_compressed(f, meta=np.array(json.dumps(meta)), **arrays)
+                "loops": slam_map.n_loops, "features": _spec_meta(slam_map.spec), "sha256": arrays_sha256(arrays)}
+    _write_npz(path, {"meta": np.array(json.dumps(meta, sort_keys=True)), **arrays})
     return path
+
+
+#: Date stamped on every zip entry (the zip format's earliest), instead of the time of
+#: writing that ``np.savez_compressed`` stamps: the same map gives the same bytes.
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """An ``.npz`` that ``np.load`` reads, one deflated ``NAME.npy`` entry per array in the
+    given order, with fixed dates and permissions; written to a temporary name and renamed,
+    so an interrupted save never leaves half a map under the final name."""
+    tmp = path.with_name(path.name + ".part")
+    with zipfile.ZipFile(tmp, "w") as zf:
+        for name, array in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asarray(array, order="C"), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, buf.getvalue(), compresslevel=6)
+    tmp.replace(path)
+
+
+def arrays_sha256(arrays: Mapping[str, np.ndarray]) -> str:
+    """SHA-256 over the map's arrays in ``_ARRAYS`` order: each one's name, dtype, shape and
+    C-order bytes. Independent of the zip (compression, dates), so it says whether the
+    numbers are the ones that were saved."""
+    h = hashlib.sha256()
+    for name in _ARRAYS:
+        a = np.asarray(arrays[name], order="C")
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 def _spec_meta(spec: FeatureSpec) -> dict[str, object]:
@@ -136,6 +177,18 @@ def _check_format(path: Path, meta: dict[str, object]) -> None:
         raise DataError(path, f"unsupported map format {fmt!r}{by}; semslam {semslam.__version__} reads {FORMAT}")
 
 
+def _check_checksum(path: Path, meta: dict[str, object], arrays: dict[str, np.ndarray]) -> None:
+    """The arrays are the ones that were saved (the zip's CRCs only catch damage to the
+    compressed bytes, not arrays rewritten with new CRCs)."""
+    saved = meta.get("sha256")
+    if not isinstance(saved, str):
+        raise DataError(path, "damaged map: its 'meta' entry has no sha256 checksum")
+    actual = arrays_sha256(arrays)
+    if actual != saved:
+        raise DataError(path, f"damaged map: the arrays' SHA-256 {actual[:12]}… does not match the "
+                              f"{saved[:12]}… saved with them")
+
+
 def _check_arrays(path: Path, arrays: dict[str, np.ndarray], spec: FeatureSpec) -> None:
     """Shapes, types and cross-references of the arrays agree, so building the map cannot
     index out of range."""
@@ -182,6 +235,7 @@ def load_map(path: str | Path, spec: FeatureSpec) -> Map:
     if saved != _spec_meta(spec):
         raise ConfigError(f"--load-map: {path} holds {saved} features, this run's extractor makes "
                           f"{_spec_meta(spec)}")
+    _check_checksum(path, meta, data)
     _check_arrays(path, data, spec)
     m = Map(spec)
     offsets = np.r_[0, np.cumsum(data["kf_n_keypoints"])]

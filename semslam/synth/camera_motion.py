@@ -59,6 +59,7 @@ def camera_trajectory(
         "halfsphere": _halfsphere,
         "loop": _loop,
         "room_loop": _room_loop,
+        "room_revisit": _room_revisit,
         "fast_turns": _fast_turns,
         "jump_back": _jump_back,
     }[motion]
@@ -228,15 +229,35 @@ def _room_loop(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
     """
     x = np.clip(t / max(duration - 1e-9, 1e-9), 0.0, 1.0)
     s = ROOM_LOOP_TURNS * 2 * np.pi * (x - np.sin(2 * np.pi * x) / (2 * np.pi))
+    return _outward_on_circle(s)
+
+
+def _outward_on_circle(s: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Poses on room_loop's 0.5 m circle turned by ``s`` radians from the start, looking
+    outward (and a little down) at the walls; ``s = 0`` is the rest pose's heading."""
     base_dir = BASE_TARGET - BASE_EYE
     yaw0 = np.arctan2(base_dir[1], base_dir[0])
-    poses = np.empty((len(t), 4, 4))
-    for i in range(len(t)):
+    poses = np.empty((len(s), 4, 4))
+    for i in range(len(s)):
         yaw = yaw0 + s[i]
         d = np.array([np.cos(yaw), np.sin(yaw), 0.0])
         eye = ROOM_LOOP_CENTER + 0.5 * d - 0.5 * np.array([np.cos(yaw0), np.sin(yaw0), 0.0])
         poses[i] = look_at(eye, eye + 2.0 * d + np.array([0.0, 0.0, -0.35]))
     return poses
+
+
+#: ``room_revisit``: one turn of room_loop's circle every ROOM_REVISIT_PERIOD_S, for ever.
+ROOM_REVISIT_PERIOD_S = 30.0
+
+
+def _room_revisit(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
+    """room_loop's circle turned round and round at a steady 12 deg/s after a smooth start:
+    after the first turn every view is one seen before, the room the long-run benchmark
+    revisits (``benchmarks/long_run.py``: the map must stop growing). The poses of a frame
+    do not depend on the sequence's length (beyond 6 s), so a short render is the start of
+    a long one."""
+    s = 2 * np.pi * _warp(np.asarray(t, np.float64), max(duration, 6.0)) / ROOM_REVISIT_PERIOD_S
+    return _outward_on_circle(s)
 
 
 #: ``jump_back``: the xyz sway at the rest pose; at JUMP_AT_S the view cuts JUMP_YAW_DEG to the

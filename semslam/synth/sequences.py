@@ -14,7 +14,8 @@ from typing import Any
 from semslam.errors import ConfigError
 from semslam.synth.layouts import get_layout
 
-MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop", "fast_turns", "jump_back")
+MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop", "room_revisit", "fast_turns",
+           "jump_back")
 PEOPLE_MODES = ("walking", "idle")
 
 #: TUM freiburg3 RGB intrinsics at 640x480 (fx, fy, cx, cy); fr3 images are undistorted.
@@ -136,6 +137,9 @@ SEQUENCES: dict[str, SynthConfig] = {
     "loop": SynthConfig(motion="loop", frames=600, people=0, seed=8),
     # 1.25 turns looking at every wall (~15 deg/s): the start is out of view for ~300 deg.
     "room_loop": SynthConfig(motion="room_loop", frames=1080, people=0, seed=10),
+    # Issue 13's long runs: 20 minutes of turns round the room, one every 30 s
+    # (benchmarks/long_run.py renders it once into a cache; any length is the start of this).
+    "long_revisit": SynthConfig(motion="room_revisit", frames=36000, people=0, seed=15),
     "mover_xyz": SynthConfig(motion="xyz", frames=300, people=0, mover=True, seed=9),
     # A person pushes a large carton (no person, label 21) across the view, lifts it and
     # carries it up to the camera (up to ~60 % of the image); 10 s period.
