@@ -2,13 +2,30 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import pytest
 
+from semslam.core.types import Frame
+
+if TYPE_CHECKING:
+    from semslam.synth import Renderer
+
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def rendered_frames(renderer: Renderer, indices: Iterable[int]) -> list[Frame]:
+    """Frames ``indices`` of a ``synth.Renderer`` as the tracker takes them (depth in metres,
+    from the 16-bit PNG values the writer stores: 5000 per metre)."""
+    frames = []
+    for i in indices:
+        f = renderer.render(i)
+        frames.append(Frame(i, float(renderer.times[i]), f.rgb, f.depth.astype(np.float32) / 5000.0))
+    return frames
 
 
 @pytest.fixture(scope="session")

@@ -18,10 +18,10 @@ from semslam.eval.metrics import ate
 from semslam.features import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
-from semslam.core.types import Frame
 from semslam.io.trajectory import Trajectory
 from semslam.slam.system import System
 from semslam.synth import SEQUENCES, Renderer
+from tests.conftest import rendered_frames
 
 
 def test_masks_and_keypoint_rejection() -> None:
@@ -87,7 +87,7 @@ def test_walking_ate_with_dynamics_far_below_without() -> None:
     cfg = SEQUENCES["walking_static"].replace(frames=90)
     r = Renderer(cfg)
     cam = PinholeCamera(*cfg.intrinsics())
-    frames = [Frame(i, float(r.times[i]), (f := r.render(i)).rgb, f.depth.astype(np.float32) / 5000.0) for i in range(90)]
+    frames = rendered_frames(r, range(90))
     gt = Trajectory(r.times.copy(), r.poses.copy())
     base = ["slam.sequential=true", "slam.local_ba=false", "slam.loop_closing=false"]
     errs = {}

@@ -24,6 +24,7 @@ from semslam.slam import map_io
 from semslam.slam.map_io import load_map, save_map
 from semslam.slam.system import System
 from semslam.synth import SEQUENCES, Renderer
+from tests.conftest import rendered_frames
 
 N_FRAMES = 60
 
@@ -34,10 +35,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Frame], System
     camera, and the true poses in the map's frame (the first frame's)."""
     cfg = SEQUENCES["static_xyz"].replace(frames=N_FRAMES)
     r = Renderer(cfg)
-    frames = []
-    for i in range(N_FRAMES):
-        f = r.render(i)
-        frames.append(Frame(i, float(r.times[i]), f.rgb, f.depth.astype(np.float32) / 5000.0))
+    frames = rendered_frames(r, range(N_FRAMES))
     cam = PinholeCamera(*cfg.intrinsics(), width=cfg.width, height=cfg.height)
     system = System(load_config("orb", ["slam.sequential=true"]), cam)
     for f in frames:

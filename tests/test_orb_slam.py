@@ -22,6 +22,7 @@ from semslam.slam.map_io import load_map
 from semslam.slam.system import System
 from semslam.core.types import TrackingState
 from semslam.synth import SEQUENCES, Renderer
+from tests.conftest import rendered_frames
 
 N_FRAMES = 90
 
@@ -30,10 +31,7 @@ N_FRAMES = 90
 def rendered() -> tuple[list[Frame], np.ndarray, PinholeCamera]:
     cfg = SEQUENCES["static_xyz"].replace(frames=N_FRAMES)
     r = Renderer(cfg)
-    frames = []
-    for i in range(N_FRAMES):
-        f = r.render(i)
-        frames.append(Frame(i, float(r.times[i]), f.rgb, f.depth.astype(np.float32) / 5000.0))
+    frames = rendered_frames(r, range(N_FRAMES))
     return frames, r.poses.copy(), PinholeCamera(*cfg.intrinsics())
 
 

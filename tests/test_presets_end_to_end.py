@@ -29,7 +29,7 @@ from semslam.io.trajectory import Trajectory
 from semslam.slam.system import System
 from semslam.core.types import TrackingState
 from semslam.synth import SEQUENCES, Renderer
-from tests.conftest import E2E_FRAMES, evo_ate, run_cli
+from tests.conftest import E2E_FRAMES, evo_ate, rendered_frames, run_cli
 
 PERSON, MOVER = 15, 21
 
@@ -68,10 +68,7 @@ MOVER_RENDER, MOVER_START = 180, 60
 def mover_frames() -> tuple[list[Frame], Trajectory, PinholeCamera]:
     cfg = SEQUENCES["mover_xyz"].replace(frames=MOVER_RENDER)
     r = Renderer(cfg)
-    frames = []
-    for i in range(MOVER_START, MOVER_RENDER):
-        f = r.render(i)
-        frames.append(Frame(i, float(r.times[i]), f.rgb, f.depth.astype(np.float32) / 5000.0))
+    frames = rendered_frames(r, range(MOVER_START, MOVER_RENDER))
     gt = Trajectory(r.times[MOVER_START:].copy(), r.poses[MOVER_START:].copy())
     return frames, gt, PinholeCamera(*cfg.intrinsics())
 
