@@ -30,7 +30,9 @@ class FrameState:
     bow: Any = None
     featvec: dict[int, Any] | None = None
     _grid: KeypointGrid | None = field(default=None, repr=False)
-    _raw_depth: NDArray[np.float32] | None = field(default=None, repr=False)  # before to_middle_row
+    # Undistorted keypoints and their depths as extracted, kept by the first to_middle_row.
+    _raw_xy: NDArray[np.float64] | None = field(default=None, repr=False)
+    _raw_depth: NDArray[np.float32] | None = field(default=None, repr=False)
 
     @classmethod
     def create(cls, index: int, timestamp: float, kps: Keypoints, depth_img: NDArray[np.float32] | None,
@@ -56,11 +58,11 @@ class FrameState:
         from semslam.geometry.rolling_shutter import (row_time_fraction, to_middle_row,
                                                       to_middle_row_with_depth_image)
 
-        raw = camera.undistort_points(self.keypoints.xy)
+        if self._raw_xy is None:
+            self._raw_xy, self._raw_depth = self.xy, self.depth
+        raw = self._raw_xy
         frac = row_time_fraction(self.keypoints.xy[:, 1], int(round(camera.image_size[1])), readout_s, frame_dt_s)
         if depth_img is None:
-            if self._raw_depth is None:
-                self._raw_depth = self.depth.copy()
             xy, z = to_middle_row(raw, self._raw_depth, frac, velocity_cw, camera)
         else:
             xy, z = to_middle_row_with_depth_image(raw, frac, velocity_cw, camera,
@@ -69,13 +71,18 @@ class FrameState:
         self.ur = np.where(self.depth > 0, xy[:, 0] - bf / np.maximum(self.depth, 1e-6), -1.0)
         self._grid = None
 
+    @property
+    def raw_xy(self) -> NDArray[np.float64]:
+        """Undistorted keypoints where the image shows them (before any rolling-shutter move)."""
+        return self.xy if self._raw_xy is None else self._raw_xy
+
     def drop(self, keep: NDArray[np.bool_]) -> None:
         """Remove keypoints (e.g. found dynamic after tracking) and everything indexed by them."""
         idx = np.nonzero(keep)[0]
         self.keypoints = self.keypoints.subset(idx)
         self.xy, self.depth, self.ur = self.xy[idx], self.depth[idx], self.ur[idx]
-        if self._raw_depth is not None:
-            self._raw_depth = self._raw_depth[idx]
+        if self._raw_xy is not None:
+            self._raw_xy, self._raw_depth = self._raw_xy[idx], self._raw_depth[idx]
         self.points = PointSlots([self.points[i] for i in idx.tolist()])
         self.outlier = self.outlier[idx]
         self.bow = self.featvec = None

@@ -17,11 +17,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.pose_only import optimize_pose
+from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
 from semslam.config import SystemConfig
 from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket, MotionPrior
 from semslam.core.types import TrackingState, TrackResult
 from semslam.dynamics.masks import keypoints_in_mask
 from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.rolling_shutter import row_time_fraction
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.frame_state import FrameState
 from semslam.slam.keyframe_worker import KeyframeSink
@@ -223,9 +225,6 @@ class Tracking:
 
     def _solve_velocity(self, cur: FrameState, guess: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
         """The frame's velocity fitted with its pose to the raw keypoints of its matches."""
-        from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
-        from semslam.geometry.rolling_shutter import row_time_fraction
-
         assert cur.T_cw is not None
         idx = cur.matched_indices(self.map.store)
         idx = idx[~cur.outlier[idx]]
@@ -233,7 +232,7 @@ class Tracking:
             return guess
         if len(idx) > RS_SOLVE_MAX_POINTS:  # 12 unknowns: a spread subset fixes them as well
             idx = idx[np.linspace(0, len(idx) - 1, RS_SOLVE_MAX_POINTS).astype(np.intp)]
-        raw = self.camera.undistort_points(cur.keypoints.xy[idx])
+        raw = cur.raw_xy[idx]
         frac = row_time_fraction(cur.keypoints.xy[idx, 1], int(round(self.camera.image_size[1])),
                                  self.cfg.rolling_shutter_ms / 1e3, dt)
         res = solve_rolling_shutter_pose(cur.T_cw, guess, self.map.store.pos[cur.points.rows[idx]], raw, frac,
