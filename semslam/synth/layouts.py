@@ -48,7 +48,7 @@ def get_layout(number: int) -> Layout:
     if number in LAYOUTS:
         return LAYOUTS[number]
     if 2 <= number <= MAX_LAYOUT:
-        boxes, lights = layout_random.random_room(number)
-        return Layout(f"random {number}", lambda: layout_random.random_room(number)[0], lights)
+        boxes, lights = layout_random.random_room(number)  # furnished once, not again per call
+        return Layout(f"random {number}", lambda: list(boxes), lights)
     raise ConfigError(f"synth: unknown layout {number} (choose from 0 (office), 1 (lounge), "
                       f"2-{MAX_LAYOUT} (furnished at random))")
