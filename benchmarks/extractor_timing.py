@@ -26,7 +26,6 @@ it is paid once, before the first frame, and is not in any per-frame time. With
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import subprocess
@@ -41,6 +40,7 @@ import numpy as np
 
 from semslam.features.orb import features_per_level, warm_up
 from semslam.features.orb_slam2 import OrbSlamExtractor
+from semslam.experiments.bench import emit_json
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 GRID = (8, 6)
@@ -154,10 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         "formula_per_level": wanted.tolist(),
         "frames": rows,
     }
-    print(json.dumps(doc, indent=2))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2))
+    emit_json(doc, args.json)
 
     print()
     print(f"ms per frame, median of {args.repeats} (min); load average {doc['machine']['load_average_1min_at_end']:.2f}"

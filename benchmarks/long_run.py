@@ -44,6 +44,7 @@ from semslam.io.sequence import open_sequence
 from semslam.pipeline import prefetch
 from semslam.runtime import limit_threads
 from semslam.synth import SEQUENCES, render_sequence
+from semslam.experiments.bench import emit_json
 
 SEQUENCE = "long_revisit"
 WINDOW = 1000
@@ -179,10 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     grew = growth(rows)
     doc = {"sequence": SEQUENCE, "render": str(seq_dir), "preset": args.preset, "overrides": overrides,
            "load_average": os.getloadavg(), "windows": rows, "summary": summary, "grew": grew}
-    print(json.dumps(doc, indent=2))
+    emit_json(doc, args.json)
     print(table(rows))
-    if args.json:
-        args.json.write_text(json.dumps(doc, indent=2))
     if grew:
         print("long run: " + "; ".join(grew), file=sys.stderr)
         return 1

@@ -15,7 +15,6 @@ Numbers come from this run on this machine.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ import torch  # noqa: E402
 
 from semslam.nets.onnx_graphs import TorchNet, example_input  # noqa: E402
 from semslam.nets.onnx_runtime import OnnxNet  # noqa: E402
+from semslam.experiments.bench import emit_json
 
 DATA = Path(__file__).resolve().parents[1] / "semslam" / "data"
 NETS = (("stdc_person", "stdc1", (320, 240)), ("dunet_person", "dunet", (320, 240)),
@@ -64,9 +64,7 @@ def main() -> None:
         rows.append(row)
     doc = {"torch": torch.__version__, "onnxruntime": __import__("onnxruntime").__version__,
            "repeats": args.repeats, "load_avg_1min": os.getloadavg()[0], "rows": rows}
-    print(json.dumps(doc, indent=2))
-    if args.json:
-        args.json.write_text(json.dumps(doc, indent=2))
+    emit_json(doc, args.json)
     print("\n| net | input | .onnx MB | ONNX Runtime ms p50 / min / CPU | torch ms p50 / min / CPU | max diff |")
     print("|---|---|---:|---|---|---:|")
     for r in rows:

@@ -24,7 +24,6 @@ render), else the real 640x480 frames of ../shared/data and one ``walking_xyz`` 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -34,6 +33,7 @@ import cv2
 import numpy as np
 
 from semslam.runtime import limit_threads
+from semslam.experiments.bench import emit_json
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 _FIELDS = ("xy", "octave", "response", "angle", "descriptors")
@@ -110,10 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                             "stage_cpu_ms_median": {s: float(np.median(v)) for s, v in stages[name].items()}}
                      for name in extractors},
     }
-    print(json.dumps(doc, indent=2))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2))
+    emit_json(doc, args.json)
     print()
     print(f"ms per frame over {args.rounds} rounds x {len(frames)} frames, variants interleaved; load average "
           f"{load_start:.1f} -> {doc['load_average_1min']['end']:.1f} on {os.cpu_count()} CPUs")

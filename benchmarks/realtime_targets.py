@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from semslam.core.types import RunResult
-from semslam.experiments.bench import machine, targets_table
+from semslam.experiments.bench import emit_json, machine, targets_table
 from semslam.synth import SEQUENCES, ensure_rendered
 
 PRESETS = ["orb", "default", "stdc", "ddl"]
@@ -153,10 +153,7 @@ def main(argv: list[str] | None = None) -> int:
                                f"{stats['tracked_frames']}/{stats['frames']}", "met": ok})
     doc["machine"]["loadavg_after"] = os.getloadavg()
 
-    print(json.dumps(doc, indent=2))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2))
+    emit_json(doc, args.json)
     print("\n| preset | sequence | ms/frame median / p95 | extract | track | local map | lock wait median / p95 / max "
           "| local BA ms | ATE cm | latency median / p95 | late frames | every repeat's median |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")

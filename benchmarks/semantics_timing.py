@@ -20,7 +20,6 @@ run on this machine (the load average is reported).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -35,6 +34,7 @@ import numpy as np
 from semslam.config import SemanticsConfig
 from semslam.dynamics.srm import refine_brute_force, refine_segmentation
 from semslam.semantics import create_segmenter
+from semslam.experiments.bench import emit_json
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -157,10 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         "segmenters": seg_rows,
         "srm": srm_rows,
     }
-    print(json.dumps(doc, indent=2))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2))
+    emit_json(doc, args.json)
 
     print()
     print(f"load average {doc['machine']['load_average_1min_at_end']:.2f} on {os.cpu_count()} CPUs; 640x480 frames")

@@ -11,6 +11,7 @@ runs' timings do not compete with each other.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -113,6 +114,16 @@ def run_benchmark(variants: list[Variant], sequences: list[str], data: Path, out
     v_order, s_order = [v.label for v in variants], list(sequences)
     ordered = sorted(rows.values(), key=lambda r: (s_order.index(r.sequence), v_order.index(r.variant), r.repeat))
     return BenchRun(ordered, summary)
+
+
+def emit_json(doc: dict[str, Any], path: Path | None = None) -> None:
+    """Print a benchmark's JSON document and, with ``path``, also write it there: every
+    benchmark script ends this way, so their numbers can be read back by other tools."""
+    text = json.dumps(doc, indent=2)
+    print(text)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
 
 
 def targets_table(targets: list[dict[str, Any]], digits: int = 1) -> str:
