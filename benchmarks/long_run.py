@@ -40,11 +40,11 @@ import psutil
 
 from semslam.api import System
 from semslam.config import load_config
+from semslam.experiments.bench import emit_json
 from semslam.io.sequence import open_sequence
 from semslam.pipeline import prefetch
 from semslam.runtime import limit_threads
 from semslam.synth import SEQUENCES, render_sequence
-from semslam.experiments.bench import emit_json
 
 SEQUENCE = "long_revisit"
 WINDOW = 1000
