@@ -7,7 +7,8 @@
 The sequence is ``long_revisit`` (``semslam synth``'s name): the camera turns round the
 middle of the room once every 30 s, so after the first turn every view is one seen before.
 It is rendered once into ``--cache`` (outside the repository; ~0.06 s and ~0.7 MB a frame
-at 640x480); a render at least ``--frames`` long is reused, its first frames only.
+at 640x480); a render at least ``--frames`` long is reused, its first frames only, and an
+interrupted or shorter one is resumed from its first missing frame.
 
 The run is threaded, as ``semslam run`` runs it (reader thread, local mapping, loop closing,
 the BA worker process). Every 100 frames the resident memory (RSS) of this process and,
@@ -56,7 +57,9 @@ MB = 1024.0 * 1024.0
 def cached_render(cache: Path, frames: int) -> tuple[Path, int]:
     """A render of ``long_revisit`` holding at least ``frames`` frames (rendered now if the
     cache has none), and how many it holds. Rendered into a ``.partial`` folder first, so an
-    interrupted render is never taken for a finished one."""
+    interrupted render is never taken for a finished one; the next call resumes it, and a
+    shorter finished render is extended, not rendered again (frames depend on their index
+    only)."""
     seq_dir = cache / SEQUENCE
     meta = seq_dir / "sequence.json"
     if meta.is_file():
@@ -64,10 +67,12 @@ def cached_render(cache: Path, frames: int) -> tuple[Path, int]:
         if have >= frames:
             return seq_dir, have
     partial = cache / f"{SEQUENCE}.partial"
-    shutil.rmtree(partial, ignore_errors=True)
     cache.mkdir(parents=True, exist_ok=True)
-    print(f"rendering {frames} frames of {SEQUENCE} into {seq_dir} (once)", file=sys.stderr)
-    render_sequence(SEQUENCES[SEQUENCE].replace(frames=frames), partial, progress=True)
+    if seq_dir.is_dir() and not partial.exists():
+        seq_dir.rename(partial)  # a shorter render: extend it
+    print(f"rendering {frames} frames of {SEQUENCE} into {seq_dir} (once; resumes where it stopped)",
+          file=sys.stderr)
+    render_sequence(SEQUENCES[SEQUENCE].replace(frames=frames), partial, progress=True, resume=True)
     shutil.rmtree(seq_dir, ignore_errors=True)
     partial.rename(seq_dir)
     return seq_dir, frames

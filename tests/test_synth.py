@@ -300,3 +300,25 @@ def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     meta = json.loads((out / "sequence.json").read_text())
     assert meta["config"]["seed"] == 5 and meta["config"]["people"] == 0
     assert main(["synth", str(out), "--motion", "spin"]) == 2
+
+
+def test_resumed_render_equals_a_whole_one(tmp_path: Path) -> None:
+    """An interrupted render resumed (and a shorter one extended) gives the bytes of one done
+    in one go: a long benchmark render is not lost to one interruption."""
+    cfg = SEQUENCES["walking_xyz"].replace(frames=6, **SMALL)
+    whole = render_sequence(cfg, tmp_path / "whole")
+    part = render_sequence(cfg.replace(frames=4), tmp_path / "part")
+    rgb = sorted((part / "rgb").glob("*.png"))
+    rgb[-1].unlink()  # frame 3 interrupted after its depth, before its colour and labels
+    (part / "semantic" / rgb[-1].name).unlink()
+    (part / "depth" / sorted((part / "depth").glob("*.png"))[2].name).write_bytes(b"\x89PNG cut")  # frame 2 cut short
+    render_sequence(cfg, part, resume=True)
+    for sub in ("rgb", "depth", "semantic"):
+        names = sorted(p.name for p in (whole / sub).glob("*.png"))
+        assert names == sorted(p.name for p in (part / sub).glob("*.png"))
+        for name in names:
+            assert (whole / sub / name).read_bytes() == (part / sub / name).read_bytes(), f"{sub}/{name}"
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt", "sequence.json"):  # the lists name their folder
+        assert (whole / name).read_text().replace("'whole'", "") == (part / name).read_text().replace("'part'", "")
+    other = render_sequence(cfg.replace(seed=cfg.seed + 1), part, resume=True)  # another config: all new
+    assert (other / "rgb" / names[0]).read_bytes() != (whole / "rgb" / names[0]).read_bytes()

@@ -239,18 +239,59 @@ def _stamps(cfg: SynthConfig) -> tuple[list[str], list[str]]:
     return [writer.stamp(v) for v in t], [writer.stamp(v) for v in t + jitter]
 
 
+
+def _first_to_render(out: Path, cfg: SynthConfig, rgb_stamps: list[str], depth_stamps: list[str],
+                     workers: int) -> int:
+    """Where a resumed rendering starts: ``workers`` frames before the first frame with a file
+    missing (frames are started in order and at most ``workers`` are in flight, so any frame
+    whose last file an interruption may have cut short lies there), or 0 when ``out`` holds a
+    rendering of another configuration."""
+    meta = out / "sequence.json"
+    if meta.is_file():
+        try:
+            old = json.loads(meta.read_text()).get("config", {})
+        except (OSError, ValueError):
+            return 0
+        if {k: v for k, v in old.items() if k != "frames"} != {k: v for k, v in cfg.to_dict().items() if k != "frames"}:
+            return 0
+    elif not (out / "rgb").is_dir():
+        return 0
+
+    def complete(i: int) -> bool:
+        names = [out / "rgb" / f"{rgb_stamps[i]}.png", out / "depth" / f"{depth_stamps[i]}.png",
+                 out / "semantic" / f"{rgb_stamps[i]}.png"]
+        if cfg.background:
+            names += [out / "background" / "rgb" / f"{rgb_stamps[i]}.png",
+                      out / "background" / "depth" / f"{depth_stamps[i]}.png"]
+        return all(n.is_file() for n in names)
+
+    lo, hi = 0, cfg.frames  # frames [0, lo) complete; binary search for the first incomplete one
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if complete(mid):
+            lo = mid + 1
+        else:
+            hi = mid
+    return max(0, lo - max(1, workers))
+
+
 def render_sequence(
-    cfg: SynthConfig, out_dir: str | Path, progress: bool = False, workers: int = 2
+    cfg: SynthConfig, out_dir: str | Path, progress: bool = False, workers: int = 2, resume: bool = False
 ) -> Path:
     """Render ``cfg`` into a TUM RGB-D folder at ``out_dir``; return its path.
 
     ``workers`` frames are rendered concurrently in threads (numpy and OpenCV release the
-    GIL); results do not depend on it.
+    GIL); results do not depend on it. ``resume`` keeps the frames an earlier, interrupted or
+    shorter, rendering of the same ``cfg`` left in ``out_dir`` (a frame depends on its index
+    only, not on ``cfg.frames``) and renders from the first one missing: hours of rendering
+    for a long benchmark are not lost to one interruption.
     """
     out = Path(out_dir)
     renderer = Renderer(cfg)
-    writer.prepare_dir(out, background=cfg.background)
     rgb_stamps, depth_stamps = _stamps(cfg)
+    first = _first_to_render(out, cfg, rgb_stamps, depth_stamps, workers) if resume else 0
+    if first == 0:
+        writer.prepare_dir(out, background=cfg.background)
 
     def job(i: int) -> int:
         fr, bg = renderer.render_with_background(i, cfg.background)
@@ -266,15 +307,15 @@ def render_sequence(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=cfg.frames, unit="frame", desc=f"synth {out.name}", leave=False)
+        bar = tqdm(total=cfg.frames, initial=first, unit="frame", desc=f"synth {out.name}", leave=False)
     try:
         if workers > 1:
             with ThreadPoolExecutor(max_workers=workers) as pool:
-                for _ in pool.map(job, range(cfg.frames)):
+                for _ in pool.map(job, range(first, cfg.frames)):
                     if bar is not None:
                         bar.update(1)
         else:
-            for i in range(cfg.frames):
+            for i in range(first, cfg.frames):
                 job(i)
                 if bar is not None:
                     bar.update(1)
