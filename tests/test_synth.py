@@ -312,7 +312,12 @@ def test_resumed_render_equals_a_whole_one(tmp_path: Path) -> None:
     rgb[-1].unlink()  # frame 3 interrupted after its depth, before its colour and labels
     (part / "semantic" / rgb[-1].name).unlink()
     (part / "depth" / sorted((part / "depth").glob("*.png"))[2].name).write_bytes(b"\x89PNG cut")  # frame 2 cut short
+    (part / "sequence.json").unlink()  # as an interrupted render leaves it: only its in-progress note
+    (part / ".rendering.json").write_text(json.dumps({"config": cfg.to_dict()}))
+    kept = rgb[0].stat().st_mtime_ns
     render_sequence(cfg, part, resume=True)
+    assert rgb[0].stat().st_mtime_ns == kept  # frame 0 was kept, not rendered again
+    assert not (part / ".rendering.json").exists()
     for sub in ("rgb", "depth", "semantic"):
         names = sorted(p.name for p in (whole / sub).glob("*.png"))
         assert names == sorted(p.name for p in (part / sub).glob("*.png"))

@@ -45,6 +45,9 @@ from semslam.synth.sequences import SynthConfig
 from semslam.synth.static_geometry import MOVERS_FILE, SCENE_FILE, movers_json, scene_json
 
 #: SynthConfig fields added after renders were first cached (absent there = default).
+#: Written before a render's first frame and removed after its ``sequence.json``: what an
+#: interrupted render was rendering, for ``render_sequence(resume=True)``.
+IN_PROGRESS = ".rendering.json"
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
                  "blackout_start_s", "blackout_s", "layout")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
@@ -244,17 +247,13 @@ def _first_to_render(out: Path, cfg: SynthConfig, rgb_stamps: list[str], depth_s
                      workers: int) -> int:
     """Where a resumed rendering starts: ``workers`` frames before the first frame with a file
     missing (frames are started in order and at most ``workers`` are in flight, so any frame
-    whose last file an interruption may have cut short lies there), or 0 when ``out`` holds a
-    rendering of another configuration."""
-    meta = out / "sequence.json"
-    if meta.is_file():
-        try:
-            old = json.loads(meta.read_text()).get("config", {})
-        except (OSError, ValueError):
-            return 0
-        if {k: v for k, v in old.items() if k != "frames"} != {k: v for k, v in cfg.to_dict().items() if k != "frames"}:
-            return 0
-    elif not (out / "rgb").is_dir():
+    whose last file an interruption may have cut short lies there), or 0 when ``out`` holds no
+    rendering of the same configuration (finished: ``sequence.json``; interrupted: the
+    :data:`IN_PROGRESS` file written before the first frame)."""
+    have = saved_config(out, IN_PROGRESS) or saved_config(out)
+    wanted = json.loads(json.dumps(asdict(cfg)))
+    if have is None or {k: v for k, v in have.items() if k != "frames"} != {
+            k: v for k, v in wanted.items() if k != "frames"}:
         return 0
 
     def complete(i: int) -> bool:
@@ -292,6 +291,7 @@ def render_sequence(
     first = _first_to_render(out, cfg, rgb_stamps, depth_stamps, workers) if resume else 0
     if first == 0:
         writer.prepare_dir(out, background=cfg.background)
+    writer.write_json(out / IN_PROGRESS, {"config": cfg.to_dict()})
 
     def job(i: int) -> int:
         fr, bg = renderer.render_with_background(i, cfg.background)
@@ -353,28 +353,31 @@ def render_sequence(
             ),
         },
     )
+    (out / IN_PROGRESS).unlink(missing_ok=True)
     return out
+
+
+def saved_config(seq_dir: Path, name: str = "sequence.json") -> dict[str, Any] | None:
+    """The configuration a render in ``seq_dir`` was made with (``None`` if unreadable), with
+    fields added to SynthConfig later filled in: absent from older renders, at their default
+    they do not change the images, so such a render is still that configuration."""
+    try:
+        saved = json.loads((seq_dir / name).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    have = saved.get("config", saved) if isinstance(saved, dict) else None
+    if not isinstance(have, dict):
+        return None
+    defaults = json.loads(json.dumps(asdict(SynthConfig())))
+    return {**{k: v for k, v in defaults.items() if k not in have and k in _ADDED_FIELDS}, **have}
 
 
 def needs_render(seq_dir: Path, cfg: SynthConfig) -> bool:
     """True unless ``seq_dir`` holds this exact configuration, completely rendered."""
-    meta = seq_dir / "sequence.json"
     needed = ("groundtruth.txt", SCENE_FILE, MOVERS_FILE)  # no scene.json: labels before NYU-40
-    if not meta.is_file() or not all((seq_dir / f).is_file() for f in needed):
+    if not all((seq_dir / f).is_file() for f in needed):
         return True
-    try:
-        saved = json.loads(meta.read_text())
-    except (OSError, json.JSONDecodeError):
-        return True
-    wanted = json.loads(json.dumps(asdict(cfg)))
-    have = saved.get("config", saved)
-    if not isinstance(have, dict):
-        return True
-    # Fields added to SynthConfig later are absent from older renders: at their default
-    # they do not change the images, so such a render is still this configuration.
-    defaults = json.loads(json.dumps(asdict(SynthConfig())))
-    have = {**{k: v for k, v in defaults.items() if k not in have and k in _ADDED_FIELDS}, **have}
-    return have != wanted
+    return saved_config(seq_dir) != json.loads(json.dumps(asdict(cfg)))
 
 
 def ensure_rendered(cfg: SynthConfig, seq_dir: str | Path, progress: bool = False) -> bool:
