@@ -31,16 +31,14 @@ import platform
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
-from typing import Any, Callable
 
 import cv2
 import numpy as np
 
 from semslam.features.orb import features_per_level, warm_up
 from semslam.features.orb_slam2 import OrbSlamExtractor
-from semslam.experiments.bench import emit_json
+from semslam.experiments.bench import emit_json, time_calls, timing_summary
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 GRID = (8, 6)
@@ -56,18 +54,6 @@ def load_frames() -> dict[str, np.ndarray]:
     rgb = Renderer(SEQUENCES["static_xyz"].replace(frames=5)).render(0).rgb
     frames["synthetic/static_xyz_0"] = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     return frames
-
-
-def timed(fn: Callable[[], Any], repeats: int) -> dict[str, float]:
-    fn()  # warm-up (buffers, caches)
-    wall, cpu = [], []
-    for _ in range(repeats):
-        w0, c0 = time.perf_counter(), time.thread_time()
-        fn()
-        wall.append(time.perf_counter() - w0)
-        cpu.append(time.thread_time() - c0)
-    return {"wall_ms_median": 1e3 * float(np.median(wall)), "wall_ms_min": 1e3 * float(np.min(wall)),
-            "cpu_ms_median": 1e3 * float(np.median(cpu))}
 
 
 def cold_compile_seconds() -> float:
@@ -122,8 +108,8 @@ def main(argv: list[str] | None = None) -> int:
             stages.append(dict(ours.last_stage_ms))
             stages_cpu.append(dict(ours.last_stage_cpu_ms))
 
-        t_ours = timed(run_ours, args.repeats)
-        t_cv = timed(lambda gray=gray: orb.detectAndCompute(gray, None), args.repeats)
+        t_ours = timing_summary(*time_calls(run_ours, args.repeats))
+        t_cv = timing_summary(*time_calls(lambda gray=gray: orb.detectAndCompute(gray, None), args.repeats))
         cv_kps, _ = orb.detectAndCompute(gray, None)
         cv_xy = np.array([k.pt for k in cv_kps], np.float32).reshape(-1, 2)
         ref = reference.extract(gray)
@@ -165,8 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         o, c = r["ours"], r["cv2_orb"]
-        print(f"| {r['frame']} | {o['wall_ms_median']:.1f} ({o['wall_ms_min']:.1f}) | {o['cpu_ms_median']:.1f} "
-              f"| {c['wall_ms_median']:.1f} ({c['wall_ms_min']:.1f}) | {c['cpu_ms_median']:.1f} | {o['n']} | {c['n']} "
+        print(f"| {r['frame']} | {o['wall_ms_p50']:.1f} ({o['wall_ms_min']:.1f}) | {o['cpu_ms_p50']:.1f} "
+              f"| {c['wall_ms_p50']:.1f} ({c['wall_ms_min']:.1f}) | {c['cpu_ms_p50']:.1f} | {o['n']} | {c['n']} "
               f"| {o['occupied']:.2f} / {c['occupied']:.2f} | {o['cv']:.2f} / {c['cv']:.2f} "
               f"| {100 * r['same_as_per_cell_reference']:.1f} % | {'yes' if r['identical_to_per_cell_reference'] else 'NO'} |")
     print()

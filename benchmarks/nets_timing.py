@@ -24,9 +24,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
+from semslam.experiments.bench import time_calls, timing_summary
 from semslam.nets.models import build_model, load_checkpoint
 
 DATA = Path(__file__).resolve().parents[1] / "semslam" / "data"
@@ -35,16 +35,8 @@ SIZES = ((640, 480), (320, 240))
 
 def timed(model: torch.nn.Module, w: int, h: int, repeats: int) -> dict[str, float]:
     x = torch.randn(1, 3, h, w)
-    with torch.inference_mode():
-        model(x)  # warm-up (allocator, oneDNN kernels)
-        wall, cpu = [], []
-        for _ in range(repeats):
-            w0, c0 = time.perf_counter(), time.process_time()
-            model(x)
-            wall.append(time.perf_counter() - w0)
-            cpu.append(time.process_time() - c0)
-    return {"wall_ms_p50": 1e3 * float(np.median(wall)), "wall_ms_min": 1e3 * float(np.min(wall)),
-            "cpu_ms_p50": 1e3 * float(np.median(cpu))}
+    with torch.inference_mode():  # warm-up: allocator, oneDNN kernels
+        return timing_summary(*time_calls(lambda: model(x), repeats, cpu_clock=time.process_time))
 
 
 def models() -> list[tuple[str, torch.nn.Module, dict[str, Any]]]:

@@ -34,9 +34,8 @@ import argparse
 import json
 import os
 import platform
-import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -44,6 +43,7 @@ import numpy as np
 from semslam.core.types import Keypoints
 from semslam.features.orb_slam2 import OrbSlamExtractor
 from semslam.features.qtree_orb import QtreeOrbExtractor, distribution_uniformity, fast_quality
+from semslam.experiments.bench import time_calls, timing_summary
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 T_HIGH = 20
@@ -64,17 +64,6 @@ def load_frames(n_synthetic: int, blurred: bool) -> dict[str, np.ndarray]:
         for name, gray in real:
             frames[f"blurred1.5/{name.split('/', 1)[1]}"] = cv2.GaussianBlur(gray, (0, 0), 1.5)
     return frames
-
-
-def timed(fn: Callable[[], Any], repeats: int) -> dict[str, float]:
-    fn()  # warm-up (buffers, caches)
-    wall, cpu = [], []
-    for _ in range(repeats):
-        w0, c0 = time.perf_counter(), time.thread_time()
-        fn()
-        wall.append(time.perf_counter() - w0)
-        cpu.append(time.thread_time() - c0)
-    return {"wall_ms": 1e3 * float(np.median(wall)), "cpu_ms": 1e3 * float(np.median(cpu))}
 
 
 def stats(kp: Keypoints, quality: np.ndarray, shape: tuple[int, int], only_level0: bool) -> dict[str, float]:
@@ -114,10 +103,10 @@ def main(argv: list[str] | None = None) -> int:
             row[ex_name] = {"all": stats(kp, quality, gray.shape, False), "level0": stats(kp, quality, gray.shape, True)}
             if isinstance(ex, QtreeOrbExtractor):
                 row[ex_name]["counts"] = ex.last_counts.as_dict()
-            row[ex_name]["time"] = timed(lambda ex=ex, gray=gray: ex.extract(gray), args.repeats)
+            row[ex_name]["time"] = timing_summary(*time_calls(lambda ex=ex, gray=gray: ex.extract(gray), args.repeats))
         rows.append(row)
         print(f"{name}: " + "  ".join(f"{k} H/L/T/U {row[k]['all']['H']}/{row[k]['all']['L']}/{row[k]['all']['T']}/"
-                                      f"{row[k]['all']['U']:.0f} {row[k]['time']['cpu_ms']:.1f} ms"
+                                      f"{row[k]['all']['U']:.0f} {row[k]['time']['cpu_ms_p50']:.1f} ms"
                                       for k in extractors), flush=True)
 
     groups = sorted({r["frame"].split("/")[0] for r in rows}, key=lambda g: [r["frame"].split("/")[0]
@@ -131,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         averages[group] = {ex: {scope: {k: round(float(np.mean([r[ex][scope][k] for r in sel])), 1)
                                         for k in ("H", "L", "T", "U")} for scope in ("all", "level0")}
                            | {"time": {k: round(float(np.median([r[ex]["time"][k] for r in sel])), 2)
-                                       for k in ("wall_ms", "cpu_ms")}}
+                                       for k in ("wall_ms_p50", "cpu_ms_p50")}}
                            for ex in extractors}
 
     doc = {
@@ -174,7 +163,7 @@ def markdown(rows: list[dict[str, Any]], averages: dict[str, Any], names: list[s
     out.append("|---|" + "---:|" * len(names))
     for group, avg in averages.items():
         out.append(f"| {group} | " + " | ".join(
-            f"{avg[n]['time']['wall_ms']:.1f} / {avg[n]['time']['cpu_ms']:.1f}" for n in names) + " |")
+            f"{avg[n]['time']['wall_ms_p50']:.1f} / {avg[n]['time']['cpu_ms_p50']:.1f}" for n in names) + " |")
     return "\n".join(out) + "\n"
 
 

@@ -24,7 +24,6 @@ import os
 import platform
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -34,27 +33,9 @@ import numpy as np
 from semslam.config import SemanticsConfig
 from semslam.dynamics.srm import refine_brute_force, refine_segmentation
 from semslam.semantics import create_segmenter
-from semslam.experiments.bench import emit_json
+from semslam.experiments.bench import emit_json, time_calls, timing_summary
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
-
-def timed(fn: Callable[[], Any], repeats: int) -> tuple[list[float], list[float]]:
-    """Wall and process-CPU seconds of ``repeats`` calls after one warm-up call."""
-    fn()
-    wall, cpu = [], []
-    for _ in range(repeats):
-        w0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - w0)
-        cpu.append(time.process_time() - c0)
-    return wall, cpu
-
-
-def stats(wall: list[float], cpu: list[float]) -> dict[str, float]:
-    w = 1e3 * np.asarray(wall)
-    return {"wall_ms_p50": float(np.percentile(w, 50)), "wall_ms_p95": float(np.percentile(w, 95)),
-            "wall_ms_min": float(w.min()), "cpu_ms_p50": float(1e3 * np.median(cpu)), "n": int(w.size)}
 
 
 def rendered_frames(n: int) -> list[Any]:
@@ -91,10 +72,10 @@ def bench_segmenters(repeats: int, synth: list[Any]) -> list[dict[str, Any]]:
         wall: list[float] = []
         cpu: list[float] = []
         for _, rgb in images:
-            w, c = timed(lambda seg=seg, rgb=rgb: seg.segment(rgb), repeats)
+            w, c = time_calls(lambda seg=seg, rgb=rgb: seg.segment(rgb), repeats, cpu_clock=time.process_time)
             wall += w
             cpu += c
-        rows.append({"backend": backend, "input_width": width, "frames": len(images), **stats(wall, cpu)})
+        rows.append({"backend": backend, "input_width": width, "frames": len(images), **timing_summary(wall, cpu)})
     return rows
 
 
@@ -117,7 +98,8 @@ def bench_srm(repeats: int, synth: list[Any], brute: bool) -> list[dict[str, Any
     groups: dict[tuple[str, float | None], dict[str, Any]] = {}
     for name, frac, mask, depth in cases:
         g = groups.setdefault((name, frac), {"wall": [], "cpu": [], "coverage": [], "grown": [], "brute_ms": [], "equal": True})
-        w, c = timed(lambda mask=mask, depth=depth: refine_segmentation(mask, depth), repeats)
+        w, c = time_calls(lambda mask=mask, depth=depth: refine_segmentation(mask, depth), repeats,
+                          cpu_clock=time.process_time)
         g["wall"] += w
         g["cpu"] += c
         out = refine_segmentation(mask, depth)
@@ -132,7 +114,7 @@ def bench_srm(repeats: int, synth: list[Any], brute: bool) -> list[dict[str, Any
     for (name, frac), g in groups.items():
         rows.append({"case": name, "target_coverage": frac, "coverage_mean": float(np.mean(g["coverage"])),
                      "added_fraction_mean": float(np.mean(g["grown"])), "masks": len(g["coverage"]),
-                     **stats(g["wall"], g["cpu"]),
+                     **timing_summary(g["wall"], g["cpu"]),
                      "brute_force_ms_mean": float(np.mean(g["brute_ms"])) if g["brute_ms"] else None,
                      "equal_to_brute_force": g["equal"] if brute else None})
     return rows

@@ -12,10 +12,13 @@ runs' timings do not compete with each other.
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from semslam.core.types import RunResult
 from semslam.errors import ConfigError
@@ -124,6 +127,30 @@ def emit_json(doc: dict[str, Any], path: Path | None = None) -> None:
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
+
+
+def time_calls(fn: Callable[[], Any], repeats: int, warmup: int = 1,
+               cpu_clock: Callable[[], float] = time.thread_time) -> tuple[list[float], list[float]]:
+    """Wall and CPU milliseconds of ``repeats`` calls of ``fn`` after ``warmup`` untimed ones
+    (allocators, caches, JIT): the one timing loop of the benchmark scripts. ``cpu_clock`` is
+    the calling thread's CPU by default; ``time.process_time`` counts the threads a library
+    starts for the call too."""
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        w0, c0 = time.perf_counter(), cpu_clock()
+        fn()
+        wall.append(1e3 * (time.perf_counter() - w0))
+        cpu.append(1e3 * (cpu_clock() - c0))
+    return wall, cpu
+
+
+def timing_summary(wall_ms: list[float], cpu_ms: list[float]) -> dict[str, float]:
+    """Median, p95 and minimum wall time and median CPU time of timed calls, in ms."""
+    w = np.asarray(wall_ms, float)
+    return {"wall_ms_p50": float(np.median(w)), "wall_ms_p95": float(np.percentile(w, 95)),
+            "wall_ms_min": float(w.min()), "cpu_ms_p50": float(np.median(cpu_ms)), "n": int(w.size)}
 
 
 def targets_table(targets: list[dict[str, Any]], digits: int = 1) -> str:
