@@ -35,6 +35,31 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+@pytest.fixture(scope="session")
+def real_grays(shared_data: Path) -> list[np.ndarray]:
+    """The real frames beside the repo (Kinect colour, TUM frames with people), grey: the
+    extractor tests' real images."""
+    paths = sorted((shared_data / "kinect_rgbd_5frames" / "color").glob("*.png"))
+    paths += sorted((shared_data / "images_people").glob("*.png"))
+    if not paths:
+        pytest.skip(f"no real frames under {shared_data}")
+    return [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
+
+
+@pytest.fixture(scope="session")
+def real_gray(real_grays: list[np.ndarray]) -> np.ndarray:
+    return real_grays[0]
+
+
+@pytest.fixture(scope="session")
+def synth_gray() -> np.ndarray:
+    """The first frame of the static_xyz render, grey."""
+    from semslam.synth import SEQUENCES, Renderer
+
+    rgb = Renderer(SEQUENCES["static_xyz"].replace(frames=3)).render(0).rgb
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+
+
 def write_tum_folder(root: Path, n: int = 5, size: tuple[int, int] = (64, 48), depth_offset: float = 0.004,
                      t0: float = 1305031102.0, dt: float = 1 / 30) -> Path:
     """A minimal TUM RGB-D folder with random images, depth 2 m, list files and ground truth."""

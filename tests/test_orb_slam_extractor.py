@@ -5,7 +5,6 @@ computeOrbDescriptor and OpenCV, invariance on real images, mask, determinism.""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -39,32 +38,6 @@ N = 1000
 
 
 # --------------------------------------------------------------------------- fixtures
-
-def _real_paths(shared_data: Path) -> list[Path]:
-    paths = sorted((shared_data / "kinect_rgbd_5frames" / "color").glob("*.png"))
-    paths += sorted((shared_data / "images_people").glob("*.png"))
-    if not paths:
-        pytest.skip("no real frames in shared data")
-    return paths
-
-
-@pytest.fixture(scope="module")
-def real_grays(shared_data: Path) -> list[np.ndarray]:
-    return [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in _real_paths(shared_data)]
-
-
-@pytest.fixture(scope="module")
-def real_gray(real_grays: list[np.ndarray]) -> np.ndarray:
-    return real_grays[0]
-
-
-@pytest.fixture(scope="module")
-def synth_gray() -> np.ndarray:
-    from semslam.synth import SEQUENCES, Renderer
-
-    rgb = Renderer(SEQUENCES["static_xyz"].replace(frames=5)).render(0).rgb
-    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-
 
 @pytest.fixture(scope="module")
 def extractor() -> OrbSlamExtractor:

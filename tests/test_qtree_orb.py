@@ -36,28 +36,6 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 # --------------------------------------------------------------------------- fixtures
 
 @pytest.fixture(scope="module")
-def real_grays() -> list[np.ndarray]:
-    paths = sorted((SHARED_DATA / "kinect_rgbd_5frames" / "color").glob("*.png"))
-    paths += sorted((SHARED_DATA / "images_people").glob("*.png"))
-    if not paths:
-        pytest.skip(f"no real frames under {SHARED_DATA}")
-    return [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
-
-
-@pytest.fixture(scope="module")
-def real_gray(real_grays: list[np.ndarray]) -> np.ndarray:
-    return real_grays[0]
-
-
-@pytest.fixture(scope="module")
-def synth_gray() -> np.ndarray:
-    from semslam.synth import SEQUENCES, Renderer
-
-    rgb = Renderer(SEQUENCES["static_xyz"].replace(frames=3)).render(0).rgb
-    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-
-
-@pytest.fixture(scope="module")
 def extractor() -> QtreeOrbExtractor:
     return QtreeOrbExtractor()
 
