@@ -4,7 +4,6 @@ against ORB-SLAM's extractor, rotation invariance of the descriptors, mask, regi
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -30,7 +29,6 @@ from semslam.features.qtree_orb import (
 )
 
 N = 1000
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 # --------------------------------------------------------------------------- fixtures
