@@ -152,13 +152,13 @@ class SlamConfig:
     # depth_odometry_below, or none) or that turns faster than depth_odometry_turn_deg a
     # frame (predicted or tracked) gets its rotation from dense alignment against the last
     # frame (backend/depth_odometry.py: rgbd = photometric, icp = depth ICP, rgbd_icp = both;
-    # off = ORB-SLAM2), its camera centre moved on at the velocity of the last well-tracked
+    # none = ORB-SLAM2), its camera centre moved on at the velocity of the last well-tracked
     # frames. Features within depth_odometry_max_deg of it keep their pose (so a sharp
     # sequence tracks as without it); else the local map is searched again from the aligned
     # pose, and unless the frame is sharp (turning slower than depth_odometry_turn_deg) and
     # tracks, or then agrees, it keeps the aligned pose and makes no keyframe unless it
     # turns slower than depth_odometry_keyframe_deg a frame (a new, unmapped view).
-    depth_odometry: str = "off"
+    depth_odometry: str = "none"
     depth_odometry_below: int = 200
     depth_odometry_turn_deg: float = 1.0
     depth_odometry_max_deg: float = 0.3
@@ -209,8 +209,8 @@ class SlamConfig:
 
     def check(self) -> None:
         """Raise ConfigError on values the core cannot use (the config loader checks types only)."""
-        if self.depth_odometry not in ("off", "rgbd", "icp", "rgbd_icp"):
-            raise ConfigError(f"slam.depth_odometry: expected off, rgbd, icp or rgbd_icp, got {self.depth_odometry!r}")
+        if self.depth_odometry not in ("none", "rgbd", "icp", "rgbd_icp"):
+            raise ConfigError(f"slam.depth_odometry: expected none, rgbd, icp or rgbd_icp, got {self.depth_odometry!r}")
         if not 0.0 <= self.yield_to_tracking_ms <= 1000.0:
             raise ConfigError(f"slam.yield_to_tracking_ms: expected 0 (never wait) to 1000 ms, "
                               f"got {self.yield_to_tracking_ms}")

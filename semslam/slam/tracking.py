@@ -109,7 +109,7 @@ class Tracking:
         # Motion blur (slam.depth_odometry): the last tracked frame's (index, gray, depth) to
         # align the next against, and how many frames kept the aligned pose.
         self.odometry = (RotationOdometry(camera.K, self.cfg.depth_odometry)
-                         if self.cfg.depth_odometry != "off" else None)
+                         if self.cfg.depth_odometry != "none" else None)
         self._odo_prev: tuple[int, NDArray[np.uint8], NDArray[np.float32]] | None = None
         self.n_depth_odometry_frames = 0
         # (timestamp, camera centre) of the last frames the features tracked well, for the
