@@ -11,10 +11,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
-from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
+from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg, sharpness
 from semslam.cli.main import main
 from semslam.cli.run_cmd import rolling_shutter_flags
 from semslam.config import load_config
@@ -66,6 +67,16 @@ def test_rotation_alignment_recovers_the_turn_on_blurred_frames(
         start.append(rotation_angle_deg(invert(true) @ guess))
     assert max(start) > 0.9  # the motion model is a degree off while the turn speeds up and slows
     assert max(errors) < 0.25, errors  # measured 0.01-0.11 deg at 640x480
+
+
+def test_sharpness_drops_with_blur_not_with_gain() -> None:
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.integers(40, 200, (480, 640), dtype=np.uint8), (0, 0), 1.5)  # texture of a few px
+    streak = cv2.blur(img, (12, 1))  # a 12-px horizontal streak
+    s = sharpness(img)
+    assert sharpness(streak) < 0.6 * s  # measured 0.43
+    assert sharpness(np.clip(img * 1.3, 0, 255).astype(np.uint8)) == pytest.approx(s, rel=0.05)
+    assert sharpness(np.zeros((48, 64), np.uint8)) == 0.0
 
 
 def test_unknown_method_is_refused() -> None:

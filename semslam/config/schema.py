@@ -163,6 +163,12 @@ class SlamConfig:
     depth_odometry_turn_deg: float = 1.0
     depth_odometry_max_deg: float = 0.3
     depth_odometry_keyframe_deg: float = 1.0
+    # Optional (0 = off, as measured best on walking_hard): a frame whose sharpness (mean
+    # |Laplacian| / mean intensity) is at least this ratio of the sharpest of the last 10
+    # tracked frames is not aligned unless its features fail, and its re-searched features
+    # are believed. 0.6 keeps a rolling shutter without blur as it tracks without the
+    # alignment (whose rotation the skew biases), but breaks walking_hard (README).
+    depth_odometry_sharp_ratio: float = 0.0
     # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
     th_depth: float = 40.0
     # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).

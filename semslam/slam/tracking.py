@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
+from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg, sharpness
 from semslam.backend.pose_only import optimize_pose
 from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
 from semslam.config import SystemConfig
@@ -116,6 +116,10 @@ class Tracking:
         # centre's velocity over them (``_odometry_guess``).
         self._good_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
         self.n_depth_odometry_runs = 0
+        # Sharpness (backend/depth_odometry.sharpness) of the last tracked frames, and this one's.
+        self._recent_sharpness: deque[float] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
+        self._sharp = False  # this frame is sharp (only with slam.depth_odometry_sharp_ratio > 0)
+        self._current_sharpness: float | None = None
 
     def start_lost_in(self, ref_kf: KeyFrame) -> None:
         """A loaded map: start lost (the camera is nowhere until it relocalises) with this
@@ -172,6 +176,8 @@ class Tracking:
                         self._refine_rolling_shutter(cur, depth)  # again, on the local map's matches
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
                 odo = False
+                if self.odometry is not None and self.cfg.depth_odometry_sharp_ratio > 0:
+                    self._sharp = self._is_sharp(frame.gray)
                 if self._odometry_due(ok, cur.T_cw, depth):
                     t0 = time.perf_counter()
                     ok, odo = self._track_with_odometry(cur, frame.gray, depth, ok)  # type: ignore[arg-type]
@@ -214,6 +220,8 @@ class Tracking:
             if self.odometry is not None:
                 self._odo_prev = ((cur.index, frame.gray, depth) if self.state is TrackingState.OK and depth is not None
                                   else None)
+                if self.state is TrackingState.OK and self._current_sharpness is not None:
+                    self._recent_sharpness.append(self._current_sharpness)
             n_inl = int(((cur.points.rows >= 0) & ~cur.outlier).sum())
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
@@ -234,11 +242,23 @@ class Tracking:
         if (self.odometry is None or depth is None or self.state is not TrackingState.OK or last is None
                 or last.T_cw is None or prev is None or prev[0] != last.index):
             return False
-        if not ok or self.n_matches_inliers < self.cfg.depth_odometry_below:
+        if not ok:
+            return True
+        if self._sharp:  # slam.depth_odometry_sharp_ratio > 0: features on a sharp image are
+            return False  # believed (a rolling shutter's skew biases the alignment, not them)
+        if self.n_matches_inliers < self.cfg.depth_odometry_below:
             return True
         fast = self.cfg.depth_odometry_turn_deg
         return ((self.velocity is not None and rotation_angle_deg(self.velocity) > fast)
                 or (cur_T is not None and rotation_angle_deg(cur_T @ invert(last.T_cw)) > fast))
+
+    def _is_sharp(self, gray: NDArray[np.uint8]) -> bool:
+        """This frame's sharpness against the sharpest of the last tracked frames."""
+        s = sharpness(gray)
+        recent = self._recent_sharpness
+        sharp = not recent or s >= self.cfg.depth_odometry_sharp_ratio * max(recent)
+        self._current_sharpness = s
+        return sharp
 
     def _odometry_guess(self, cur_t: float) -> NDArray[np.float64]:
         """The frame's pose to align from: the motion model's rotation, the camera centre
@@ -277,9 +297,9 @@ class Tracking:
         cur.clear_points()
         cur.outlier[:] = False
         cur.T_cw = T_odo.copy()
-        # A frame turning slowly is sharp: its features are believed once they find enough
+        # A frame turning slowly is sharp: its features are believed once they track
         # (a long aligned stretch drifts from the map by more than max_deg).
-        sharp = rotation_angle_deg(rel) <= self.cfg.depth_odometry_turn_deg
+        sharp = self._sharp or rotation_angle_deg(rel) <= self.cfg.depth_odometry_turn_deg
         if self._track_local_map(cur) and (sharp or rotation_angle_deg(cur.T_cw @ invert(T_odo)) <= max_deg):
             return True, False
         # Blurred: keep the aligned pose and the matches it explains (the next frame's motion
