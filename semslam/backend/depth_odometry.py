@@ -20,6 +20,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+#: The most an alignment may turn the guess (degrees): it converges from up to 4-6 deg off,
+#: and a larger change is a false minimum (a threaded walking_hard run without this bound
+#: flipped to poses 170 deg off).
+MAX_CORRECTION_DEG = 6.0
 #: Methods by name: photometric (``rgbd``), depth ICP (``icp``) or both (``rgbd_icp``).
 METHODS = ("rgbd", "icp", "rgbd_icp")
 
@@ -65,7 +69,8 @@ class RotationOdometry:
     def relative(self, gray_prev: NDArray[np.uint8], depth_prev: NDArray[np.float32],
                  gray_cur: NDArray[np.uint8], depth_cur: NDArray[np.float32],
                  init_prev_cur: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """``T_prev_cur`` from ``init_prev_cur``, or None where the alignment fails."""
+        """``T_prev_cur`` from ``init_prev_cur``, or None where the alignment fails or turns
+        the guess by more than ``MAX_CORRECTION_DEG``."""
         d_prev = np.ascontiguousarray(depth_prev, np.float32)
         d_cur = np.ascontiguousarray(depth_cur, np.float32)
         ok, Rt = self._odo.compute(gray_cur, d_cur, None, gray_prev, d_prev, None,
@@ -73,5 +78,7 @@ class RotationOdometry:
         if not ok or Rt is None or not np.all(np.isfinite(Rt)):
             return None
         T = np.asarray(Rt, np.float64).copy()
+        if rotation_angle_deg(np.linalg.inv(init_prev_cur) @ T) > MAX_CORRECTION_DEG:
+            return None
         T[:3, 3] = init_prev_cur[:3, 3]  # only the rotation was free; keep the guess's translation exactly
         return T
