@@ -91,6 +91,22 @@ def run_overrides(set_: list[str], depth_scale: float | None, sequential: bool, 
     return flags
 
 
+def rolling_shutter_flags(sequence: Path, set_: list[str]) -> tuple[list[str], str | None]:
+    """The sequence's rolling-shutter readout (its ``sequence.json``) as a ``--set`` override,
+    unless the user's ``--set slam.rolling_shutter_ms=...`` says otherwise; and a line saying
+    which was used (None when neither says anything)."""
+    from semslam.io.calibration import rolling_shutter_ms_from_folder
+
+    user = [f.split("=", 1)[1] for f in set_ if f.replace(" ", "").startswith("slam.rolling_shutter_ms=")]
+    stated = rolling_shutter_ms_from_folder(sequence) if sequence.is_dir() else None
+    if user:
+        note = f" (the sequence states {stated:g} ms)" if stated is not None else ""
+        return [], f"rolling shutter: {user[-1]} ms readout from --set{note}"
+    if stated is None:
+        return [], None
+    return [f"slam.rolling_shutter_ms={stated}"], f"rolling shutter: {stated:g} ms readout from {sequence / 'sequence.json'}"
+
+
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
@@ -123,8 +139,11 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run SLAM on a sequence; write trajectory.txt, stats.json, report.html and the maps (OUT/map/)."""
         _setup_logging(verbose)
-        cfg = load_config(preset, run_overrides(set_, depth_scale, sequential, localization_only, realtime,
-                                                maps, save_inpainted))
+        rs_flags, rs_note = rolling_shutter_flags(sequence, set_)
+        cfg = load_config(preset, rs_flags + run_overrides(set_, depth_scale, sequential, localization_only, realtime,
+                                                           maps, save_inpainted))
+        if rs_note is not None:
+            console.print(rs_note)
         seq = open_sequence(sequence, camera=camera, kind=kind_for_sensor(cfg.sensor), depth_scale=cfg.depth_scale)
         with stop_on_signals():  # Ctrl-C / SIGTERM: stop after this frame, write what exists, exit 130
             result = run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,

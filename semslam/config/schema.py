@@ -148,6 +148,27 @@ class SlamConfig:
     # its own pose, backend/rolling_shutter_pose.py), after the first match and again after
     # the local map.
     rolling_shutter_solve: bool = True
+    # Motion blur: a frame whose features track weakly (local-map inliers below
+    # depth_odometry_below, or none) or that turns faster than depth_odometry_turn_deg a
+    # frame (predicted or tracked) gets its rotation from dense alignment against the last
+    # frame (backend/depth_odometry.py: rgbd = photometric, icp = depth ICP, rgbd_icp = both;
+    # none = ORB-SLAM2), its camera centre moved on at the velocity of the last well-tracked
+    # frames. Features within depth_odometry_max_deg of it keep their pose (so a sharp
+    # sequence tracks as without it); else the local map is searched again from the aligned
+    # pose, and unless the frame is sharp (turning slower than depth_odometry_turn_deg) and
+    # tracks, or then agrees, it keeps the aligned pose and makes no keyframe unless it
+    # turns slower than depth_odometry_keyframe_deg a frame (a new, unmapped view).
+    depth_odometry: str = "none"
+    depth_odometry_below: int = 200
+    depth_odometry_turn_deg: float = 1.0
+    depth_odometry_max_deg: float = 0.3
+    depth_odometry_keyframe_deg: float = 1.0
+    # Optional (0 = off, as measured best on walking_hard): a frame whose sharpness (mean
+    # |Laplacian| / mean intensity) is at least this ratio of the sharpest of the last 10
+    # tracked frames is not aligned unless its features fail, and its re-searched features
+    # are believed. 0.6 keeps a rolling shutter without blur as it tracks without the
+    # alignment (whose rotation the skew biases), but breaks walking_hard (README).
+    depth_odometry_sharp_ratio: float = 0.0
     # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
     th_depth: float = 40.0
     # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).
@@ -194,6 +215,8 @@ class SlamConfig:
 
     def check(self) -> None:
         """Raise ConfigError on values the core cannot use (the config loader checks types only)."""
+        if self.depth_odometry not in ("none", "rgbd", "icp", "rgbd_icp"):
+            raise ConfigError(f"slam.depth_odometry: expected none, rgbd, icp or rgbd_icp, got {self.depth_odometry!r}")
         if not 0.0 <= self.yield_to_tracking_ms <= 1000.0:
             raise ConfigError(f"slam.yield_to_tracking_ms: expected 0 (never wait) to 1000 ms, "
                               f"got {self.yield_to_tracking_ms}")

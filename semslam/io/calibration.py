@@ -5,10 +5,14 @@
 3. the published calibration recognised from the folder name (TUM freiburg1/2/3,
    Bonn RGB-D Dynamic, ICL-NUIM);
 4. the Kinect defaults 525 525 319.5 239.5, with a warning.
+
+A rolling shutter's readout time is a camera value too: ``rolling_shutter_ms_from_folder``
+reads it from the folder's ``sequence.json`` (``semslam synth`` writes it there).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import re
@@ -105,3 +109,26 @@ def resolve_camera(folder: Path, camera_option: str | PinholeCamera | None = Non
         folder,
     )
     return camera_from_values(DEFAULT_CAMERA, "default Kinect intrinsics")
+
+
+def rolling_shutter_ms_from_folder(folder: Path) -> float | None:
+    """The rolling-shutter readout (ms, top row to bottom row) a sequence folder states:
+    ``rolling_shutter_ms`` at the top level of its ``sequence.json`` or under its ``config``
+    (where ``semslam synth`` writes its render settings); None where it states none."""
+    path = Path(folder) / "sequence.json"
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(path, f"not readable as JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        return None
+    value = doc.get("rolling_shutter_ms")
+    if value is None and isinstance(doc.get("config"), dict):
+        value = doc["config"].get("rolling_shutter_ms")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise DataError(path, f"rolling_shutter_ms: expected a number >= 0, got {value!r}")
+    return float(value)

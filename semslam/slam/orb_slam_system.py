@@ -233,6 +233,8 @@ class OrbSlamSystem:
             "loops": closer.stats["loops"],
             "loop_pairs": closer.loops,
             "relocalisations": self.tracking.n_relocalisations,
+            "depth_odometry_frames": self.tracking.n_depth_odometry_frames,
+            "depth_odometry_runs": self.tracking.n_depth_odometry_runs,
             "local_ba": mapper.stats["local_ba"],
             "local_ba_failed": mapper.stats["local_ba_failed"],
             "local_ba_ms_median": float(np.median(lba)) if lba else 0.0,

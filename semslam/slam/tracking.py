@@ -7,7 +7,7 @@ The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comm
 from __future__ import annotations
 
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from itertools import chain
 from typing import TYPE_CHECKING, Any
@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg, sharpness
 from semslam.backend.pose_only import optimize_pose
 from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
 from semslam.config import SystemConfig
@@ -41,6 +42,9 @@ if TYPE_CHECKING:
 BRIDGE_MAX_GAP_S = 0.5
 #: Matches the joint rolling-shutter fit uses at most (its cost grows with them).
 RS_SOLVE_MAX_POINTS = 200
+#: Well-tracked frames whose camera centres give the velocity a blurred frame's translation
+#: is carried on with (one frame's is centimetres off on a turn's first frames).
+CENTRE_VELOCITY_FRAMES = 10
 
 
 @dataclass(frozen=True)
@@ -102,6 +106,20 @@ class Tracking:
         self.atlas = atlas
         self.lost_since: float | None = None
         self.new_map_pending = False
+        # Motion blur (slam.depth_odometry): the last tracked frame's (index, gray, depth) to
+        # align the next against, and how many frames kept the aligned pose.
+        self.odometry = (RotationOdometry(camera.K, self.cfg.depth_odometry)
+                         if self.cfg.depth_odometry != "none" else None)
+        self._odo_prev: tuple[int, NDArray[np.uint8], NDArray[np.float32]] | None = None
+        self.n_depth_odometry_frames = 0
+        # (timestamp, camera centre) of the last frames the features tracked well, for the
+        # centre's velocity over them (``_odometry_guess``).
+        self._good_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
+        self.n_depth_odometry_runs = 0
+        # Sharpness (backend/depth_odometry.sharpness) of the last tracked frames, and this one's.
+        self._recent_sharpness: deque[float] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
+        self._sharp = False  # this frame is sharp (only with slam.depth_odometry_sharp_ratio > 0)
+        self._current_sharpness: float | None = None
 
     def start_lost_in(self, ref_kf: KeyFrame) -> None:
         """A loaded map: start lost (the camera is nowhere until it relocalises) with this
@@ -157,17 +175,30 @@ class Tracking:
                     if ok and self.cfg.rolling_shutter_solve:
                         self._refine_rolling_shutter(cur, depth)  # again, on the local map's matches
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
+                odo = False
+                if self.odometry is not None and self.cfg.depth_odometry_sharp_ratio > 0:
+                    self._sharp = self._is_sharp(frame.gray)
+                if self._odometry_due(ok, cur.T_cw, depth):
+                    t0 = time.perf_counter()
+                    ok, odo = self._track_with_odometry(cur, frame.gray, depth, ok)  # type: ignore[arg-type]
+                    timings["depth_odometry"] = (time.perf_counter() - t0) * 1e3
                 if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
                     t0 = time.perf_counter()
+                    T_odo = cur.T_cw.copy() if odo else None
                     dynamic = self._remove_moving(cur, depth, dynamic)
+                    if T_odo is not None:  # its refit on the few matches left would undo the alignment
+                        cur.T_cw = T_odo
+                        self._keep_matches_consistent(cur)
                     timings["multiview"] = (time.perf_counter() - t0) * 1e3
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
                     self.velocity = cur.T_cw @ invert(self.last.T_cw) if self.last is not None and self.last.T_cw is not None else None
                     self.velocity_dt = cur.timestamp - self.last.timestamp if self.last is not None else 0.0
+                    if self.odometry is not None and not odo and self.n_matches_inliers >= self.cfg.depth_odometry_below:
+                        self._good_centres.append((cur.timestamp, invert(cur.T_cw)[:3, 3]))
                     self._last_ok = LastTracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt,
                                                 self.map.active_map)
-                    if not self.cfg.localization_only and self._need_new_keyframe(cur):
+                    if not self.cfg.localization_only and self._keyframe_wanted(cur, odo):
                         t0 = time.perf_counter()
                         self._create_keyframe(cur)
                         timings["keyframe"] = (time.perf_counter() - t0) * 1e3
@@ -186,6 +217,11 @@ class Tracking:
             if self.state is TrackingState.OK:
                 self._record(cur)
             self.last = cur
+            if self.odometry is not None:
+                self._odo_prev = ((cur.index, frame.gray, depth) if self.state is TrackingState.OK and depth is not None
+                                  else None)
+                if self.state is TrackingState.OK and self._current_sharpness is not None:
+                    self._recent_sharpness.append(self._current_sharpness)
             n_inl = int(((cur.points.rows >= 0) & ~cur.outlier).sum())
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
@@ -195,6 +231,111 @@ class Tracking:
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
                            timings=timings)
+
+    # ------------------------------------------------------------------ motion blur
+    def _odometry_due(self, ok: bool, cur_T: NDArray[np.float64] | None, depth: NDArray[np.float32] | None) -> bool:
+        """Dense alignment for this frame: the option is on, the last frame was tracked and
+        its images are kept, and the features tracked weakly or not at all, or the camera
+        turns fast (predicted or tracked), which is where blur makes a few wrong matches
+        look like a good pose."""
+        last, prev = self.last, self._odo_prev
+        if (self.odometry is None or depth is None or self.state is not TrackingState.OK or last is None
+                or last.T_cw is None or prev is None or prev[0] != last.index):
+            return False
+        if not ok:
+            return True
+        if self._sharp:  # slam.depth_odometry_sharp_ratio > 0: features on a sharp image are
+            return False  # believed (a rolling shutter's skew biases the alignment, not them)
+        if self.n_matches_inliers < self.cfg.depth_odometry_below:
+            return True
+        fast = self.cfg.depth_odometry_turn_deg
+        return ((self.velocity is not None and rotation_angle_deg(self.velocity) > fast)
+                or (cur_T is not None and rotation_angle_deg(cur_T @ invert(last.T_cw)) > fast))
+
+    def _is_sharp(self, gray: NDArray[np.uint8]) -> bool:
+        """This frame's sharpness against the sharpest of the last tracked frames."""
+        s = sharpness(gray)
+        recent = self._recent_sharpness
+        sharp = not recent or s >= self.cfg.depth_odometry_sharp_ratio * max(recent)
+        self._current_sharpness = s
+        return sharp
+
+    def _odometry_guess(self, cur_t: float) -> NDArray[np.float64]:
+        """The frame's pose to align from: the motion model's rotation, the camera centre
+        moved on at the velocity of the last frames the features tracked well (a weak
+        frame's translation can be centimetres off, and the alignment keeps it)."""
+        last = self.last
+        assert last is not None and last.T_cw is not None
+        guess = self.velocity @ last.T_cw if self.velocity is not None else last.T_cw.copy()
+        c = invert(last.T_cw)[:3, 3]
+        good = self._good_centres
+        if len(good) >= 2 and good[-1][0] > good[0][0]:
+            v = (good[-1][1] - good[0][1]) / (good[-1][0] - good[0][0])
+            c = c + v * (cur_t - last.timestamp)
+        guess = guess.copy()
+        guess[:3, 3] = -guess[:3, :3] @ c
+        return guess
+
+    def _track_with_odometry(self, cur: FrameState, gray: NDArray[np.uint8], depth: NDArray[np.float32],
+                             ok: bool) -> tuple[bool, bool]:
+        """The frame's rotation aligned densely against the last frame (translation: see
+        ``_odometry_guess``). Features that agree with it keep their pose untouched; else the
+        local map is searched again from the aligned pose, and if the features still
+        disagree (or find too little) the frame keeps the aligned pose and the matches it
+        explains. ``(tracked, pose from the alignment)``."""
+        last, prev = self.last, self._odo_prev
+        assert self.odometry is not None and last is not None and last.T_cw is not None and prev is not None
+        guess = self._odometry_guess(cur.timestamp)
+        rel = self.odometry.relative(prev[1], prev[2], gray, depth, last.T_cw @ invert(guess))
+        if rel is None:
+            return ok, False
+        self.n_depth_odometry_runs += 1
+        T_odo = orthonormalize(invert(rel) @ last.T_cw)
+        max_deg = self.cfg.depth_odometry_max_deg
+        if ok and cur.T_cw is not None and rotation_angle_deg(cur.T_cw @ invert(T_odo)) <= max_deg:
+            return True, False
+        cur.clear_points()
+        cur.outlier[:] = False
+        cur.T_cw = T_odo.copy()
+        # A frame turning slowly is sharp: its features are believed once they track
+        # (a long aligned stretch drifts from the map by more than max_deg).
+        sharp = self._sharp or rotation_angle_deg(rel) <= self.cfg.depth_odometry_turn_deg
+        if self._track_local_map(cur) and (sharp or rotation_angle_deg(cur.T_cw @ invert(T_odo)) <= max_deg):
+            return True, False
+        # Blurred: keep the aligned pose and the matches it explains (the next frame's motion
+        # model searches around their points).
+        cur.T_cw = T_odo
+        self._keep_matches_consistent(cur)
+        self.n_depth_odometry_frames += 1
+        return True, True
+
+    def _keep_matches_consistent(self, cur: FrameState, th_px: float = 5.991 ** 0.5) -> None:
+        """Unmatch the keypoints whose map point projects farther than ``th_px`` (x the
+        level's scale) from them under the frame's pose."""
+        assert cur.T_cw is not None
+        idx = cur.matched_indices(self.map.store)
+        cur.outlier[:] = False
+        if len(idx) == 0:
+            self.n_matches_inliers = 0
+            return
+        uv, z = project(cur.T_cw, self.map.store.pos[cur.points.rows[idx]], self.camera.fx, self.camera.fy,
+                        self.camera.cx, self.camera.cy)
+        err = np.linalg.norm(uv - cur.xy[idx], axis=1)
+        bad = (z <= 0) | (err > th_px * self.pyr.scales[cur.keypoints.octave[idx]])
+        for i in idx[bad].tolist():
+            cur.points[i] = None
+        rows = cur.points.rows
+        rows = rows[rows >= 0]
+        self.n_matches_inliers = int((self.map.store.n_kf_obs[rows] > 0).sum())
+
+    def _keyframe_wanted(self, cur: FrameState, odo: bool) -> bool:
+        """ORB-SLAM2's decision; a frame posed by the alignment only while it turns slowly
+        (sharp but seeing little of the map: a new view), then also with few matches."""
+        if not odo:
+            return self._need_new_keyframe(cur)
+        if self.velocity is None or rotation_angle_deg(self.velocity) > self.cfg.depth_odometry_keyframe_deg:
+            return False
+        return self._need_new_keyframe(cur) or self.n_matches_inliers <= 15
 
     # ------------------------------------------------------------------ rolling shutter
     def _to_middle_row(self, cur: FrameState, velocity: NDArray[np.float64], dt: float,
