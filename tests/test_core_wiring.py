@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from semslam.cli.main import main
-from semslam.config import FeatureConfig, SemanticsConfig, load_config
+from semslam.config import DepthConfig, FeatureConfig, SemanticsConfig, load_config
 from semslam.core import protocols, registry
 from semslam.core.protocols import FramePacket, KeyframeSnapshot, TrackerInputs
 from semslam.core.types import Frame, TrackingState
@@ -45,7 +45,7 @@ def test_backends_implement_their_contracts(static_seq: Path) -> None:
     seq = open_sequence(static_seq)
     assert isinstance(seq, protocols.SequenceSource)
     assert isinstance(ImageFolderSequence(static_seq / "rgb"), protocols.SequenceSource)
-    assert isinstance(registry.create("depth_source", "sensor"), protocols.DepthSource)
+    assert isinstance(registry.create("depth_source", "sensor", DepthConfig()), protocols.DepthSource)
     assert isinstance(registry.create("map_builder", "keyframe_cloud"), protocols.MapBuilder)
     gt = registry.create("segmenter", "ground_truth", SemanticsConfig(backend="ground_truth"))
     assert isinstance(gt, protocols.Segmenter)

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from semslam.cli.main import main
-from semslam.config import SemanticsConfig
+from semslam.config import DepthConfig, SemanticsConfig, load_config
 from semslam.core import protocols, registry
 from semslam.core.labels import NYU40_CLASSES
 from semslam.errors import DataError
@@ -104,7 +104,7 @@ def test_train_and_eval_commands(seq: Path, tmp_path: Path) -> None:
 def test_depth_and_segmenter_share_one_inference(seq: Path, weights: Path,
                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(sdfcnn_backend, "DEFAULT_WEIGHTS", weights)
-    depth_source = registry.create("depth_source", "sdfcnn")
+    depth_source = registry.create("depth_source", "sdfcnn", DepthConfig(source="sdfcnn"))
     segmenter = registry.create("segmenter", "sdfcnn", SemanticsConfig(backend="sdfcnn"))
     assert isinstance(depth_source, protocols.DepthSource) and isinstance(segmenter, protocols.Segmenter)
     assert depth_source.predictor is segmenter.predictor is shared_predictor(weights)
@@ -121,6 +121,24 @@ def test_depth_and_segmenter_share_one_inference(seq: Path, weights: Path,
     other = TumRgbdSequence(seq).load(3)
     depth_source.depth(other)
     assert segmenter.predictor.inferences == runs + 2
+
+
+def test_depth_source_honours_weights(weights: Path, tmp_path: Path) -> None:
+    """depth.weights picks the depth network; empty, it follows semantics.weights when the
+    segmenter is sdfcnn too (one predictor, one forward pass), else the shipped weights."""
+    def depth_predictor(overrides: list[str]) -> SdfcnnPredictor:
+        cfg = load_config("sdf", overrides)
+        source = registry.create("depth_source", cfg.depth.source, cfg.depth.resolved(cfg.semantics))
+        return source.predictor
+
+    assert depth_predictor([f"depth.weights={weights}"]) is shared_predictor(weights)
+    assert depth_predictor([f"semantics.weights={weights}"]) is shared_predictor(weights)
+    assert depth_predictor([]) is shared_predictor()  # the shipped weights
+    assert shared_predictor().weights.name == "sdfcnn.onnx"
+    other = load_config("sdf", [f"semantics.weights={weights}", "semantics.backend=ground_truth"])
+    assert other.depth.resolved(other.semantics).weights == ""  # another segmenter's weights are not depth's
+    with pytest.raises(DataError, match="weights not found"):
+        depth_predictor([f"depth.weights={tmp_path / 'none.pt'}"])
 
 
 def test_missing_weights_is_one_clear_error(tmp_path: Path) -> None:

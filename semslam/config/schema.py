@@ -6,7 +6,7 @@ for the ORB-SLAM core, ...), never the whole tree, unless they wire other compon
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from semslam.core.labels import DDL_SLAM_DYNAMIC_CLASSES
 from semslam.errors import ConfigError
@@ -323,6 +323,16 @@ class DepthConfig:
     """Where metric depth comes from (a registry name): the sensor's depth image for RGB-D."""
 
     source: str = "sensor"
+    # Weights file of a depth network (sdfcnn: an .onnx from `semslam export-onnx` or a .pt
+    # checkpoint). Empty: semantics.weights when the segmenter is the same network
+    # (semantics.backend == source, one forward pass gives both), else the shipped weights.
+    weights: str = ""
+
+    def resolved(self, semantics: SemanticsConfig) -> DepthConfig:
+        """This config with ``weights`` filled in from the segmenter's when it is the same network."""
+        if self.weights or semantics.backend != self.source:
+            return self
+        return replace(self, weights=semantics.weights)
 
 
 @dataclass

@@ -14,6 +14,7 @@ from typing import Any
 from semslam.errors import ConfigError
 
 #: kind -> backend name -> "module:factory". The config key that selects each kind is in KEYS.
+#: Segmenter factories take the SemanticsConfig, depth sources the DepthConfig (``weights`` resolved).
 PLUGINS: dict[str, dict[str, str]] = {
     "tracker": {
         "frame_to_keyframe": "semslam.slam.frame_to_keyframe:create_tracker",
@@ -42,10 +43,10 @@ PLUGINS: dict[str, dict[str, str]] = {
         "sdfcnn": "semslam.semantics.sdfcnn_backend:create_segmenter",
     },
     "depth_source": {
-        "sensor": "semslam.io.depth:SensorDepth",
+        "sensor": "semslam.io.depth:create_sensor",
         "sdfcnn": "semslam.semantics.sdfcnn_backend:create_depth",
-        "ground_truth_depth": "semslam.io.standin_depth:GroundTruthDepth",
-        "constant_depth": "semslam.io.standin_depth:ConstantDepth",
+        "ground_truth_depth": "semslam.io.standin_depth:create_ground_truth",
+        "constant_depth": "semslam.io.standin_depth:create_constant",
     },
     "map_builder": {
         "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",

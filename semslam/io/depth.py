@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.config import DepthConfig
 from semslam.core.types import Frame
 
 
@@ -17,3 +18,8 @@ class SensorDepth:
 
     def depth(self, frame: Frame) -> NDArray[np.float32] | None:
         return frame.depth
+
+
+def create_sensor(cfg: DepthConfig) -> SensorDepth:
+    """Registry factory of depth source ``sensor``."""
+    return SensorDepth()

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.config import DepthConfig
 from semslam.core.types import Frame
 from semslam.errors import DataError
 from semslam.io.images import read_depth
@@ -78,3 +79,13 @@ class ConstantDepth:
 
     def depth(self, frame: Frame) -> NDArray[np.float32]:
         return np.full(frame.rgb.shape[:2], self.metres, np.float32)
+
+
+def create_ground_truth(cfg: DepthConfig) -> GroundTruthDepth:
+    """Registry factory of depth source ``ground_truth_depth``."""
+    return GroundTruthDepth()
+
+
+def create_constant(cfg: DepthConfig) -> ConstantDepth:
+    """Registry factory of depth source ``constant_depth``."""
+    return ConstantDepth()

@@ -11,8 +11,9 @@ of the image. Concurrent requests for the same image wait for the one inference.
 The network output stays at its own resolution (1/4 of Layer 0) in the cache; depth is
 upsampled bilinearly to the frame's size and labels by an exact bilinear-logits argmax
 (``nets.outputs.upsampled_argmax``) when first asked for. Weights are
-``semslam/data/sdfcnn.onnx`` (run by ONNX Runtime, no torch) unless ``semantics.weights``
-names others (an ``.onnx`` from ``semslam export-onnx``, or a ``.pt`` checkpoint, which
+``semslam/data/sdfcnn.onnx`` (run by ONNX Runtime, no torch) unless ``depth.weights`` /
+``semantics.weights`` name others (``depth.weights`` empty follows ``semantics.weights``
+when both backends are sdfcnn, so one predictor serves both) (an ``.onnx`` from ``semslam export-onnx``, or a ``.pt`` checkpoint, which
 torch runs); the file must exist when the backend is built (one clear error before the
 run starts) and is loaded at the first frame. The backend lives here, above ``nets``, so it needs no change to the import
 layers: the System finds depth sources through the registry by name.
@@ -31,7 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.config import SemanticsConfig
+from semslam.config import DepthConfig, SemanticsConfig
 from semslam.core.labels import NYU40_CLASSES
 from semslam.core.types import Frame, LabelMap
 from semslam.errors import DataError
@@ -177,9 +178,10 @@ class SdfcnnSegmenter:
         """Nothing to free: the shared predictor's session is kept for the other backend."""
 
 
-def create_depth() -> SdfcnnDepth:
-    """Registry factory of depth source ``sdfcnn`` (the shipped weights)."""
-    return SdfcnnDepth(shared_predictor())
+def create_depth(cfg: DepthConfig) -> SdfcnnDepth:
+    """Registry factory of depth source ``sdfcnn`` (``depth.weights``, resolved by the System to
+    ``semantics.weights`` when the segmenter is sdfcnn too, or the shipped weights)."""
+    return SdfcnnDepth(shared_predictor(cfg.weights or None))
 
 
 def create_segmenter(cfg: SemanticsConfig) -> SdfcnnSegmenter:

@@ -35,7 +35,7 @@ class System:
         self.jit_warmup_s = warm_up_kernels()
         self.config = config
         self.camera = camera
-        depth: DepthSource = registry.create("depth_source", config.depth.source)
+        depth: DepthSource = registry.create("depth_source", config.depth.source, config.depth.resolved(config.semantics))
         builders: list[MapBuilder] = []
         if config.maps.builders:  # inpainting + every builder in the maps' own worker
             from semslam.reconstruction.mapping_worker import MappingWorker
