@@ -53,9 +53,9 @@ def test_a_longer_cached_render_is_reused(long_run: Any, tmp_path: Path, monkeyp
     assert long_run.cached_render(tmp_path, 3000) == (seq, 6000)
     rendered: list[int] = []
 
-    def fake_render(cfg: Any, out: Path, progress: bool = False) -> Path:
+    def fake_render(cfg: Any, out: Path, progress: bool = False, resume: bool = False) -> Path:
+        assert resume and (out / "sequence.json").is_file()  # the shorter render, to be extended
         rendered.append(cfg.frames)
-        out.mkdir()
         (out / "sequence.json").write_text(json.dumps({"config": {"frames": cfg.frames}}))
         return out
 
