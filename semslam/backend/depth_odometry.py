@@ -20,13 +20,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.config.schema import DEPTH_ODOMETRY_METHODS as METHODS
+from semslam.geometry.se3 import rotation_angle
+
 #: The most an alignment may turn the guess (degrees): it converges from up to 4-6 deg off,
 #: and a larger change is a false minimum (a threaded walking_hard run without this bound
 #: flipped to poses 170 deg off).
 MAX_CORRECTION_DEG = 6.0
-#: Methods by name: photometric (``rgbd``), depth ICP (``icp``) or both (``rgbd_icp``).
-METHODS = ("rgbd", "icp", "rgbd_icp")
-
 _CREATE = {
     "rgbd": lambda: cv2.rgbd.RgbdOdometry_create,
     "icp": lambda: cv2.rgbd.ICPOdometry_create,
@@ -36,8 +36,7 @@ _CREATE = {
 
 def rotation_angle_deg(T: NDArray[np.float64]) -> float:
     """The rotation angle of a transform (degrees)."""
-    c = (np.trace(T[:3, :3]) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    return float(np.degrees(rotation_angle(T[:3, :3])))
 
 
 def sharpness(gray: NDArray[np.uint8]) -> float:

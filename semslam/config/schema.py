@@ -11,6 +11,10 @@ from dataclasses import dataclass, field, replace
 from semslam.core.labels import DDL_SLAM_DYNAMIC_CLASSES
 from semslam.errors import ConfigError
 
+#: slam.depth_odometry's methods (backend/depth_odometry.py): photometric (``rgbd``), depth
+#: ICP (``icp``) or both (``rgbd_icp``).
+DEPTH_ODOMETRY_METHODS = ("rgbd", "icp", "rgbd_icp")
+
 #: Sensors the schema knows; a tracker refuses the ones it cannot run yet.
 SENSORS = ("rgbd", "mono")
 #: Values of features.matcher.
@@ -215,8 +219,9 @@ class SlamConfig:
 
     def check(self) -> None:
         """Raise ConfigError on values the core cannot use (the config loader checks types only)."""
-        if self.depth_odometry not in ("none", "rgbd", "icp", "rgbd_icp"):
-            raise ConfigError(f"slam.depth_odometry: expected none, rgbd, icp or rgbd_icp, got {self.depth_odometry!r}")
+        if self.depth_odometry != "none" and self.depth_odometry not in DEPTH_ODOMETRY_METHODS:
+            raise ConfigError(f"slam.depth_odometry: expected none, {', '.join(DEPTH_ODOMETRY_METHODS)}, "
+                              f"got {self.depth_odometry!r}")
         if not 0.0 <= self.yield_to_tracking_ms <= 1000.0:
             raise ConfigError(f"slam.yield_to_tracking_ms: expected 0 (never wait) to 1000 ms, "
                               f"got {self.yield_to_tracking_ms}")
