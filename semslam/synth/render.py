@@ -44,10 +44,10 @@ from semslam.synth.scene import LABEL_PERSON, Box, mover_box
 from semslam.synth.sequences import SynthConfig
 from semslam.synth.static_geometry import MOVERS_FILE, SCENE_FILE, movers_json, scene_json
 
-#: SynthConfig fields added after renders were first cached (absent there = default).
 #: Written before a render's first frame and removed after its ``sequence.json``: what an
 #: interrupted render was rendering, for ``render_sequence(resume=True)``.
 IN_PROGRESS = ".rendering.json"
+#: SynthConfig fields added after renders were first cached (absent there = default).
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
                  "blackout_start_s", "blackout_s", "layout")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
@@ -242,7 +242,6 @@ def _stamps(cfg: SynthConfig) -> tuple[list[str], list[str]]:
     return [writer.stamp(v) for v in t], [writer.stamp(v) for v in t + jitter]
 
 
-
 def _first_to_render(out: Path, cfg: SynthConfig, rgb_stamps: list[str], depth_stamps: list[str],
                      workers: int) -> int:
     """Where a resumed rendering starts: ``workers`` frames before the first frame with a file
@@ -251,7 +250,7 @@ def _first_to_render(out: Path, cfg: SynthConfig, rgb_stamps: list[str], depth_s
     rendering of the same configuration (finished: ``sequence.json``; interrupted: the
     :data:`IN_PROGRESS` file written before the first frame)."""
     have = saved_config(out, IN_PROGRESS) or saved_config(out)
-    wanted = json.loads(json.dumps(asdict(cfg)))
+    wanted = _as_saved(cfg)
     if have is None or {k: v for k, v in have.items() if k != "frames"} != {
             k: v for k, v in wanted.items() if k != "frames"}:
         return 0
@@ -357,6 +356,11 @@ def render_sequence(
     return out
 
 
+def _as_saved(cfg: SynthConfig) -> dict[str, Any]:
+    """``cfg`` as ``sequence.json`` holds it after a JSON round trip (tuples as lists)."""
+    return json.loads(json.dumps(asdict(cfg)))
+
+
 def saved_config(seq_dir: Path, name: str = "sequence.json") -> dict[str, Any] | None:
     """The configuration a render in ``seq_dir`` was made with (``None`` if unreadable), with
     fields added to SynthConfig later filled in: absent from older renders, at their default
@@ -368,7 +372,7 @@ def saved_config(seq_dir: Path, name: str = "sequence.json") -> dict[str, Any] |
     have = saved.get("config", saved) if isinstance(saved, dict) else None
     if not isinstance(have, dict):
         return None
-    defaults = json.loads(json.dumps(asdict(SynthConfig())))
+    defaults = _as_saved(SynthConfig())
     return {**{k: v for k, v in defaults.items() if k not in have and k in _ADDED_FIELDS}, **have}
 
 
@@ -377,7 +381,7 @@ def needs_render(seq_dir: Path, cfg: SynthConfig) -> bool:
     needed = ("groundtruth.txt", SCENE_FILE, MOVERS_FILE)  # no scene.json: labels before NYU-40
     if not all((seq_dir / f).is_file() for f in needed):
         return True
-    return saved_config(seq_dir) != json.loads(json.dumps(asdict(cfg)))
+    return saved_config(seq_dir) != _as_saved(cfg)
 
 
 def ensure_rendered(cfg: SynthConfig, seq_dir: str | Path, progress: bool = False) -> bool:
