@@ -1,8 +1,8 @@
 """SDF-SLAM's FPFDCNN (``nets/fpfdcnn.py``) as an extractor: float32 256-d descriptors
 compared by L2, one pyramid level.
 
-Keypoints: the network's per-pixel probability map, local maxima in a 9x9 window
-(``NMS_RADIUS`` = 4) above ``THRESHOLD``, outside the mask (0 = forbidden, the dynamic
+Keypoints: the network's per-pixel probability map, local maxima in a 5x5 window
+(``nets.outputs.NMS_RADIUS`` = 2, measured there) above ``THRESHOLD``, outside the mask (0 = forbidden, the dynamic
 mask tracking passes), the ``n_features`` most probable first. The network sees the
 whole image once (no pyramid: it was trained at one scale), so the spec has one level;
 ``scale_factor`` 1.2 only gives the core's level tables their usual meaning (unused with
@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from semslam.config import FeatureConfig
 from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
 from semslam.features.inputs import check_extractor_inputs
+from semslam.nets.outputs import NMS_RADIUS
 
 if TYPE_CHECKING:
     from semslam.nets.onnx_runtime import Net
@@ -45,7 +46,6 @@ __all__ = ["DEFAULT_WEIGHTS", "FpfdcnnExtractor", "create_extractor"]
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "fpfdcnn.onnx"
 DIM = 256
 THRESHOLD = 0.015  # keypoint probability floor
-NMS_RADIUS = 4
 #: A keypoint needs image structure: the strongest intensity gradient (Sobel, grey levels per
 #: pixel) within 2 px must reach this. The shipped detector's probabilities do not separate
 #: texture from none (a black frame gave 1000 points above THRESHOLD), as FAST's threshold does.

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from torch import nn
 
 from semslam.errors import DataError
-from semslam.nets.outputs import CELL, nms_points, select_points  # torch-free, shared with inference
+from semslam.nets.outputs import CELL, NMS_RADIUS, nms_points, select_points  # torch-free, shared with inference
 
 __all__ = ["CELL", "DESC_DIM", "FORMAT", "FPFDCNN", "load_fpfdcnn", "nms_points", "sample_descriptors",
            "save_fpfdcnn", "select_points"]
@@ -90,7 +90,7 @@ class FPFDCNN(nn.Module):
 
     @torch.inference_mode()
     def extract(self, gray: NDArray[np.uint8], n_points: int = 500, threshold: float = 0.015,
-                nms_radius: int = 4, mask: NDArray[np.uint8] | None = None) -> NDArray[np.float32]:
+                nms_radius: int = NMS_RADIUS, mask: NDArray[np.uint8] | None = None) -> NDArray[np.float32]:
         """Table 12's output for one grey image: (N, 258) rows (x, y, descriptor) of the
         ``n_points`` most probable points after NMS; ``mask`` (0 = forbidden) as OpenCV's."""
         prob, coarse = self.forward(to_tensor(gray))
