@@ -93,3 +93,23 @@ def test_no_keypoints_on_an_image_without_structure() -> None:
     textured = rng.integers(0, 255, (96, 128), dtype=np.uint8)
     assert (structure_mask(textured) > 0).mean() > 0.9
     assert len(ex.extract(textured)) > 50
+
+
+def test_init_continues_from_a_checkpoint_and_refuses_another_width(tmp_path: Path):
+    """``--init``: the run starts from the checkpoint's weights (with lr 0 it writes them back
+    unchanged, float16 round trip), records where they came from, and a width other than
+    the checkpoint's is one clear error."""
+    write_plane_sequence(tmp_path / "plane", [0.0, 0.03, 0.06, 0.09])
+    base = ["train", "fpfdcnn", "--data", str(tmp_path / "plane"), "--width", "0.125", "--steps", "3",
+            "--batch", "1", "--crop", "64x48", "--gaps", "1", "--blur-p", "0", "-q"]
+    first, second = tmp_path / "a.pt", tmp_path / "b.pt"
+    assert main([*base, "--out", str(first), "--lr", "3e-3"]) == 0
+    assert main([*base, "--out", str(second), "--lr", "0", "--init", str(first)]) == 0
+    a, meta_a = load_fpfdcnn(first)
+    b, meta_b = load_fpfdcnn(second)
+    for (name, wa), wb in zip(a.state_dict().items(), b.state_dict().values()):
+        if wa.is_floating_point():
+            assert torch.equal(wa, wb), name
+    assert meta_b["init"]["path"] == str(first) and meta_b["init"]["command"] == meta_a["command"]
+    assert "--init" in meta_b["command"]
+    assert main([*base, "--out", str(tmp_path / "c.pt"), "--width", "0.25", "--init", str(first)]) == 2

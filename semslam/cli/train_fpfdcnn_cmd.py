@@ -44,6 +44,8 @@ def fpfdcnn_command(
     pos_weight: float = typer.Option(20.0, "--pos-weight", min=0.0, help="Weight of the BCE's positive term."),
     seed: int = typer.Option(0, "--seed", min=0),
     threads: int = typer.Option(1, "--threads", min=0, help="Torch threads (0 = torch's default)."),
+    init: Path | None = typer.Option(None, "--init", help="Continue from this checkpoint (.pt, same --width) "
+                                                          "instead of random weights."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress messages."),
 ) -> None:
     """Train FPFDCNN (SDF-SLAM): BCE detector on Harris corners, hinge descriptor loss."""
@@ -59,12 +61,12 @@ def fpfdcnn_command(
     cfg = FPTrainConfig(out=out, data=list(data), val=list(val), width=width, steps=steps, minutes=minutes,
                         batch=batch, crop=(w, h), gaps=_ints(gaps, "--gaps"), blur_p=blur_p, lr=lr, seed=seed,
                         target=target, pos_weight=pos_weight,
-                        threads=threads)
+                        threads=threads, init=init)
     args = [x for d in data for x in ("--data", str(d))] + [x for v in val for x in ("--val", str(v))]
     args += ["--out", str(out), "--width", str(width), "--steps", str(steps), "--minutes", str(minutes),
              "--batch", str(batch), "--crop", crop, "--gaps", gaps, "--blur-p", str(blur_p), "--lr", str(lr),
              "--target", target, "--pos-weight", str(pos_weight),
-             "--seed", str(seed), "--threads", str(threads)]
+             "--seed", str(seed), "--threads", str(threads)] + (["--init", str(init)] if init is not None else [])
     cfg.command = shlex.join(["semslam", "train", "fpfdcnn", *args])
     say = (lambda msg: None) if quiet else (lambda msg: typer.echo(msg, err=True))
     meta = train(cfg, say, RangeMatcher().match)

@@ -41,7 +41,7 @@ import torch.nn.functional as F
 from semslam.errors import ConfigError
 from semslam.eval.feature_eval import correct_matches
 from semslam.nets.fp_dataset import FPSequence, blur, harris_corners, transfer_corners
-from semslam.nets.fpfdcnn import FPFDCNN, count_parameters, sample_descriptors, save_fpfdcnn
+from semslam.nets.fpfdcnn import FPFDCNN, count_parameters, load_fpfdcnn, sample_descriptors, save_fpfdcnn
 
 POS_MARGIN, NEG_MARGIN, NEG_MIN_PX = 1.0, 0.2, 8.0
 
@@ -68,6 +68,7 @@ class FPTrainConfig:
     target: str = "corners"  # "corners" (Gaussian bumps) or "harris" (the dense Harris response)
     seed: int = 0
     threads: int = 1
+    init: Path | None = None  # continue from these weights (their width) instead of random ones
     command: str = ""
 
 
@@ -190,7 +191,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
     t0 = time.perf_counter()
     data = FPTrainData(cfg.data, cfg.gaps, cfg.max_corners, cfg.min_distance, cfg.heat_sigma, cfg.target)
     say(f"{len(data.gray)} frames, {len(data.pairs)} pairs in {time.perf_counter() - t0:.0f} s")
-    model = FPFDCNN(cfg.width)
+    model, init_meta = _initial_model(cfg)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     history: list[dict[str, float]] = []
     t_start = time.perf_counter()
@@ -227,6 +228,10 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
         "losses": "detector: weighted BCE on Harris corners; descriptor: SuperPoint hinge (1 / 0.2)",
         "full_width_parameters": count_parameters(FPFDCNN(1.0)),
     }
+    if init_meta is not None:  # how the starting weights were made, so the chain is reproducible
+        meta["init"] = {"path": str(cfg.init), "command": init_meta.get("command", ""),
+                        "steps": init_meta.get("steps"), "train_seconds": init_meta.get("train_seconds"),
+                        "init": init_meta.get("init")}
     if cfg.val:
         meta["val"] = validate(model, cfg, match)
         say(f"validation: {meta['val']}")
@@ -235,6 +240,18 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
 
 
 @torch.no_grad()
+def _initial_model(cfg: FPTrainConfig) -> tuple[FPFDCNN, dict[str, Any] | None]:
+    """Random weights of ``cfg.width``, or ``cfg.init``'s weights (float16 checkpoints come
+    back as float32) with their metadata; a width other than the checkpoint's is refused
+    rather than silently changed."""
+    if cfg.init is None:
+        return FPFDCNN(cfg.width), None
+    model, meta = load_fpfdcnn(cfg.init)
+    if abs(model.width - cfg.width) > 1e-9:
+        raise ConfigError(f"train fpfdcnn: --init {cfg.init} has width {model.width}, --width is {cfg.width}")
+    return model.train(), meta
+
+
 def validate(model: FPFDCNN, cfg: FPTrainConfig, match: MatchFn | None, n_batches: int = 10) -> dict[str, Any]:
     """Losses on held-out pairs (fixed seed) and Table 6's correct-match share of FPFDCNN
     (500 points) + range matcher on the held-out folders' clear and blurred pairs (gap 3)."""
