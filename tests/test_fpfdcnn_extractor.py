@@ -38,6 +38,18 @@ def test_backend_is_registered_with_a_float_one_level_spec():
     assert ex.weights == DEFAULT_WEIGHTS and ex._model is None  # nothing loaded yet
 
 
+def test_features_weights_reach_the_extractor_and_only_fpfdcnn_takes_them(tiny_weights: Path):
+    """``--set features.weights=my.pt`` runs other FPFDCNN weights; set for an extractor
+    without weights it is refused rather than ignored."""
+    from semslam.errors import ConfigError
+
+    ex = create_extractor(FeatureConfig(extractor="fpfdcnn", n_features=50, weights=str(tiny_weights)))
+    assert ex.weights == tiny_weights and len(ex.extract(np.full((64, 96), 0, np.uint8))) == 0
+    assert ex.meta["command"] == "test"  # the tiny checkpoint's, not the shipped one's
+    with pytest.raises(ConfigError, match="features.weights: only the fpfdcnn extractor"):
+        FeatureConfig(extractor="orb_opencv", weights=str(tiny_weights)).check()
+
+
 def test_missing_weights_are_one_clear_error(tmp_path: Path):
     ex = FpfdcnnExtractor(weights=tmp_path / "none.pt")
     with pytest.raises(DataError, match=r"none\.pt: FPFDCNN weights not found"):

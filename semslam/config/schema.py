@@ -34,11 +34,17 @@ class FeatureConfig:
     # Frame-to-frame matcher: "default" (the descriptor kind's matcher) or "range"
     # (SDF-SLAM's eq. 8 window matcher, float descriptors; features.range_matcher).
     matcher: str = "default"
+    # Weights of a learned extractor we train (fpfdcnn: a .pt checkpoint of `semslam train
+    # fpfdcnn` or an .onnx of `semslam export-onnx`); empty = the shipped ones.
+    weights: str = ""
 
     def check(self) -> None:
-        """Raise ConfigError on a matcher name no tracker knows."""
+        """Raise ConfigError on a matcher name no tracker knows, or weights for an extractor
+        that takes none (they would be silently ignored)."""
         if self.matcher not in FEATURE_MATCHERS:
             raise ConfigError(f"features.matcher: unknown matcher {self.matcher!r} (known: {', '.join(FEATURE_MATCHERS)})")
+        if self.weights and self.extractor != "fpfdcnn":
+            raise ConfigError(f"features.weights: only the fpfdcnn extractor takes weights, not {self.extractor!r}")
 
 
 @dataclass

@@ -115,5 +115,5 @@ def structure_mask(gray: NDArray[np.uint8], min_gradient: float = MIN_GRADIENT) 
 
 def create_extractor(cfg: FeatureConfig, image_size: tuple[int, int] | None = None) -> FpfdcnnExtractor:
     """The registry's factory (``features.extractor: fpfdcnn``): ``cfg.n_features`` points
-    with the shipped weights; ORB's pyramid and FAST settings do not apply."""
-    return FpfdcnnExtractor(cfg.n_features)
+    with ``cfg.weights`` (empty: the shipped ones); ORB's pyramid and FAST settings do not apply."""
+    return FpfdcnnExtractor(cfg.n_features, cfg.weights or None)
