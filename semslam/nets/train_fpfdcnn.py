@@ -239,7 +239,6 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
     return meta
 
 
-@torch.no_grad()
 def _initial_model(cfg: FPTrainConfig) -> tuple[FPFDCNN, dict[str, Any] | None]:
     """Random weights of ``cfg.width``, or ``cfg.init``'s weights (float16 checkpoints come
     back as float32) with their metadata; a width other than the checkpoint's is refused
@@ -252,6 +251,7 @@ def _initial_model(cfg: FPTrainConfig) -> tuple[FPFDCNN, dict[str, Any] | None]:
     return model.train(), meta
 
 
+@torch.no_grad()
 def validate(model: FPFDCNN, cfg: FPTrainConfig, match: MatchFn | None, n_batches: int = 10) -> dict[str, Any]:
     """Losses on held-out pairs (fixed seed) and Table 6's correct-match share of FPFDCNN
     (500 points) + range matcher on the held-out folders' clear and blurred pairs (gap 3)."""
