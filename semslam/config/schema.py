@@ -179,6 +179,17 @@ class SlamConfig:
     # are believed. 0.6 keeps a rolling shutter without blur as it tracks without the
     # alignment (whose rotation the skew biases), but breaks walking_hard (README).
     depth_odometry_sharp_ratio: float = 0.0
+    # Motion blur without dense alignment: a frame whose sharpness is below
+    # blur_coast_sharp_ratio x the sharpest of the last 10 tracked frames while the camera
+    # turns faster than blur_coast_turn_deg a frame (predicted or tracked) keeps its camera
+    # centre on the motion of the last steady frames and takes only its rotation from its
+    # matches (geometry/rotation_about_centre.py: on a blurred frame a 6-DoF fit slides
+    # along a far wall). It is not lost and makes no keyframe (its keypoints, smeared along
+    # the streak, would put points centimetres off), for at most blur_coast_max_frames in a
+    # row. 0 = off (ORB-SLAM2).
+    blur_coast_sharp_ratio: float = 0.0
+    blur_coast_turn_deg: float = 1.0
+    blur_coast_max_frames: int = 15
     # Close/far depth threshold in baselines (ThDepth = 40): close if z < th_depth * bf / fx.
     th_depth: float = 40.0
     # Keyframe insertion: at most every max_frames frames without one (ORB-SLAM: fps).

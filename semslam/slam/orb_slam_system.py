@@ -234,6 +234,7 @@ class OrbSlamSystem:
             "loop_pairs": closer.loops,
             "relocalisations": self.tracking.n_relocalisations,
             "depth_odometry_frames": self.tracking.n_depth_odometry_frames,
+            "coasted_frames": self.tracking.n_coasted_frames,
             "depth_odometry_runs": self.tracking.n_depth_odometry_runs,
             "local_ba": mapper.stats["local_ba"],
             "local_ba_failed": mapper.stats["local_ba_failed"],

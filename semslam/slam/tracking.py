@@ -17,6 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg, sharpness
+from semslam.backend.shift_rotation import ShiftRotation, small_image
+from semslam.geometry.rotation_about_centre import fit_rotation_about_centre
 from semslam.backend.pose_only import optimize_pose
 from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
 from semslam.config import SystemConfig
@@ -45,6 +47,13 @@ RS_SOLVE_MAX_POINTS = 200
 #: Well-tracked frames whose camera centres give the velocity a blurred frame's translation
 #: is carried on with (one frame's is centimetres off on a turn's first frames).
 CENTRE_VELOCITY_FRAMES = 10
+#: A blurred frame's features keep their matches for the coast's rotation fit when their own
+#: pose turned within this many degrees of the images' shift (else they are searched again).
+COAST_AGREE_DEG = 2.0
+#: A fast-turning frame whose features put the camera centre this far (metres) from where the
+#: steady motion says it is coasts even when sharp: a hand-held camera does not move 3 cm in
+#: a frame's time (1 m/s at 30 Hz), a 6-DoF fit on a turning frame's few matches does.
+COAST_CENTRE_JUMP_M = 0.03
 
 
 @dataclass(frozen=True)
@@ -120,6 +129,22 @@ class Tracking:
         self._recent_sharpness: deque[float] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
         self._sharp = False  # this frame is sharp (only with slam.depth_odometry_sharp_ratio > 0)
         self._current_sharpness: float | None = None
+        # Motion blur without alignment (slam.blur_coast_sharp_ratio): frames in a row kept on
+        # the motion's centre, their count, and the centres of the last steady frames.
+        self._coasting = 0
+        self.n_coasted_frames = 0
+        self._steady_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
+        # The coast under way: the steady frame before it (timestamp, centre) and the
+        # trajectory entries of its frames, re-posed once features track again (``_record``).
+        self._coast_from: tuple[float, NDArray[np.float64]] | None = None
+        self._coast_run: list[int] = []
+        # The turn measured from the shift of small images (backend/shift_rotation.py): the
+        # last tracked frame's (index, small image), and this frame's turn (deg) and the pose
+        # it predicts (None while the camera turns slower than blur_coast_turn_deg).
+        self.shift = (ShiftRotation(camera.fx, camera.fy) if self.cfg.blur_coast_sharp_ratio > 0 else None)
+        self._prev_small: tuple[int, NDArray[np.float32]] | None = None
+        self._shift_turn_deg: float | None = None
+        self._shift_prediction: NDArray[np.float64] | None = None
 
     def start_lost_in(self, ref_kf: KeyFrame) -> None:
         """A loaded map: start lost (the camera is nowhere until it relocalises) with this
@@ -147,6 +172,7 @@ class Tracking:
         self._dropped = None  # set by _remove_moving
         kps = self.extractor.extract(frame.gray, mask)
         packet.keypoints_xy = kps.xy
+        small = small_image(frame.gray) if self.shift is not None else None
         depth = self.depth.depth(frame)
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         if self.cfg.rolling_shutter_ms > 0 and self.velocity is not None and self.velocity_dt > 0:
@@ -165,6 +191,8 @@ class Tracking:
                 if not ok:
                     return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings)
             else:
+                if small is not None:
+                    self._predict_from_shift(small, cur.timestamp)
                 ok = self._track_frame(cur, timings)
                 if ok:
                     self._refine_rolling_shutter(cur, depth)
@@ -175,16 +203,23 @@ class Tracking:
                     if ok and self.cfg.rolling_shutter_solve:
                         self._refine_rolling_shutter(cur, depth)  # again, on the local map's matches
                     timings["local_map"] = (time.perf_counter() - t0) * 1e3
-                odo = False
+                odo = coasted = False
                 if self.odometry is not None and self.cfg.depth_odometry_sharp_ratio > 0:
-                    self._sharp = self._is_sharp(frame.gray)
-                if self._odometry_due(ok, cur.T_cw, depth):
+                    self._sharp = self._is_sharp(frame.gray, self.cfg.depth_odometry_sharp_ratio)
+                if self.cfg.blur_coast_sharp_ratio > 0:
+                    if self._current_sharpness is None:
+                        self._current_sharpness = sharpness(frame.gray)
+                    if self._coast_wanted(frame.gray, cur, ok):
+                        ok = coasted = self._coast(cur, ok)
+                    else:
+                        self._coasting = 0
+                if not coasted and self._odometry_due(ok, cur.T_cw, depth):
                     t0 = time.perf_counter()
                     ok, odo = self._track_with_odometry(cur, frame.gray, depth, ok)  # type: ignore[arg-type]
                     timings["depth_odometry"] = (time.perf_counter() - t0) * 1e3
                 if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
                     t0 = time.perf_counter()
-                    T_odo = cur.T_cw.copy() if odo else None
+                    T_odo = cur.T_cw.copy() if odo or coasted else None
                     dynamic = self._remove_moving(cur, depth, dynamic)
                     if T_odo is not None:  # its refit on the few matches left would undo the alignment
                         cur.T_cw = T_odo
@@ -196,9 +231,13 @@ class Tracking:
                     self.velocity_dt = cur.timestamp - self.last.timestamp if self.last is not None else 0.0
                     if self.odometry is not None and not odo and self.n_matches_inliers >= self.cfg.depth_odometry_below:
                         self._good_centres.append((cur.timestamp, invert(cur.T_cw)[:3, 3]))
+                    if not coasted and (self.velocity is None
+                                        or rotation_angle_deg(self.velocity) <= self.cfg.blur_coast_turn_deg):
+                        self._steady_centres.append((cur.timestamp, invert(cur.T_cw)[:3, 3]))
                     self._last_ok = LastTracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt,
                                                 self.map.active_map)
-                    if not self.cfg.localization_only and self._keyframe_wanted(cur, odo):
+                    if (not self.cfg.localization_only and not coasted
+                            and self._keyframe_wanted(cur, odo)):
                         t0 = time.perf_counter()
                         self._create_keyframe(cur)
                         timings["keyframe"] = (time.perf_counter() - t0) * 1e3
@@ -209,6 +248,8 @@ class Tracking:
                     cur.outlier[:] = False
                 else:
                     self.velocity = None
+                    self._steady_centres.clear()
+                    self._coast_run.clear()
                     if cur.T_cw is None:
                         cur.T_cw = self.last.T_cw.copy() if self.last is not None and self.last.T_cw is not None else np.eye(4)
             if cur.ref_kf is None:
@@ -220,8 +261,11 @@ class Tracking:
             if self.odometry is not None:
                 self._odo_prev = ((cur.index, frame.gray, depth) if self.state is TrackingState.OK and depth is not None
                                   else None)
-                if self.state is TrackingState.OK and self._current_sharpness is not None:
-                    self._recent_sharpness.append(self._current_sharpness)
+            if small is not None:
+                self._prev_small = (cur.index, small) if self.state is TrackingState.OK else None
+            if self.state is TrackingState.OK and self._current_sharpness is not None and not self._coasting:
+                self._recent_sharpness.append(self._current_sharpness)
+            self._current_sharpness = None
             n_inl = int(((cur.points.rows >= 0) & ~cur.outlier).sum())
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         self.last_dynamic_ratio = float(dynamic.mean()) if dynamic is not None else 0.0
@@ -252,13 +296,96 @@ class Tracking:
         return ((self.velocity is not None and rotation_angle_deg(self.velocity) > fast)
                 or (cur_T is not None and rotation_angle_deg(cur_T @ invert(last.T_cw)) > fast))
 
-    def _is_sharp(self, gray: NDArray[np.uint8]) -> bool:
-        """This frame's sharpness against the sharpest of the last tracked frames."""
-        s = sharpness(gray)
+    def _is_sharp(self, gray: NDArray[np.uint8], ratio: float) -> bool:
+        """This frame's sharpness against the sharpest of the last tracked (not coasted) frames."""
+        if self._current_sharpness is None:
+            self._current_sharpness = sharpness(gray)
         recent = self._recent_sharpness
-        sharp = not recent or s >= self.cfg.depth_odometry_sharp_ratio * max(recent)
-        self._current_sharpness = s
-        return sharp
+        return not recent or self._current_sharpness >= ratio * max(recent)
+
+    def _predict_from_shift(self, small: NDArray[np.float32], cur_t: float) -> None:
+        """Measure the turn since the last tracked frame from the images' shift and predict
+        the pose from it (rotation) and the steady motion (centre). When the turn is fast,
+        the motion model searches from that prediction instead of the constant velocity
+        (wrong while a turn speeds up or slows down)."""
+        assert self.shift is not None
+        self._shift_turn_deg = None
+        self._shift_prediction = None
+        last, prev = self.last, self._prev_small
+        if (self.state is not TrackingState.OK or last is None or last.T_cw is None or prev is None
+                or prev[0] != last.index or prev[1].shape != small.shape or len(self._steady_centres) < 2):
+            return
+        dx, dy = self.shift.shift_px(prev[1], small)
+        R_lc = self.shift.relative_rotation(dx, dy)
+        self._shift_turn_deg = float(np.degrees(np.arccos(np.clip((np.trace(R_lc) - 1.0) / 2.0, -1.0, 1.0))))
+        T = np.eye(4)
+        T[:3, :3] = R_lc.T @ last.T_cw[:3, :3]
+        T[:3, 3] = -T[:3, :3] @ self._steady_centre(cur_t)
+        self._shift_prediction = T
+
+    def _shift_says_fast(self) -> bool:
+        return self._shift_turn_deg is not None and self._shift_turn_deg > self.cfg.blur_coast_turn_deg
+
+    def _coast_wanted(self, gray: NDArray[np.uint8], cur: FrameState, ok: bool) -> bool:
+        """Coast when the images' shift says the camera turns fast and the frame is blurred,
+        or its features found no pose or one whose centre jumped from the steady motion's
+        (a slide along a far wall), and on the frames right after a coast whose features
+        find no pose (the view the turn ended on has few map points yet); never more than
+        blur_coast_max_frames in a row."""
+        pred = self._shift_prediction
+        if self.state is not TrackingState.OK or pred is None or self._coasting >= self.cfg.blur_coast_max_frames:
+            return False
+        if self._shift_says_fast():
+            if not ok or cur.T_cw is None:
+                return True
+            jump = float(np.linalg.norm(invert(cur.T_cw)[:3, 3] - invert(pred)[:3, 3]))
+            return jump > COAST_CENTRE_JUMP_M or not self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio)
+        return self._coasting > 0 and not ok
+
+    def _steady_centre(self, cur_t: float) -> NDArray[np.float64]:
+        """The camera centre at ``cur_t`` moved on from the last steady frame at the velocity
+        of the last steady frames (a least-squares line through their centres)."""
+        times = np.array([t for t, _ in self._steady_centres])
+        centres = np.array([c for _, c in self._steady_centres])
+        dt = times - times[-1]
+        if len(times) < 2 or np.ptp(dt) <= 0:
+            return centres[-1].copy()
+        A = np.column_stack([np.ones_like(dt), dt])
+        coef, *_ = np.linalg.lstsq(A, centres, rcond=None)
+        return centres[-1] + coef[1] * (cur_t - times[-1])
+
+    def _coast(self, cur: FrameState, ok: bool) -> bool:
+        """Pose a frame the features cannot: centre from the steady motion, rotation fitted to
+        its matches about that centre, starting from the images' shift (whose rotation it
+        keeps when too few matches agree). The features' own matches are used when their pose
+        turned as the shift says; else the local map is searched from the prediction."""
+        last, pred = self.last, self._shift_prediction
+        assert last is not None and last.T_cw is not None and pred is not None
+        centre = invert(pred)[:3, 3]
+        agree = (ok and cur.T_cw is not None
+                 and rotation_angle_deg(cur.T_cw[:3, :3] @ pred[:3, :3].T) <= COAST_AGREE_DEG)
+        if not agree:
+            cur.clear_points()
+            cur.outlier[:] = False
+            cur.T_cw = pred.copy()
+            self._track_local_map(cur)  # its matches are what counts here, not its pose
+        assert cur.T_cw is not None
+        idx = cur.matched_indices(self.map.store)
+        idx = idx[~cur.outlier[idx]] if agree else idx
+        fit = fit_rotation_about_centre(self.map.store.pos[cur.points.rows[idx]], centre, cur.xy[idx],
+                                        self.camera.K, pred[:3, :3],
+                                        self.pyr.scales[cur.keypoints.octave[idx]])
+        T = np.eye(4)
+        T[:3, :3] = fit.R_cw
+        T[:3, 3] = -fit.R_cw @ centre
+        cur.T_cw = T
+        self._keep_matches_consistent(cur)
+        if self._coasting == 0:
+            self._coast_from = self._steady_centres[-1]
+            self._coast_run.clear()
+        self._coasting += 1
+        self.n_coasted_frames += 1
+        return True
 
     def _odometry_guess(self, cur_t: float) -> NDArray[np.float64]:
         """The frame's pose to align from: the motion model's rotation, the camera centre
@@ -468,6 +595,28 @@ class Tracking:
         if ref is None or cur.T_cw is None:
             return
         self.trajectory_refs.append((cur.timestamp, ref, cur.T_cw @ ref.T_wc))
+        if self._coasting:
+            self._coast_run.append(len(self.trajectory_refs) - 1)
+        elif self._coast_run:
+            self._bridge_coast(cur.timestamp, invert(cur.T_cw)[:3, 3])
+
+    def _bridge_coast(self, t_after: float, c_after: NDArray[np.float64]) -> None:
+        """Features track again after a coast: move the coasted frames' camera centres onto
+        the line between the steady frames either side (in time), keeping their rotations.
+        Extrapolated centres drift (a velocity a few cm/s off over a third of a second);
+        the interpolation is off by at most a/8 T^2 (under 5 mm for a hand-held camera's
+        ~0.4 m/s^2 over 0.3 s). The trajectory written at the end has these; the live
+        poses of those frames were the extrapolation."""
+        run, self._coast_run = self._coast_run, []
+        if self._coast_from is None or t_after <= self._coast_from[0]:
+            return
+        t_before, c_before = self._coast_from
+        for k in run:
+            t, ref, T_c_ref = self.trajectory_refs[k]
+            T_cw = T_c_ref @ ref.T_cw
+            c = c_before + (t - t_before) / (t_after - t_before) * (c_after - c_before)
+            T_cw[:3, 3] = -T_cw[:3, :3] @ c
+            self.trajectory_refs[k] = (t, ref, T_cw @ ref.T_wc)
 
     # ------------------------------------------------------------------ initialisation
     def _initialize(self, cur: FrameState) -> bool:
@@ -553,7 +702,8 @@ class Tracking:
     def _track_with_motion_model(self, cur: FrameState) -> bool:
         last = self.last
         assert last is not None and last.T_cw is not None and self.velocity is not None
-        cur.T_cw = self.velocity @ last.T_cw
+        cur.T_cw = (self._shift_prediction.copy() if self._shift_prediction is not None and self._shift_says_fast()
+                    else self.velocity @ last.T_cw)
         store = self.map.store
         idx = last.matched_indices(store)
         idx = idx[~last.outlier[idx]]
