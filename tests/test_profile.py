@@ -45,6 +45,21 @@ def test_raw_stacks_become_cpu_per_thread_stage_and_function() -> None:
     assert "run_slam (semslam/pipeline.py)" not in total  # the entry chain is left out
 
 
+def test_a_worker_seen_with_its_parents_command_line_is_named_by_its_stacks() -> None:
+    """py-spy reads a child's command line once; caught between fork and exec it is the
+    parent's (seen on CI). multiprocessing's spawn entry on its stacks still names it."""
+    parent_cmd = 'process 1:"";process 9:"python -m semslam.cli.main run data --preset orb";thread (9): MainThread'
+    raw = "\n".join([
+        f"{parent_cmd} 3",  # the first samples: no frame yet
+        f"{parent_cmd};<module> (<string>:1);spawn_main (multiprocessing/spawn.py:122);"
+        "_main (multiprocessing/spawn.py:131);bundle_adjust (semslam/backend/bundle_adjustment.py:270) 7",
+        'process 1:"";process 5:"python -c from multiprocessing.resource_tracker import main;main(7)";'
+        "thread (5): MainThread;main (multiprocessing/resource_tracker.py:200) 2",
+    ])
+    p = parse_raw(raw, rate_hz=100.0)
+    assert p.thread_s == {"BA worker process": pytest.approx(0.10), "other process": pytest.approx(0.02)}
+
+
 @pytest.mark.slow
 def test_bench_profile_reports_every_thread_of_a_threaded_run(tmp_path: Path) -> None:
     js = tmp_path / "profile.json"

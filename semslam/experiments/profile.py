@@ -88,9 +88,9 @@ class Profile:
         }
 
 
-def _thread_label(tokens: list[str]) -> tuple[str, list[str]]:
-    """(thread label, remaining frames) from the leading process / thread tokens; py-spy
-    names a child process of the run by a second ``process`` token."""
+def _split_tokens(tokens: list[str]) -> tuple[list[str], str, list[str]]:
+    """(process tokens, thread name, remaining frames) of one stack; py-spy names a child
+    process of the run by a second ``process`` token."""
     processes, thread, i = [], "", 0
     while i < len(tokens) and tokens[i].startswith(("process ", "thread ")):
         if tokens[i].startswith("process "):
@@ -98,9 +98,36 @@ def _thread_label(tokens: list[str]) -> tuple[str, list[str]]:
         else:
             thread = tokens[i].split(":", 1)[1].strip() if ":" in tokens[i] else ""
         i += 1
+    return processes, thread, tokens[i:]
+
+
+def _child_labels(stacks: list[tuple[list[str], str, list[str], int]]) -> dict[str, str]:
+    """Label of each child process (by its pid token) from all of its stacks. The command
+    line py-spy shows is read once, and can be the parent's when the child is first seen
+    between fork and exec (measured on CI: the BA worker appeared as "other process"), so a
+    spawned worker is also recognised by multiprocessing's spawn entry on its stacks."""
+    text: defaultdict[str, list[str]] = defaultdict(list)
+    for processes, _, frames, _ in stacks:
+        if len(processes) > 1:
+            key = processes[-1].split(":", 1)[0]
+            text[key].append(processes[-1])
+            text[key].extend(frames)
+    labels = {}
+    for key, parts in text.items():
+        joined = ";".join(parts)
+        if "reconstruction/mapping_worker.py" in joined:
+            labels[key] = "maps worker process"
+        elif "multiprocessing.spawn" in joined or "spawn_main (multiprocessing/spawn.py" in joined:
+            labels[key] = "BA worker process"
+        else:
+            labels[key] = "other process"
+    return labels
+
+
+def _thread_label(processes: list[str], thread: str, children: dict[str, str]) -> str:
     if len(processes) > 1:
-        return ("BA worker process" if "multiprocessing.spawn" in processes[-1] else "other process"), tokens[i:]
-    return {"MainThread": "tracking (main)", "": "main"}.get(thread, thread), tokens[i:]
+        return children[processes[-1].split(":", 1)[0]]
+    return {"MainThread": "tracking (main)", "": "main"}.get(thread, thread)
 
 
 def _stage(frame: str) -> str | None:
@@ -132,12 +159,14 @@ def parse_raw(text: str, rate_hz: float, top: int = 15) -> Profile:
     stages: Counter[tuple[str, str]] = Counter()
     self_n: Counter[str] = Counter()
     total_n: Counter[str] = Counter()
+    stacks = []
     for line in text.splitlines():
         stack, _, count_txt = line.rpartition(" ")
-        if not stack or not count_txt.isdigit():
-            continue
-        n = int(count_txt)
-        label, frames = _thread_label(_TOKEN.findall(stack))
+        if stack and count_txt.isdigit():
+            stacks.append((*_split_tokens(_TOKEN.findall(stack)), int(count_txt)))
+    children = _child_labels(stacks)
+    for processes, thread, frames, n in stacks:
+        label = _thread_label(processes, thread, children)
         if frames and frames[-1].startswith(_WAIT_LEAVES):
             continue
         threads[label] += n
