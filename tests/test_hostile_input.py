@@ -104,19 +104,24 @@ BLANK = {
 }
 
 
+@pytest.mark.parametrize("coast", [False, True], ids=["orb", "blur_coast"])
 @pytest.mark.parametrize("kind", sorted(BLANK))
-def test_blank_frames_are_lost_counted_and_warned(kind: str, seq: Path, capsys: pytest.CaptureFixture[str],
+def test_blank_frames_are_lost_counted_and_warned(kind: str, coast: bool, seq: Path, capsys: pytest.CaptureFixture[str],
                                                   caplog: pytest.LogCaptureFixture) -> None:
+    """Also with ``default``'s blur coasting: a blank frame is "blurred" (no sharpness at all),
+    but nothing in it holds a pose, so it is lost, not coasted."""
     spoiled = images(seq)[3:7]
     for p in spoiled:
         cv2.imwrite(str(p), BLANK[kind])
+    extra = ("--set", "slam.blur_coast_sharp_ratio=0.6") if coast else ()
     with caplog.at_level(logging.WARNING):
-        r = run(seq, capsys)
+        r = run(seq, capsys, *extra)
     assert r.rc == 0 and r.stats is not None
     assert r.stats["frames"] == FRAMES and r.stats["frames_featureless"] == 4
     assert r.stats["tracked_frames"] == FRAMES - 4 and r.stats["lost_frames"] == 4  # relocalised after them
     assert poses(r.out) == FRAMES - 4
     assert f"frame 3 ({spoiled[0]})" in caplog.text and "frames_featureless" in caplog.text
+    assert r.stats["coasted_frames"] == 0
 
 
 def test_blank_frames_with_a_learned_detector(seq: Path, capsys: pytest.CaptureFixture[str]) -> None:

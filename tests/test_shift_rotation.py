@@ -40,7 +40,9 @@ def test_turn_from_the_shift_of_a_real_photo() -> None:
     est = ShiftRotation(K[0, 0], K[1, 1])
     for yaw, pitch in ((4.0, 1.0), (-6.5, -1.5), (0.5, 0.0)):
         R = Rotation.from_rotvec(np.radians([pitch, yaw, 0.0])).as_matrix()
-        dx, dy = est.shift_px(small_image(gray), small_image(_turned(gray, R)))
+        shift = est.shift_px(small_image(gray), small_image(_turned(gray, R)))
+        assert shift is not None
+        dx, dy = shift
         assert np.sign(dx) == -np.sign(yaw)  # content moves left on a right turn
         assert _angle_deg(est.relative_rotation(dx, dy), R) < 0.4, (yaw, pitch, dx, dy)  # measured <= 0.28
 
@@ -53,5 +55,18 @@ def test_turn_survives_motion_blur_and_a_gain_change() -> None:
     kernel[0, :] = 1.0 / 31.0  # a 31-px streak, a 200 deg/s turn over a 16 ms exposure
     cur = np.clip(cv2.filter2D(cur, -1, kernel) * 1.4, 0, 255).astype(np.uint8)  # +40 % gain
     est = ShiftRotation(K[0, 0], K[1, 1])
-    dx, dy = est.shift_px(small_image(gray), small_image(cur))
+    shift = est.shift_px(small_image(gray), small_image(cur))
+    assert shift is not None
+    dx, dy = shift
     assert _angle_deg(est.relative_rotation(dx, dy), R) < 1.0, (dx, dy)  # measured 0.61
+
+
+def test_a_blank_frame_has_no_shift() -> None:
+    """A covered lens (black, white): the correlation has no peak, so no turn is read from it
+    (OpenCV would answer half the image size, a 30 deg "turn")."""
+    gray = _photo()
+    est = ShiftRotation(K[0, 0], K[1, 1])
+    for value in (0, 255):
+        blank = np.full_like(gray, value)
+        assert est.shift_px(small_image(gray), small_image(blank)) is None
+        assert est.shift_px(small_image(blank), small_image(blank)) is None

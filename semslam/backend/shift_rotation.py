@@ -28,6 +28,11 @@ def small_image(gray: NDArray[np.uint8], shrink: int = SHRINK) -> NDArray[np.flo
     return (small - small.mean()) / (float(small.std()) + 1e-6)
 
 
+#: Phase correlation's peak (its share of the correlation energy) below which there is no shift
+#: to read: 0 on a blank frame.
+MIN_RESPONSE = 1e-3
+
+
 class ShiftRotation:
     """Turn between consecutive frames from the shift of their small images."""
 
@@ -35,11 +40,15 @@ class ShiftRotation:
         self.fx, self.fy, self.shrink = fx, fy, shrink
         self._window: NDArray[np.float32] | None = None
 
-    def shift_px(self, prev_small: NDArray[np.float32], cur_small: NDArray[np.float32]) -> tuple[float, float]:
-        """How far the image content moved from ``prev_small`` to ``cur_small``, full-size pixels."""
+    def shift_px(self, prev_small: NDArray[np.float32], cur_small: NDArray[np.float32]) -> tuple[float, float] | None:
+        """How far the image content moved from ``prev_small`` to ``cur_small``, full-size
+        pixels; None when the correlation has no peak (a blank or covered frame: OpenCV then
+        answers half the image size with response 0)."""
         if self._window is None or self._window.shape != cur_small.shape:
             self._window = cv2.createHanningWindow(cur_small.shape[::-1], cv2.CV_32F)
-        (dx, dy), _response = cv2.phaseCorrelate(prev_small, cur_small, self._window)
+        (dx, dy), response = cv2.phaseCorrelate(prev_small, cur_small, self._window)
+        if not (np.isfinite(response) and response > MIN_RESPONSE and np.isfinite(dx) and np.isfinite(dy)):
+            return None
         return dx * self.shrink, dy * self.shrink
 
     def relative_rotation(self, dx: float, dy: float, roll_rad: float = 0.0) -> NDArray[np.float64]:

@@ -180,13 +180,18 @@ class SlamConfig:
     # alignment (whose rotation the skew biases), but breaks walking_hard (README).
     depth_odometry_sharp_ratio: float = 0.0
     # Motion blur without dense alignment: a frame whose sharpness is below
-    # blur_coast_sharp_ratio x the sharpest of the last 10 tracked frames while the camera
-    # turns faster than blur_coast_turn_deg a frame (predicted or tracked) keeps its camera
-    # centre on the motion of the last steady frames and takes only its rotation from its
-    # matches (geometry/rotation_about_centre.py: on a blurred frame a 6-DoF fit slides
-    # along a far wall). It is not lost and makes no keyframe (its keypoints, smeared along
-    # the streak, would put points centimetres off), for at most blur_coast_max_frames in a
-    # row. 0 = off (ORB-SLAM2).
+    # blur_coast_sharp_ratio x the sharpest of the last 10 tracked frames gets its turn
+    # measured from the shift of small images (backend/shift_rotation.py, PTAM-style), which
+    # seeds the search when it says faster than blur_coast_turn_deg a frame. Such a frame
+    # (or one whose features put its centre > 3 cm off the steady motion, or find no pose)
+    # "coasts": it keeps its camera centre on the motion of the last steady frames and takes
+    # only its rotation from its matches (geometry/rotation_about_centre.py: on a blurred
+    # frame a 6-DoF fit slides along a far wall). It is not lost and makes no keyframe (its
+    # keypoints, smeared along the streak, would put points centimetres off), for at most
+    # blur_coast_max_frames in a row; once features track again the coasted centres are
+    # re-interpolated between the steady frames either side. Until a frame is blurred nothing
+    # changes (a sequence without blur gives the same bytes). 0 = off (ORB-SLAM2); `default`
+    # sets 0.6.
     blur_coast_sharp_ratio: float = 0.0
     blur_coast_turn_deg: float = 1.0
     blur_coast_max_frames: int = 15

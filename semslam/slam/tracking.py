@@ -50,6 +50,9 @@ CENTRE_VELOCITY_FRAMES = 10
 #: A blurred frame's features keep their matches for the coast's rotation fit when their own
 #: pose turned within this many degrees of the images' shift (else they are searched again).
 COAST_AGREE_DEG = 2.0
+#: A coast needs its rotation to hold on this many matches (on walking_hard every coast had
+#: 13 or more); fewer, and the frame is lost as ORB-SLAM2 would lose it.
+COAST_MIN_INLIERS = 10
 #: A fast-turning frame whose features put the camera centre this far (metres) from where the
 #: steady motion says it is coasts even when sharp: a hand-held camera does not move 3 cm in
 #: a frame's time (1 m/s at 30 Hz), a 6-DoF fit on a turning frame's few matches does.
@@ -138,11 +141,11 @@ class Tracking:
         # trajectory entries of its frames, re-posed once features track again (``_record``).
         self._coast_from: tuple[float, NDArray[np.float64]] | None = None
         self._coast_run: list[int] = []
-        # The turn measured from the shift of small images (backend/shift_rotation.py): the
-        # last tracked frame's (index, small image), and this frame's turn (deg) and the pose
-        # it predicts (None while the camera turns slower than blur_coast_turn_deg).
+        # The turn measured from the shift of small images (backend/shift_rotation.py), on
+        # blurred frames and while coasting only: the last tracked frame's (index, image),
+        # and this frame's turn (deg) and the pose it predicts (None when not measured).
         self.shift = (ShiftRotation(camera.fx, camera.fy) if self.cfg.blur_coast_sharp_ratio > 0 else None)
-        self._prev_small: tuple[int, NDArray[np.float32]] | None = None
+        self._prev_gray: tuple[int, NDArray[np.uint8]] | None = None
         self._shift_turn_deg: float | None = None
         self._shift_prediction: NDArray[np.float64] | None = None
 
@@ -172,7 +175,6 @@ class Tracking:
         self._dropped = None  # set by _remove_moving
         kps = self.extractor.extract(frame.gray, mask)
         packet.keypoints_xy = kps.xy
-        small = small_image(frame.gray) if self.shift is not None else None
         depth = self.depth.depth(frame)
         cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
         if self.cfg.rolling_shutter_ms > 0 and self.velocity is not None and self.velocity_dt > 0:
@@ -191,8 +193,8 @@ class Tracking:
                 if not ok:
                     return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings)
             else:
-                if small is not None:
-                    self._predict_from_shift(small, cur.timestamp)
+                if self.shift is not None:
+                    self._measure_blur(frame.gray, cur.timestamp)
                 ok = self._track_frame(cur, timings)
                 if ok:
                     self._refine_rolling_shutter(cur, depth)
@@ -206,9 +208,7 @@ class Tracking:
                 odo = coasted = False
                 if self.odometry is not None and self.cfg.depth_odometry_sharp_ratio > 0:
                     self._sharp = self._is_sharp(frame.gray, self.cfg.depth_odometry_sharp_ratio)
-                if self.cfg.blur_coast_sharp_ratio > 0:
-                    if self._current_sharpness is None:
-                        self._current_sharpness = sharpness(frame.gray)
+                if self.shift is not None:
                     if self._coast_wanted(frame.gray, cur, ok):
                         ok = coasted = self._coast(cur, ok)
                     else:
@@ -261,8 +261,8 @@ class Tracking:
             if self.odometry is not None:
                 self._odo_prev = ((cur.index, frame.gray, depth) if self.state is TrackingState.OK and depth is not None
                                   else None)
-            if small is not None:
-                self._prev_small = (cur.index, small) if self.state is TrackingState.OK else None
+            if self.shift is not None:
+                self._prev_gray = (cur.index, frame.gray) if self.state is TrackingState.OK else None
             if self.state is TrackingState.OK and self._current_sharpness is not None and not self._coasting:
                 self._recent_sharpness.append(self._current_sharpness)
             self._current_sharpness = None
@@ -303,20 +303,26 @@ class Tracking:
         recent = self._recent_sharpness
         return not recent or self._current_sharpness >= ratio * max(recent)
 
-    def _predict_from_shift(self, small: NDArray[np.float32], cur_t: float) -> None:
-        """Measure the turn since the last tracked frame from the images' shift and predict
-        the pose from it (rotation) and the steady motion (centre). When the turn is fast,
-        the motion model searches from that prediction instead of the constant velocity
-        (wrong while a turn speeds up or slows down)."""
+    def _measure_blur(self, gray: NDArray[np.uint8], cur_t: float) -> None:
+        """This frame's sharpness; on a blurred frame, or while coasting, the turn since the
+        last tracked frame from the images' shift, and the pose it predicts: rotation from
+        the shift, centre from the steady motion. When the turn is fast the motion model
+        searches from that prediction instead of the constant velocity (wrong while a turn
+        speeds up or slows down). Sharp frames track as ORB-SLAM2 does (to the byte)."""
         assert self.shift is not None
         self._shift_turn_deg = None
         self._shift_prediction = None
-        last, prev = self.last, self._prev_small
+        self._current_sharpness = sharpness(gray)
+        last, prev = self.last, self._prev_gray
         if (self.state is not TrackingState.OK or last is None or last.T_cw is None or prev is None
-                or prev[0] != last.index or prev[1].shape != small.shape or len(self._steady_centres) < 2):
+                or prev[0] != last.index or prev[1].shape != gray.shape or len(self._steady_centres) < 2):
             return
-        dx, dy = self.shift.shift_px(prev[1], small)
-        R_lc = self.shift.relative_rotation(dx, dy)
+        if not self._coasting and self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio):
+            return
+        shift = self.shift.shift_px(small_image(prev[1]), small_image(gray))
+        if shift is None:
+            return
+        R_lc = self.shift.relative_rotation(*shift)
         self._shift_turn_deg = float(np.degrees(np.arccos(np.clip((np.trace(R_lc) - 1.0) / 2.0, -1.0, 1.0))))
         T = np.eye(4)
         T[:3, :3] = R_lc.T @ last.T_cw[:3, :3]
@@ -327,20 +333,23 @@ class Tracking:
         return self._shift_turn_deg is not None and self._shift_turn_deg > self.cfg.blur_coast_turn_deg
 
     def _coast_wanted(self, gray: NDArray[np.uint8], cur: FrameState, ok: bool) -> bool:
-        """Coast when the images' shift says the camera turns fast and the frame is blurred,
-        or its features found no pose or one whose centre jumped from the steady motion's
-        (a slide along a far wall), and on the frames right after a coast whose features
-        find no pose (the view the turn ended on has few map points yet); never more than
-        blur_coast_max_frames in a row."""
+        """Coast a frame whose turn was measured (blurred, or right after a coast) when its
+        features found no pose; a blurred one when the images' shift says the camera turns
+        fast or its features put the centre more than COAST_CENTRE_JUMP_M from the steady
+        motion's (a slide along a far wall, seen on a glance's first, slowly turning frame
+        too); a sharp one only when both hold. A sharp frame turning slowly after a glance is
+        believed even when its centre jumped: the view the turn ended on needs its keyframe,
+        and coasting it (no keyframe) left tracking without points there (6 lost frames on
+        the blur-only render). Never more than blur_coast_max_frames in a row."""
         pred = self._shift_prediction
         if self.state is not TrackingState.OK or pred is None or self._coasting >= self.cfg.blur_coast_max_frames:
             return False
-        if self._shift_says_fast():
-            if not ok or cur.T_cw is None:
-                return True
-            jump = float(np.linalg.norm(invert(cur.T_cw)[:3, 3] - invert(pred)[:3, 3]))
-            return jump > COAST_CENTRE_JUMP_M or not self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio)
-        return self._coasting > 0 and not ok
+        if not ok or cur.T_cw is None:
+            return True
+        jump = float(np.linalg.norm(invert(cur.T_cw)[:3, 3] - invert(pred)[:3, 3])) > COAST_CENTRE_JUMP_M
+        if self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio):
+            return jump and self._shift_says_fast()
+        return self._shift_says_fast() or jump
 
     def _steady_centre(self, cur_t: float) -> NDArray[np.float64]:
         """The camera centre at ``cur_t`` moved on from the last steady frame at the velocity
@@ -356,9 +365,10 @@ class Tracking:
 
     def _coast(self, cur: FrameState, ok: bool) -> bool:
         """Pose a frame the features cannot: centre from the steady motion, rotation fitted to
-        its matches about that centre, starting from the images' shift (whose rotation it
-        keeps when too few matches agree). The features' own matches are used when their pose
-        turned as the shift says; else the local map is searched from the prediction."""
+        its matches about that centre, starting from the images' shift. The features' own
+        matches are used when their pose turned as the shift says; else the local map is
+        searched from the prediction. False (lost) when fewer than COAST_MIN_INLIERS matches
+        hold the rotation."""
         last, pred = self.last, self._shift_prediction
         assert last is not None and last.T_cw is not None and pred is not None
         centre = invert(pred)[:3, 3]
@@ -374,7 +384,9 @@ class Tracking:
         idx = idx[~cur.outlier[idx]] if agree else idx
         fit = fit_rotation_about_centre(self.map.store.pos[cur.points.rows[idx]], centre, cur.xy[idx],
                                         self.camera.K, pred[:3, :3],
-                                        self.pyr.scales[cur.keypoints.octave[idx]])
+                                        self.pyr.scales[cur.keypoints.octave[idx]], min_inliers=COAST_MIN_INLIERS)
+        if not fit.ok:  # nothing in the image agrees (a covered lens): lost, as without the option
+            return False
         T = np.eye(4)
         T[:3, :3] = fit.R_cw
         T[:3, 3] = -fit.R_cw @ centre
