@@ -260,6 +260,11 @@ class DynamicsConfig:
     # DDL-SLAM's multi-view geometry check against the best-overlapping keyframes.
     multiview: bool = False
     multiview_keyframes: int = 5
+    # Reference keyframes younger than this (seconds) are used only when too few older ones
+    # overlap: a check against views a frame or two old cannot see a slow or just-started
+    # mover (the depth threshold below needs it to have moved ~0.2 m since). 0: the
+    # best-overlapping keyframes whatever their age (DDL-SLAM / DynaSLAM as written).
+    multiview_min_age_s: float = 0.0
     # Points seen under a larger parallax are skipped (likely self-occlusion, DynaSLAM).
     parallax_deg: float = 30.0
     # A measured depth this much in front of the projected one marks a seed. Kinect-like

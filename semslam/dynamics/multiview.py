@@ -26,11 +26,20 @@ pixels before they are labelled (thin bridges break) and grown back once found d
 walking_xyz, with the poses SLAM estimates, the static area masked fell from 0.85 % to
 0.06 % of the image on average (12 % to 0 % at most) at downscale 4.
 
-Pure functions of arrays; the caller chooses the keyframes.
+Which keyframes: DynaSLAM and DDL-SLAM take those that overlap most with the current frame.
+When the map inserts keyframes on consecutive frames (tracking weakens while a mover covers
+the view) those are a frame or two old, and a mover that slowed down, stood still or just
+started moving has not moved the ~0.2 m the depth test needs since: on the full
+``walking_box`` render the box, left standing, was mapped and then lifted, and tracking
+followed it (15.1 cm ATE). ``pick_references`` prefers the best-overlapping keyframes at
+least ``multiview_min_age_s`` old (0.64 cm with 0.7 s; README, Dynamic scenes).
+
+Pure functions of arrays; the caller passes the candidate keyframes.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -67,6 +76,15 @@ class TestedPoints:
     z_meas: NDArray[np.float32]  # depth the current frame measures at that pixel
     ref_centre: NDArray[np.float64]  # (N, 3) the reference camera's centre, current camera frame
     dynamic: NDArray[np.bool_]  # measured clearly in front of the projected point
+
+
+def pick_references(stamps: Sequence[float], now: float, n: int, min_age_s: float) -> list[int]:
+    """Indices of the ``n`` reference keyframes to test against, from candidates given best
+    overlap first (their timestamps ``stamps``): those at least ``min_age_s`` older than
+    ``now`` in that order, then, if too few, the younger ones in that order."""
+    old = [i for i, t in enumerate(stamps) if t <= now - min_age_s]
+    young = [i for i, t in enumerate(stamps) if t > now - min_age_s]
+    return (old + young)[:n]
 
 
 def project_references(T_cw: NDArray[np.float64], depth: NDArray[np.float32], camera: PinholeCamera,

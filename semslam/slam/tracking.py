@@ -25,6 +25,7 @@ from semslam.config import SystemConfig
 from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket, MotionPrior
 from semslam.core.types import TrackingState, TrackResult
 from semslam.dynamics.masks import keypoints_in_mask
+from semslam.dynamics.multiview import pick_references
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.rolling_shutter import row_time_fraction
 from semslam.geometry.se3 import invert, orthonormalize
@@ -44,6 +45,9 @@ if TYPE_CHECKING:
 BRIDGE_MAX_GAP_S = 0.5
 #: Matches the joint rolling-shutter fit uses at most (its cost grows with them).
 RS_SOLVE_MAX_POINTS = 200
+#: The multi-view check picks its reference keyframes among the reference keyframe and this
+#: many minus one of its best covisibles.
+MULTIVIEW_CANDIDATES = 30
 #: Well-tracked frames whose camera centres give the velocity a blurred frame's translation
 #: is carried on with (one frame's is centimetres off on a turn's first frames).
 CENTRE_VELOCITY_FRAMES = 10
@@ -581,9 +585,12 @@ class Tracking:
         ref = self.ref_kf
         if ref is None or cur.T_cw is None or self.dynamics is None:
             return dynamic
-        # Reference keyframes with the highest overlap: the reference and its best covisibles.
-        kfs = [ref, *ref.best_covisibles(self.dyn.multiview_keyframes - 1)]
-        refs = [(k.T_cw, k.xy, k.depth) for k in kfs if not k.bad]
+        # Reference keyframes with the highest overlap (the reference and its best
+        # covisibles), preferring those old enough for a mover to have moved since.
+        cands = [k for k in (ref, *ref.best_covisibles(MULTIVIEW_CANDIDATES - 1)) if not k.bad]
+        pick = pick_references([k.timestamp for k in cands], cur.timestamp, self.dyn.multiview_keyframes,
+                               self.dyn.multiview_min_age_s)
+        refs = [(cands[i].T_cw, cands[i].xy, cands[i].depth) for i in pick]
         regions = self.dynamics.after_pose(cur.T_cw, depth, refs)
         if regions is None:
             return dynamic
