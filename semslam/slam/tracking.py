@@ -54,9 +54,16 @@ CENTRE_VELOCITY_FRAMES = 10
 #: A blurred frame's features keep their matches for the coast's rotation fit when their own
 #: pose turned within this many degrees of the images' shift (else they are searched again).
 COAST_AGREE_DEG = 2.0
-#: A coast needs its rotation to hold on this many matches (on walking_hard every coast had
-#: 13 or more); fewer, and the frame is lost as ORB-SLAM2 would lose it.
+#: A coast needs its rotation to hold on this many matches; fewer, and the frame is lost as
+#: ORB-SLAM2 would lose it.
 COAST_MIN_INLIERS = 10
+#: ...and a frame that continues a coast run (the one before it held) this many: a glance's
+#: most blurred frames, turning into a view where the map is thin, keep fewer. walking_hard
+#: frame 156 held on 11 matches in a sequential run and on 8 in threaded ones (local mapping
+#: behind), which then lost 30 frames until the atlas started a new map (threaded runs losing
+#: frames: 4 of 8 -> 3 of 14; --sequential the same bytes). Three bearings fix a rotation;
+#: six give it redundancy against a wrong match (the fit's own default).
+COAST_CONTINUE_MIN_INLIERS = 6
 #: A fast-turning frame whose features put the camera centre this far (metres) from where the
 #: steady motion says it is coasts even when sharp: a hand-held camera does not move 3 cm in
 #: a frame's time (1 m/s at 30 Hz), a 6-DoF fit on a turning frame's few matches does.
@@ -372,7 +379,7 @@ class Tracking:
         its matches about that centre, starting from the images' shift. The features' own
         matches are used when their pose turned as the shift says; else the local map is
         searched from the prediction. False (lost) when fewer than COAST_MIN_INLIERS matches
-        hold the rotation."""
+        hold the rotation (COAST_CONTINUE_MIN_INLIERS when the frame before coasted)."""
         last, pred = self.last, self._shift_prediction
         assert last is not None and last.T_cw is not None and pred is not None
         centre = invert(pred)[:3, 3]
@@ -388,7 +395,8 @@ class Tracking:
         idx = idx[~cur.outlier[idx]] if agree else idx
         fit = fit_rotation_about_centre(self.map.store.pos[cur.points.rows[idx]], centre, cur.xy[idx],
                                         self.camera.K, pred[:3, :3],
-                                        self.pyr.scales[cur.keypoints.octave[idx]], min_inliers=COAST_MIN_INLIERS)
+                                        self.pyr.scales[cur.keypoints.octave[idx]],
+                                        min_inliers=COAST_CONTINUE_MIN_INLIERS if self._coasting else COAST_MIN_INLIERS)
         if not fit.ok:  # nothing in the image agrees (a covered lens): lost, as without the option
             return False
         T = np.eye(4)
