@@ -68,6 +68,16 @@ COAST_CONTINUE_MIN_INLIERS = 6
 #: steady motion says it is coasts even when sharp: a hand-held camera does not move 3 cm in
 #: a frame's time (1 m/s at 30 Hz), a 6-DoF fit on a turning frame's few matches does.
 COAST_CENTRE_JUMP_M = 0.03
+#: A coast run whose frames have been sharp and turning slowly for this many frames in a row
+#: makes a keyframe at the last one's coasted pose. The glance has ended in a view the map
+#: barely covers; the coast holds its rotation on 20-35 matches there, too few for the
+#: features' own pose (the motion model needs 20 from the last frame, the local map 30), so
+#: without a keyframe every frame coasts until blur_coast_max_frames and then is lost until
+#: the atlas starts a new map (threaded walking_hard: 30 frames lost in 2 of 3 runs pinned
+#: to one core). Never on the first calm frames: a keyframe at a coasted pose carries the
+#: coast's centre error into the map (on every calm coasted frame: --sequential 1.00 ->
+#: 2.58 cm), and the features usually find the map again within two frames.
+COAST_SETTLED_FRAMES = 3
 
 
 @dataclass(frozen=True)
@@ -147,6 +157,8 @@ class Tracking:
         # the motion's centre, their count, and the centres of the last steady frames.
         self._coasting = 0
         self.n_coasted_frames = 0
+        self.n_coast_keyframes = 0
+        self._calm_coasted = 0
         self._steady_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
         # The coast under way: the steady frame before it (timestamp, centre) and the
         # trajectory entries of its frames, re-posed once features track again (``_record``).
@@ -224,6 +236,7 @@ class Tracking:
                         ok = coasted = self._coast(cur, ok)
                     else:
                         self._coasting = 0
+                        self._calm_coasted = 0
                 if not coasted and self._odometry_due(ok, cur.T_cw, depth):
                     t0 = time.perf_counter()
                     ok, odo = self._track_with_odometry(cur, frame.gray, depth, ok)  # type: ignore[arg-type]
@@ -247,12 +260,14 @@ class Tracking:
                         self._steady_centres.append((cur.timestamp, invert(cur.T_cw)[:3, 3]))
                     self._last_ok = LastTracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt,
                                                 self.map.active_map)
-                    if (not self.cfg.localization_only and not coasted
-                            and self._keyframe_wanted(cur, odo)):
+                    settled = coasted and self._coast_settled(frame.gray)
+                    if (not self.cfg.localization_only
+                            and (settled or not coasted and self._keyframe_wanted(cur, odo))):
                         t0 = time.perf_counter()
                         self._create_keyframe(cur)
                         timings["keyframe"] = (time.perf_counter() - t0) * 1e3
                         is_kf = True
+                        self.n_coast_keyframes += settled
                     # Outliers are not carried to the next frame (ORB-SLAM discards them here).
                     for i in np.nonzero(cur.outlier)[0]:
                         cur.points[i] = None
@@ -361,6 +376,15 @@ class Tracking:
         if self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio):
             return jump and self._shift_says_fast()
         return self._shift_says_fast() or jump
+
+    def _coast_settled(self, gray: NDArray[np.uint8]) -> bool:
+        """True on the COAST_SETTLED_FRAMES-th coasted frame in a row that is sharp and turns
+        slowly (the shift says under blur_coast_turn_deg): the glance has ended in a view the
+        map barely covers, where the features keep failing, so this frame makes a keyframe at
+        its coasted pose."""
+        calm = self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio) and not self._shift_says_fast()
+        self._calm_coasted = self._calm_coasted + 1 if calm else 0
+        return self._calm_coasted == COAST_SETTLED_FRAMES
 
     def _steady_centre(self, cur_t: float) -> NDArray[np.float64]:
         """The camera centre at ``cur_t`` moved on from the last steady frame at the velocity
