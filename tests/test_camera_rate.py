@@ -35,18 +35,20 @@ def test_frames_arrive_at_their_timestamps_spacing() -> None:
 
 def test_a_late_consumer_gets_frames_at_once_without_waiting_again() -> None:
     """A frame already due when asked for (tracking fell behind) is not delayed further."""
-    gen = at_camera_rate(iter(_frames([0.0, 0.02, 0.04])), realtime=True)
+    gen = at_camera_rate(iter(_frames([0.0, 0.5, 1.0])), realtime=True)
     next(gen)
-    time.sleep(0.1)  # both later frames are overdue now
+    time.sleep(1.1)  # both later frames are overdue now
     t0 = time.perf_counter()
     rest = [t for _, t in gen]
-    assert len(rest) == 2 and rest[-1] - t0 < 0.01
+    # Waiting again would take 0.5 s or more; the bound leaves a busy machine 25x the margin
+    # over what it takes here (microseconds).
+    assert len(rest) == 2 and rest[-1] - t0 < 0.25
 
 
 def test_without_realtime_frames_come_as_soon_as_asked() -> None:
     t0 = time.perf_counter()
     out = list(at_camera_rate(iter(_frames([0.0, 5.0, 10.0])), realtime=False))
-    assert len(out) == 3 and time.perf_counter() - t0 < 0.5
+    assert len(out) == 3 and time.perf_counter() - t0 < 2.0  # at camera rate: 10 s
 
 
 @pytest.mark.slow
