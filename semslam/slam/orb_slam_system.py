@@ -236,6 +236,7 @@ class OrbSlamSystem:
             "depth_odometry_frames": self.tracking.n_depth_odometry_frames,
             "coasted_frames": self.tracking.n_coasted_frames,
             "coast_keyframes": self.tracking.n_coast_keyframes,
+            "coasted_on_shift_only": self.tracking.n_coast_shift_only,
             "depth_odometry_runs": self.tracking.n_depth_odometry_runs,
             "local_ba": mapper.stats["local_ba"],
             "local_ba_failed": mapper.stats["local_ba_failed"],

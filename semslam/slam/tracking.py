@@ -62,7 +62,10 @@ COAST_MIN_INLIERS = 10
 #: frame 156 held on 11 matches in a sequential run and on 8 in threaded ones (local mapping
 #: behind), which then lost 30 frames until the atlas started a new map (threaded runs losing
 #: frames: 4 of 8 -> 3 of 14; --sequential the same bytes). Three bearings fix a rotation;
-#: six give it redundancy against a wrong match (the fit's own default).
+#: six give it redundancy against a wrong match (the fit's own default). With fewer, such a
+#: frame keeps the images' shift's rotation (no matches): a glance into a view the map does
+#: not cover yet (walking_hard seed 21, the first glance: 12, 8, 7, 5 matches, then 7 frames
+#: lost --sequential; with the shift's rotation 0 lost, 1.36 -> 1.00 cm).
 COAST_CONTINUE_MIN_INLIERS = 6
 #: A fast-turning frame whose features put the camera centre this far (metres) from where the
 #: steady motion says it is coasts even when sharp: a hand-held camera does not move 3 cm in
@@ -158,6 +161,7 @@ class Tracking:
         self._coasting = 0
         self.n_coasted_frames = 0
         self.n_coast_keyframes = 0
+        self.n_coast_shift_only = 0
         self._calm_coasted = 0
         self._steady_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
         # The coast under way: the steady frame before it (timestamp, centre) and the
@@ -403,7 +407,8 @@ class Tracking:
         its matches about that centre, starting from the images' shift. The features' own
         matches are used when their pose turned as the shift says; else the local map is
         searched from the prediction. False (lost) when fewer than COAST_MIN_INLIERS matches
-        hold the rotation (COAST_CONTINUE_MIN_INLIERS when the frame before coasted)."""
+        hold the rotation on the first frame of a run; on a frame that continues one, fewer
+        than COAST_CONTINUE_MIN_INLIERS leave it the shift's rotation."""
         last, pred = self.last, self._shift_prediction
         assert last is not None and last.T_cw is not None and pred is not None
         centre = invert(pred)[:3, 3]
@@ -421,11 +426,19 @@ class Tracking:
                                         self.camera.K, pred[:3, :3],
                                         self.pyr.scales[cur.keypoints.octave[idx]],
                                         min_inliers=COAST_CONTINUE_MIN_INLIERS if self._coasting else COAST_MIN_INLIERS)
-        if not fit.ok:  # nothing in the image agrees (a covered lens): lost, as without the option
-            return False
+        R_cw = fit.R_cw
+        if not fit.ok:
+            if not self._coasting:  # nothing in the image agrees (a covered lens): lost, as without the option
+                return False
+            # A glance into a view the map does not cover yet: its matches ran out, its
+            # rotation is the images' shift's, until the features find the map again.
+            R_cw = pred[:3, :3]
+            cur.clear_points()
+            cur.outlier[:] = False
+            self.n_coast_shift_only += 1
         T = np.eye(4)
-        T[:3, :3] = fit.R_cw
-        T[:3, 3] = -fit.R_cw @ centre
+        T[:3, :3] = R_cw
+        T[:3, 3] = -R_cw @ centre
         cur.T_cw = T
         self._keep_matches_consistent(cur)
         if self._coasting == 0:
