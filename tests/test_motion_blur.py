@@ -173,17 +173,25 @@ def test_coasting_leaves_a_sharp_glance_to_the_byte() -> None:
     assert np.array_equal(trajectories[0], trajectories[1])
 
 
+@pytest.fixture(scope="module")
+def late_glance() -> tuple[list[Frame], np.ndarray, PinholeCamera]:
+    """Frames 440-479 of the blurred walking_turns at 320x240: at rest, the glance of frames
+    451-458, at rest."""
+    cfg = SEQUENCES["walking_turns"].replace(exposure_ms=16.0, people=0, width=320, height=240)
+    r = Renderer(cfg)
+    return rendered_frames(r, range(440, 480)), r.poses.copy(), PinholeCamera(*cfg.intrinsics())
+
+
 @pytest.mark.slow
-def test_glance_ending_in_a_thin_view_makes_a_keyframe(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_glance_ending_in_a_thin_view_makes_a_keyframe(
+        late_glance: tuple[list[Frame], np.ndarray, PinholeCamera], monkeypatch: pytest.MonkeyPatch) -> None:
     """A glance can end in a view the map barely covers, where the features find no pose
     from the coasted frame before (threaded runs, with local mapping behind: 30 frames lost
     on walking_hard). Simulated here, deterministically, by failing the features' own
     tracking of every frame that follows a coasted frame without a keyframe. Without the
     settled keyframe the coast runs out (15 frames) and frames are lost; with it the third
     sharp, slowly turning coasted frame makes a keyframe and the next frame tracks from it."""
-    cfg = SEQUENCES["walking_turns"].replace(exposure_ms=16.0, people=0, width=320, height=240)
-    r = Renderer(cfg)  # frames 440-479: at rest, the glance of frames 451-458, at rest
-    frames, poses, cam = rendered_frames(r, range(440, 480)), r.poses.copy(), PinholeCamera(*cfg.intrinsics())
+    frames, poses, cam = late_glance
     features_own = Tracking._track_frame
 
     def lost_after_a_coast(self: Tracking, cur: object, timings: dict[str, float]) -> bool:
@@ -204,15 +212,14 @@ def test_glance_ending_in_a_thin_view_makes_a_keyframe(monkeypatch: pytest.Monke
 
 
 @pytest.mark.slow
-def test_coast_whose_matches_run_out_keeps_the_shifts_rotation(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_coast_whose_matches_run_out_keeps_the_shifts_rotation(
+        late_glance: tuple[list[Frame], np.ndarray, PinholeCamera], monkeypatch: pytest.MonkeyPatch) -> None:
     """A glance into a view the map does not cover yet: a frame that continues a coast can
     find too few matches to fit its rotation (walking_hard seed 21: 12, 8, 7, then 5, and 7
     frames were lost). It keeps the images' shift's rotation instead. Simulated here by
     refusing every fit of a continuing coast: every frame is still tracked, and no frame's
     rotation is more than 1 deg further from the truth than with the fits."""
-    cfg = SEQUENCES["walking_turns"].replace(exposure_ms=16.0, people=0, width=320, height=240)
-    r = Renderer(cfg)  # frames 440-479: at rest, the glance of frames 451-458, at rest
-    frames, poses, cam = rendered_frames(r, range(440, 480)), r.poses.copy(), PinholeCamera(*cfg.intrinsics())
+    frames, poses, cam = late_glance
     fit = tracking_module.fit_rotation_about_centre
 
     def none_left_when_continuing(*args: object, **kwargs: object) -> RotationFit:

@@ -240,7 +240,6 @@ class Tracking:
                         ok = coasted = self._coast(cur, ok)
                     else:
                         self._coasting = 0
-                        self._calm_coasted = 0
                 if not coasted and self._odometry_due(ok, cur.T_cw, depth):
                     t0 = time.perf_counter()
                     ok, odo = self._track_with_odometry(cur, frame.gray, depth, ok)  # type: ignore[arg-type]
@@ -444,6 +443,7 @@ class Tracking:
         if self._coasting == 0:
             self._coast_from = self._steady_centres[-1]
             self._coast_run.clear()
+            self._calm_coasted = 0
         self._coasting += 1
         self.n_coasted_frames += 1
         return True
