@@ -92,6 +92,35 @@ def test_warp_without_pose_or_depth_keeps_the_mask_and_adds_the_margin() -> None
     assert relative_pose(None, T_pred) is None and relative_pose(T_src, None) is None
 
 
+def test_warping_the_masks_box_equals_warping_the_whole_image() -> None:
+    """``warp_mask`` warps only where the mask's bounding box lands; on random blobs and
+    motions (sideways, towards, behind the horizon, off the image) it gives the pixels of
+    one ``cv2.warpPerspective`` over the whole image, and a plane depth given by the caller
+    (the scheduler measures it once per source) gives the same as measuring it."""
+    import cv2
+
+    from semslam.dynamics.warp import plane_depth, plane_homography
+
+    rng = np.random.default_rng(3)
+    checked = 0
+    for i in range(200):
+        src = np.zeros((H, W), bool)
+        for _ in range(rng.integers(1, 4)):
+            v0, u0 = rng.integers(0, H - 5), rng.integers(0, W - 5)
+            src[v0:v0 + rng.integers(3, 60), u0:u0 + rng.integers(3, 80)] = True
+        depth = rng.uniform(0.5, 5.0, (H, W)).astype(np.float32)
+        rot, _ = cv2.Rodrigues(rng.normal(size=3) * (0.02 if i % 3 else 0.3))
+        T_kj = np.eye(4)
+        T_kj[:3, :3], T_kj[:3, 3] = rot, rng.normal(size=3) * (0.05 if i % 3 else 1.0)
+        full = cv2.warpPerspective(src.view(np.uint8), plane_homography(T_kj, CAM, plane_depth(src, depth)),
+                                   (W, H), flags=cv2.INTER_NEAREST).view(bool)
+        out = warp_mask(src, depth, CAM, T_kj)
+        assert np.array_equal(out, full), i
+        assert np.array_equal(warp_mask(src, depth, CAM, T_kj, 2, plane_depth(src, depth)), dilate(full, 2)), i
+        checked += int(full.any())
+    assert checked > 100  # most motions keep part of the mask in view
+
+
 # ---------------------------------------------------------------- scheduler
 
 

@@ -90,7 +90,33 @@ def pick_references(stamps: Sequence[float], now: float, n: int, min_age_s: floa
 def project_references(T_cw: NDArray[np.float64], depth: NDArray[np.float32], camera: PinholeCamera,
                        refs: list[Reference], params: DynamicsConfig = DynamicsConfig()) -> TestedPoints:
     """Project reference keypoints (``refs``: per keyframe ``(T_cw, xy_undistorted, depth)``)
-    into the current frame and test their depth there.
+    into the current frame and test their depth there: a point is tested where it lands in
+    the image more than 0.1 m in front of the camera, seen under a parallax angle up to
+    ``params.parallax_deg`` and on a measured pixel; it is dynamic where the current depth
+    is clearly in front of it. One compiled pass (``multiview_kernels``)."""
+    from semslam.dynamics.multiview_kernels import project_and_test
+
+    if not refs:
+        e = np.zeros(0)
+        return TestedPoints(np.zeros((0, 2)), e, e.astype(np.float32), np.zeros((0, 3)), np.zeros(0, bool))
+    Rs = np.empty((len(refs), 3, 3))
+    ts = np.empty((len(refs), 3))
+    for k, (T_ref, _, _) in enumerate(refs):
+        Rs[k] = T_cw[:3, :3] @ T_ref[:3, :3].T  # ref camera -> current camera
+        ts[k] = T_cw[:3, 3] - Rs[k] @ T_ref[:3, 3]  # = the ref camera centre, in the current camera
+    xy = np.concatenate([np.asarray(r[1], np.float64).reshape(-1, 2) for r in refs])
+    z = np.concatenate([np.asarray(r[2], np.float64).reshape(-1) for r in refs])
+    ref_of = np.repeat(np.arange(len(refs)), [len(r[2]) for r in refs])
+    uv, zp, zm, centre, dyn = project_and_test(Rs, ts, xy, z, ref_of, depth, (camera.fx, camera.fy, camera.cx, camera.cy),
+                                               float(np.cos(np.radians(params.parallax_deg))),
+                                               params.depth_threshold_m, params.depth_threshold_rel)
+    return TestedPoints(uv, zp, zm, centre, dyn)
+
+
+def project_references_reference(T_cw: NDArray[np.float64], depth: NDArray[np.float32], camera: PinholeCamera,
+                       refs: list[Reference], params: DynamicsConfig = DynamicsConfig()) -> TestedPoints:
+    """``project_references`` in numpy array passes: the reference the compiled kernel is
+    tested against (``multiview_kernels``).
 
     All keyframes' points are transformed in one batch: each point is moved straight from
     its keyframe into the current camera (``T_cw @ T_ref^-1``), and the parallax angle is
@@ -170,6 +196,8 @@ def _static_occlusion(points: TestedPoints, dynamic: NDArray[np.bool_], occl: ND
     seed ambiguous. The segment is sampled every 2 pixels of ``occl`` or closer (up to
     ``MAX_STEPS`` samples: segments longer than ``2 * s * MAX_STEPS`` are sampled coarser).
     """
+    from semslam.dynamics.multiview_kernels import occluder_on_segments
+
     out = np.zeros(len(dynamic), bool)
     k = np.nonzero(dynamic)[0]
     if len(k) == 0:
@@ -185,13 +213,20 @@ def _static_occlusion(points: TestedPoints, dynamic: NDArray[np.bool_], occl: ND
     length = np.maximum(np.linalg.norm(delta, axis=1), 1e-9)
     reach = (length + PARALLAX_MARGIN_PX) / length  # a little beyond the displaced point
     steps = int(np.clip(np.ceil((length.max() + PARALLAX_MARGIN_PX) / (2.0 * s)), 1, MAX_STEPS))
-    lam = np.linspace(0.0, 1.0, steps + 1)[None, :, None] * reach[:, None, None]
+    out[k] = occluder_on_segments(uv, delta, reach, np.linspace(0.0, 1.0, steps + 1), occl, s)
+    return out
+
+
+def occluder_on_segments_reference(uv: NDArray[np.float64], delta: NDArray[np.float64], reach: NDArray[np.float64],
+                                   lin: NDArray[np.float64], occl: NDArray[np.bool_], s: int) -> NDArray[np.bool_]:
+    """``multiview_kernels.occluder_on_segments`` in numpy (a seeds x samples array): the
+    reference the compiled kernel is tested against."""
+    lam = lin[None, :, None] * reach[:, None, None]
     q = (uv[:, None, :] - lam * delta[:, None, :]) / s
     hl, wl = occl.shape
     qu = np.clip(np.rint(q[..., 0]).astype(np.intp), 0, wl - 1)
     qv = np.clip(np.rint(q[..., 1]).astype(np.intp), 0, hl - 1)
-    out[k] = occl[qv, qu].any(axis=1)
-    return out
+    return occl[qv, qu].any(axis=1)
 
 
 def grow_regions(depth: NDArray[np.float32], uv: NDArray[np.float64], dynamic: NDArray[np.bool_],

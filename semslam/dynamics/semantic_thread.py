@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from semslam.config import SemanticsConfig
 from semslam.core.protocols import FramePacket, MotionPrior
 from semslam.core.types import Frame, LabelMap
-from semslam.dynamics.warp import relative_pose, warp_mask
+from semslam.dynamics.warp import plane_depth, relative_pose, warp_mask
 from semslam.geometry.camera import PinholeCamera
 
 log = logging.getLogger(__name__)
@@ -40,6 +40,8 @@ class _Segmented:
     index: int
     mask: NDArray[np.bool_] | Future[NDArray[np.bool_]]
     depth: NDArray[np.float32] | None
+    plane_depth_m: float | None = None  # the warp's plane (warp.plane_depth), measured once
+    plane_measured: bool = False
 
 
 #: Tracked poses kept for warping (frames back from the newest): more than any backlog.
@@ -193,7 +195,9 @@ class SemanticThread:
         if self.cfg.warp == "pose" and prior is not None and self.camera is not None:
             T_kj = relative_pose(self._poses.get(src.index), prior.predicted())
         margin = self.cfg.warp_margin_px * max(1, index - src.index)
-        return warp_mask(src.mask, src.depth, self.camera, T_kj, margin)
+        if T_kj is not None and not src.plane_measured:
+            src.plane_depth_m, src.plane_measured = plane_depth(src.mask, src.depth), True
+        return warp_mask(src.mask, src.depth, self.camera, T_kj, margin, src.plane_depth_m)
 
     def stats(self) -> dict[str, float]:
         def median(v: list[float]) -> float:

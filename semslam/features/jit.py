@@ -15,6 +15,7 @@ KERNEL_MODULES = (
     "semslam.features.matching_kernels",
     "semslam.features.keypoint_grid",
     "semslam.backend.pose_only",
+    "semslam.dynamics.multiview_kernels",
 )
 
 _done = False
