@@ -239,3 +239,27 @@ def test_ransac_se3_lets_other_errors_through(monkeypatch: pytest.MonkeyPatch) -
     with pytest.raises(IndexError):
         ransac_se3(x1, x2, uv1, uv2, np.ones(30), np.ones(30), cam, np.random.default_rng(0))
     assert issubclass(AlignmentError, ValueError)  # what the loop does catch
+
+
+def test_loop_whose_candidate_was_culled_meanwhile_is_dropped_not_a_crash() -> None:
+    """Threaded, local mapping can cull the loop candidate while loop closing checks it (a
+    threaded orb run on walking_xyz stopped with KeyError in the essential graph: the
+    candidate had left the map). The correction then drops the loop and counts it; no pose
+    moves and the thread goes on."""
+    words = np.arange(16, dtype=np.int32)
+    slam_map = _chain_map(12, BowVector(words, np.full(16, 1 / 16)))
+    cfg = load_config("orb", ["slam.sequential=true"])
+    cam = PinholeCamera(500.0, 500.0, 320.0, 240.0)
+    closer = LoopClosing(cfg, cam, slam_map, KeyframeDatabase(), BundleAdjustmentRunner(),
+                         PointFusion(slam_map, cam, 40.0), KeyframeInbox(), KeyframeInbox())
+    kfs = slam_map.all_keyframes()
+    for child, parent in zip(kfs[1:], kfs):  # a spanning tree: the essential graph has edges
+        child.parent = parent
+        parent.children.add(child)
+    kf, cand = kfs[-1], kfs[5]
+    slam_map.set_bad_keyframe(cand)  # culled between detection and correction
+    assert cand.bad
+    poses = {k.id: k.T_cw.copy() for k in slam_map.all_keyframes()}
+    closer._correct_loop(kf, cand, np.eye(4), {})
+    assert closer.stats["loops_dropped"] == 1 and closer.stats["loops"] == 0 and not closer.loops
+    assert all(np.array_equal(k.T_cw, poses[k.id]) for k in slam_map.all_keyframes())

@@ -127,7 +127,7 @@ class LoopClosing(KeyframeWorker):
         self.merger = merger
         self._hints: list[tuple[MergeHint, int]] = []  # (hint, keyframes it is still tried on)
         self.loops: list[tuple[int, int]] = []
-        self.stats = {"loops": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
+        self.stats = {"loops": 0, "loops_dropped": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
                       "global_ba_ms": [], "pose_graph_ms": [], "merges": 0}
 
     def _write_normals(self, points: list[MapPoint]) -> None:
@@ -258,6 +258,20 @@ class LoopClosing(KeyframeWorker):
                         return True
         return False
 
+    def _culled_meanwhile(self, kf: KeyFrame, cand: KeyFrame, what: str) -> bool:
+        """Whether local mapping culled one of the pair while the loop or merge was being
+        detected (ORB-SLAM2 protects them from DetectLoop on; here they are protected from
+        the correction on; call with local mapping paused). Then nothing anchors the
+        correction: it is dropped and counted, and the place is found again from a later
+        keyframe."""
+        with self.map.lock:
+            gone = cand if cand.bad else kf if kf.bad else None
+        if gone is None:
+            return False
+        log.info("%s %d <-> %d dropped: keyframe %d was culled during detection", what, kf.id, cand.id, gone.id)
+        self.stats["loops_dropped"] += 1
+        return True
+
     def _merge_maps(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]) -> None:
         """Merge kf's map with cand's (``slam/map_merging.py``) with local mapping paused, then
         the essential graph and global BA over the merged map, as after a loop."""
@@ -266,6 +280,8 @@ class LoopClosing(KeyframeWorker):
         if not self.mapping.wait_idle(timeout=60.0):
             log.warning("local mapping still busy after 60 s; merging maps anyway")
         with self.mapping.paused():
+            if self._culled_meanwhile(kf, cand, "merge"):
+                return
             res = self.merger.merge(kf, cand, T12, matched)
             # The merged map moved rigidly: measurements are its poses now (nothing "old").
             self._optimize_essential_graph(res.anchor, {}, {}, res.new_links)
@@ -359,6 +375,8 @@ class LoopClosing(KeyframeWorker):
         with self.mapping.paused() as stopped:
             if not stopped:
                 log.warning("local mapping did not pause within 60 s; correcting the loop anyway")
+            if self._culled_meanwhile(kf, cand, "loop"):
+                return
             self._correct_loop_paused(kf, cand, T12, matched)
         self.loops.append((kf.id, cand.id))
         self.stats["loops"] += 1

@@ -244,6 +244,7 @@ class OrbSlamSystem:
             "global_ba": closer.stats["global_ba"],
             "global_ba_failed": closer.stats["global_ba_failed"],
             "pose_graph_failed": closer.stats["pose_graph_failed"],
+            "loops_dropped": closer.stats["loops_dropped"],
             "ba_worker_restarts": self.ba_runner.restarts,
             "culled_keyframes": mapper.stats["culled_keyframes"],
             "triangulated_points": mapper.stats["triangulated"],
