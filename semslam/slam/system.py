@@ -32,7 +32,7 @@ class System:
     def __init__(self, config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None) -> None:
         create_tracker = registry.load("tracker", config.tracking.method)
         # Compiled kernels are built (or loaded from disk) now, not inside the first frames.
-        self.jit_warmup_s = warm_up_kernels()
+        self.jit_warmup_s = warm_up_kernels(("semslam.dynamics.multiview_kernels", "semslam.slam.row_kernels"))
         self.config = config
         self.camera = camera
         depth: DepthSource = registry.create("depth_source", config.depth.source, config.depth.resolved(config.semantics))

@@ -32,6 +32,7 @@ from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.frame_state import FrameState
 from semslam.slam.keyframe_worker import KeyframeSink
 from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
+from semslam.slam.row_kernels import first_seen_unique
 from semslam.slam.search import project, rotation_consistent, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
@@ -869,9 +870,7 @@ class Tracking:
             self.ref_kf = best
             cur.ref_kf = best
         rows = np.concatenate([kf.points.rows for kf in self.local_kfs]) if self.local_kfs else np.zeros(0, np.intp)
-        rows = rows[rows >= 0]
-        _, first = np.unique(rows, return_index=True)
-        rows = rows[np.sort(first)]
+        rows = first_seen_unique(rows)
         self.local_rows = rows[~self.map.store.bad[rows]]
 
     def _track_local_map(self, cur: FrameState) -> bool:

@@ -1,4 +1,4 @@
-"""The multi-view check's compiled projection equals its numpy reference.
+"""The tracking thread's compiled kernels equal their numpy references (multi-view check, local-map rows).
 
 ``project_references`` (one numba pass) against ``project_references_reference`` (numpy
 array passes) on random keyframes, poses, keypoints and depth images: the same points
@@ -79,3 +79,17 @@ def test_compiled_occluder_sampling_equals_the_numpy_reference(seed: int) -> Non
     assert np.array_equal(got, want)
     if n > 50 and seed % 4:
         assert 0 < got.sum() < n or got.all()  # the draw hits occluders
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_first_seen_unique_equals_the_numpy_reference(seed: int) -> None:
+    """Tracking's local map rows: the distinct rows >= 0 in first-seen order, as the sort-based
+    numpy version gives them (empty, all -1, duplicates far apart, large rows)."""
+    from semslam.slam.row_kernels import first_seen_unique, first_seen_unique_reference
+
+    rng = np.random.default_rng(seed)
+    n = [0, 5, 100, 5000, 40000, 3][seed]
+    rows = rng.integers(-1, max(1, n // 2) if seed != 5 else 0, n)
+    got = first_seen_unique(rows)
+    want = first_seen_unique_reference(rows)
+    assert got.dtype == np.intp and np.array_equal(got, want)
