@@ -1,4 +1,4 @@
-"""Dynamic masks as extractor masks: combine, add a border band, test keypoints.
+"""Dynamic masks as extractor masks: combine, add a border band, test keypoints, bound them.
 
 DDL-SLAM deletes ORB points in a band around the dynamic masks as well as inside them:
 segmentation edges are uncertain and corners on a mover's silhouette belong to it.
@@ -35,3 +35,16 @@ def keypoints_in_mask(xy: NDArray[np.floating], mask: NDArray[np.bool_]) -> NDAr
     u = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, w - 1)
     v = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, h - 1)
     return mask[v, u]
+
+
+def bounding_box(mask: NDArray[np.bool_], margin: int = 0) -> tuple[int, int, int, int] | None:
+    """(y0, y1, x0, x1), ends exclusive: the box of the True pixels grown by ``margin`` and
+    clipped to the image; None if none (SRM works inside it, the mask warp maps it)."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    y0, y1 = max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + margin + 1)
+    x0, x1 = max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + margin + 1)
+    return y0, y1, x0, x1

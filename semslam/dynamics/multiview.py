@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import DynamicsConfig
+from semslam.dynamics.multiview_kernels import occluder_on_segments, project_and_test
 from semslam.geometry.camera import PinholeCamera
 
 #: Seeds within the parallax bound plus this many pixels of a depth edge are ambiguous.
@@ -94,8 +95,6 @@ def project_references(T_cw: NDArray[np.float64], depth: NDArray[np.float32], ca
     the image more than 0.1 m in front of the camera, seen under a parallax angle up to
     ``params.parallax_deg`` and on a measured pixel; it is dynamic where the current depth
     is clearly in front of it. One compiled pass (``multiview_kernels``)."""
-    from semslam.dynamics.multiview_kernels import project_and_test
-
     if not refs:
         e = np.zeros(0)
         return TestedPoints(np.zeros((0, 2)), e, e.astype(np.float32), np.zeros((0, 3)), np.zeros(0, bool))
@@ -114,7 +113,7 @@ def project_references(T_cw: NDArray[np.float64], depth: NDArray[np.float32], ca
 
 
 def project_references_reference(T_cw: NDArray[np.float64], depth: NDArray[np.float32], camera: PinholeCamera,
-                       refs: list[Reference], params: DynamicsConfig = DynamicsConfig()) -> TestedPoints:
+                                 refs: list[Reference], params: DynamicsConfig = DynamicsConfig()) -> TestedPoints:
     """``project_references`` in numpy array passes: the reference the compiled kernel is
     tested against (``multiview_kernels``).
 
@@ -196,8 +195,6 @@ def _static_occlusion(points: TestedPoints, dynamic: NDArray[np.bool_], occl: ND
     seed ambiguous. The segment is sampled every 2 pixels of ``occl`` or closer (up to
     ``MAX_STEPS`` samples: segments longer than ``2 * s * MAX_STEPS`` are sampled coarser).
     """
-    from semslam.dynamics.multiview_kernels import occluder_on_segments
-
     out = np.zeros(len(dynamic), bool)
     k = np.nonzero(dynamic)[0]
     if len(k) == 0:

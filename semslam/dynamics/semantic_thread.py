@@ -20,6 +20,7 @@ import logging
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,8 +41,13 @@ class _Segmented:
     index: int
     mask: NDArray[np.bool_] | Future[NDArray[np.bool_]]
     depth: NDArray[np.float32] | None
-    plane_depth_m: float | None = None  # the warp's plane (warp.plane_depth), measured once
-    plane_measured: bool = False
+
+    @cached_property
+    def plane_depth_m(self) -> float | None:
+        """The warp's plane (``warp.plane_depth``), measured once for all the frames warped
+        from this one (the mask must be finished)."""
+        assert not isinstance(self.mask, Future)
+        return plane_depth(self.mask, self.depth)
 
 
 #: Tracked poses kept for warping (frames back from the newest): more than any backlog.
@@ -195,9 +201,8 @@ class SemanticThread:
         if self.cfg.warp == "pose" and prior is not None and self.camera is not None:
             T_kj = relative_pose(self._poses.get(src.index), prior.predicted())
         margin = self.cfg.warp_margin_px * max(1, index - src.index)
-        if T_kj is not None and not src.plane_measured:
-            src.plane_depth_m, src.plane_measured = plane_depth(src.mask, src.depth), True
-        return warp_mask(src.mask, src.depth, self.camera, T_kj, margin, src.plane_depth_m)
+        return warp_mask(src.mask, src.depth, self.camera, T_kj, margin,
+                         src.plane_depth_m if T_kj is not None else None)
 
     def stats(self) -> dict[str, float]:
         def median(v: list[float]) -> float:

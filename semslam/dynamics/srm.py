@@ -38,6 +38,8 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
+from semslam.dynamics.masks import bounding_box
+
 # Pixels decided by the exact window check at once (x window^2 float32 values in memory).
 _CHUNK = 4096
 
@@ -87,7 +89,7 @@ def refine_segmentation(
     dyn = np.asarray(dynamic, dtype=bool)
     out = dyn.copy()
     r = window // 2
-    box = _bbox(dyn, r)
+    box = bounding_box(dyn, r)
     if box is None:
         return out
     # Work inside the bounding box of everything a dynamic pixel can reach.
@@ -129,18 +131,6 @@ def refine_segmentation(
         add[amb] = _exact_window_check(d, s, py[amb], px[amb], dj[amb].astype(np.float64), r, tau64)
     out[y0 + py[add], x0 + px[add]] = True
     return out
-
-
-def _bbox(mask: NDArray[np.bool_], margin: int) -> tuple[int, int, int, int] | None:
-    """(y0, y1, x0, x1) of the True pixels grown by ``margin`` and clipped; None if none."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0:
-        return None
-    cols = np.flatnonzero(mask.any(axis=0))
-    h, w = mask.shape
-    y0, y1 = max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + margin + 1)
-    x0, x1 = max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + margin + 1)
-    return y0, y1, x0, x1
 
 
 def _exact_window_check(

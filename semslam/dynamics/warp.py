@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.dynamics.masks import dilate
+from semslam.dynamics.masks import bounding_box, dilate
 from semslam.geometry.camera import PinholeCamera
 
 
@@ -75,10 +75,11 @@ def _warped_box(H: NDArray[np.float64], mask: NDArray[np.bool_], w: int, h: int
     ``H``, clipped to the image (a pixel of margin for nearest-pixel rounding); the whole
     image if a corner maps behind the camera (the plane's horizon crosses the box); None if
     the box lands outside the image."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    xs = (cols[0] - 0.5, cols[-1] + 0.5)
-    ys = (rows[0] - 0.5, rows[-1] + 0.5)
+    box = bounding_box(mask)
+    assert box is not None  # warp_mask returned early for an empty mask
+    r0, r1, c0, c1 = box
+    xs = (c0 - 0.5, c1 - 0.5)
+    ys = (r0 - 0.5, r1 - 0.5)
     corners = H @ np.array([[x, y, 1.0] for x in xs for y in ys]).T
     if not (corners[2] > 1e-9).all():
         return 0, 0, w, h
