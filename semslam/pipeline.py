@@ -29,9 +29,14 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 
 
-def prefetch(items: Iterator[T], depth: int = 2) -> Generator[T, None, None]:
-    """Decode the next frames in a background thread (OpenCV releases the GIL)."""
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="reader") as pool:
+def prefetch(items: Iterator[T], depth: int = 2, background: bool = True) -> Generator[T, None, None]:
+    """Decode the next frames in a background thread (OpenCV releases the GIL), at
+    ``runtime.BACKGROUND_NICE`` with ``background``: ahead of tracking by ``depth`` frames, it
+    need not take a core from the frame being tracked."""
+    from semslam.runtime import lower_thread_priority
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="reader",
+                            initializer=lower_thread_priority if background else None) as pool:
         sentinel = object()
         it = iter(items)
         queue = [pool.submit(next, it, sentinel) for _ in range(depth)]

@@ -304,3 +304,75 @@ def test_margin_grows_with_the_frames_since_the_segmented_one(segmenter: _Blocki
         st.close()
     assert segmenter.calls == [0]
     assert np.array_equal(masks[1], dilate(_painted(0), 2)) and np.array_equal(masks[2], dilate(_painted(0), 4))
+
+
+# ---------------------------------------------------------------- priorities
+
+
+def _niceness() -> int:
+    import os
+
+    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+
+#: (thread name, niceness) where ``recording`` built each backend.
+_BUILT_ON: list[tuple[str, int]] = []
+
+
+def recording(cfg: SemanticsConfig) -> _Blocking:
+    _BUILT_ON.append((threading.current_thread().name, _niceness()))
+    return _Blocking()
+
+
+def test_latest_builds_the_backend_on_the_niced_semantic_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A backend's own inference threads (MediaPipe's graph) inherit the niceness of the
+    thread that builds it: with ``latest`` that is the semantic thread, below tracking; with
+    ``every`` tracking waits for the masks, so nothing is niced."""
+    import os
+
+    from semslam.runtime import BACKGROUND_NICE
+
+    if not hasattr(os, "setpriority") or BACKGROUND_NICE <= 0:
+        pytest.skip("no per-thread priorities here")
+    built = _BUILT_ON
+    built.clear()
+    monkeypatch.setitem(registry.PLUGINS["segmenter"], "test_recording", "tests.test_semantic_schedule:recording")
+    base = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    for schedule, nice in (("latest", min(19, base + BACKGROUND_NICE)), ("every", base)):
+        cfg = SemanticsConfig(backend="test_recording", dynamic_classes=["person"], schedule=schedule)
+        SemanticThread(cfg, threaded=True, camera=CAM).close()
+        name, niceness = built[-1]
+        assert name.startswith("semantic") and niceness == nice, (schedule, built)
+
+
+def test_a_thread_is_niced_relative_to_the_process_not_twice() -> None:
+    """A pool's worker starts in whichever thread first submits to it and inherits its
+    niceness: lowering it again must not add up (the reader's pool once put the semantic
+    thread at twice the background niceness)."""
+    import os
+
+    from semslam.runtime import lower_thread_priority
+
+    if not hasattr(os, "setpriority"):
+        pytest.skip("no per-thread priorities here")
+    base = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    seen: list[int] = []
+
+    def inner() -> None:
+        lower_thread_priority(3)
+        seen.append(_niceness())
+
+    def outer() -> None:
+        lower_thread_priority(3)
+        seen.append(_niceness())
+        lower_thread_priority(3)  # again: no change
+        seen.append(_niceness())
+        t = threading.Thread(target=inner)  # inherits 3, asks for 3: stays 3
+        t.start()
+        t.join()
+
+    t = threading.Thread(target=outer)
+    t.start()
+    t.join()
+    assert seen == [min(19, base + 3)] * 3
+    assert _niceness() == base  # the calling thread is untouched
