@@ -21,7 +21,7 @@ from semslam.config import SystemConfig
 from semslam.core.protocols import FramePacket, SequenceSource as Sequence
 from semslam.core.types import Frame, RunResult, TrackResult
 from semslam.errors import ConfigError, DataError, RunInterrupted
-from semslam.runtime import stop_requested
+from semslam.runtime import lower_thread_priority, stop_requested
 
 if TYPE_CHECKING:
     from semslam.viz.rerun_log import RerunRecorder
@@ -29,14 +29,11 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 
 
-def prefetch(items: Iterator[T], depth: int = 2, background: bool = True) -> Generator[T, None, None]:
+def prefetch(items: Iterator[T], depth: int = 2) -> Generator[T, None, None]:
     """Decode the next frames in a background thread (OpenCV releases the GIL), at
-    ``runtime.BACKGROUND_NICE`` with ``background``: ahead of tracking by ``depth`` frames, it
-    need not take a core from the frame being tracked."""
-    from semslam.runtime import lower_thread_priority
-
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="reader",
-                            initializer=lower_thread_priority if background else None) as pool:
+    ``runtime.BACKGROUND_NICE``: ahead of tracking by ``depth`` frames, it need not take a
+    core from the frame being tracked."""
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="reader", initializer=lower_thread_priority) as pool:
         sentinel = object()
         it = iter(items)
         queue = [pool.submit(next, it, sentinel) for _ in range(depth)]

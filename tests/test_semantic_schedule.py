@@ -334,15 +334,14 @@ def test_latest_builds_the_backend_on_the_niced_semantic_thread(monkeypatch: pyt
 
     if not hasattr(os, "setpriority") or BACKGROUND_NICE <= 0:
         pytest.skip("no per-thread priorities here")
-    built = _BUILT_ON
-    built.clear()
+    _BUILT_ON.clear()
     monkeypatch.setitem(registry.PLUGINS["segmenter"], "test_recording", "tests.test_semantic_schedule:recording")
     base = os.getpriority(os.PRIO_PROCESS, os.getpid())
     for schedule, nice in (("latest", min(19, base + BACKGROUND_NICE)), ("every", base)):
         cfg = SemanticsConfig(backend="test_recording", dynamic_classes=["person"], schedule=schedule)
         SemanticThread(cfg, threaded=True, camera=CAM).close()
-        name, niceness = built[-1]
-        assert name.startswith("semantic") and niceness == nice, (schedule, built)
+        name, niceness = _BUILT_ON[-1]
+        assert name.startswith("semantic") and niceness == nice, (schedule, _BUILT_ON)
 
 
 def test_a_thread_is_niced_relative_to_the_process_not_twice() -> None:

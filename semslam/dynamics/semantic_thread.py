@@ -30,6 +30,7 @@ from semslam.core.protocols import FramePacket, MotionPrior
 from semslam.core.types import Frame, LabelMap
 from semslam.dynamics.warp import plane_depth, relative_pose, warp_mask
 from semslam.geometry.camera import PinholeCamera
+from semslam.runtime import lower_thread_priority
 
 log = logging.getLogger(__name__)
 
@@ -54,12 +55,6 @@ class _Segmented:
 _POSE_HISTORY = 32
 
 
-def _background_priority() -> None:
-    from semslam.runtime import lower_thread_priority
-
-    lower_thread_priority()
-
-
 class SemanticThread:
     """``prepare(packet)`` starts segmenting (or skips the frame); ``mask(packet, prior)``
     returns (mask, ms tracking spent on it: waiting, or warping a skipped frame's mask)."""
@@ -75,7 +70,7 @@ class SemanticThread:
             # local mapping (at camera rate on 2 cores, walking_xyz 25-26 -> 24 ms/frame
             # median, late frames 67-84 -> 37-53; with `every` tracking waits for it, and
             # niced it made no difference).
-            initializer=_background_priority if cfg.schedule == "latest" else None) if threaded else None
+            initializer=lower_thread_priority if cfg.schedule == "latest" else None) if threaded else None
         # Made in the thread that runs it: a backend's own inference threads (MediaPipe's
         # graph, a torch pool) inherit that thread's niceness. Made here, MediaPipe's ran at
         # tracking's priority beside the niced thread that only waited for them
