@@ -19,8 +19,8 @@ from semslam.features import create_extractor
 from semslam.features.fpfdcnn import DEFAULT_WEIGHTS, FpfdcnnExtractor
 from semslam.features.matching import L2Matcher, matcher_for
 from semslam.nets.fpfdcnn import FPFDCNN, load_fpfdcnn, save_fpfdcnn
-from semslam.nets.train_fpfdcnn import FPTrainData, losses
-from tests.fpf_plane import write_plane_sequence
+from semslam.nets.train_fpfdcnn import FPTrainData, _cell_labels, losses, repeatability
+from tests.fpf_plane import CAM, write_plane_sequence
 
 
 @pytest.fixture(scope="module")
@@ -70,24 +70,72 @@ def test_extract_gives_float_keypoints_inside_the_mask(tiny_weights: Path):
     assert ex.meta["command"] == "test"
 
 
-@pytest.mark.parametrize("target", ["harris", "corners"])
-def test_tiny_training_run_lowers_both_losses(tmp_path: Path, target: str):
+@pytest.mark.parametrize("target, repeat", [("harris", 0.0), ("corners", 0.0), ("harris", 1.0), ("cells", 1.0)])
+def test_tiny_training_run_lowers_its_losses(tmp_path: Path, target: str, repeat: float):
     write_plane_sequence(tmp_path / "plane", [0.0, 0.03, 0.06, 0.09, 0.12])
     out = tmp_path / "fpf.pt"
     args = ["train", "fpfdcnn", "--data", str(tmp_path / "plane"), "--out", str(out), "--width", "0.125",
             "--steps", "60", "--batch", "2", "--crop", "128x96", "--gaps", "1,2", "--blur-p", "0",
-            "--lr", "3e-3", "--target", target, "--pos-weight", "5", "--seed", "0", "-q"]
+            "--lr", "3e-3", "--target", target, "--pos-weight", "5", "--seed", "0", "-q",
+            "--repeat-weight", str(repeat)]
     assert main(args) == 0
     trained, meta = load_fpfdcnn(out)
     assert meta["steps"] == 60 and meta["command"].startswith("semslam train fpfdcnn --data")
+    assert meta["repeat_weight"] == repeat and ("--repeat-weight" in meta["command"]) == (repeat > 0)
     torch.manual_seed(0)
     initial = FPFDCNN(0.125)  # the training run's initial weights (same seed)
-    data = FPTrainData([tmp_path / "plane"], (1, 2), target=target)
+    data = FPTrainData([tmp_path / "plane"], (1, 2), target=target, dense=repeat > 0)
     batch = data.batch(np.random.default_rng(7), 4, (128, 96), 0.0, 64)
     with torch.no_grad():
-        det0, desc0 = losses(initial, batch, 5.0)
-        det1, desc1 = losses(trained, batch, 5.0)
-    assert float(det1) < 0.8 * float(det0) and float(desc1) < 0.8 * float(desc0)
+        before = losses(initial, batch, 5.0)
+        after = losses(trained, batch, 5.0)
+    assert float(after.det) < 0.8 * float(before.det) and float(after.desc) < 0.8 * float(before.desc)
+    if repeat:
+        assert float(after.repeat) < float(before.repeat)
+
+
+def test_cell_labels_keep_each_cells_strongest_corner_and_a_dustbin_elsewhere():
+    corners = np.array([[3, 2], [10, 9], [5, 6], [30, 17]])  # strongest first; [5, 6] shares cell (0, 0)
+    labels = _cell_labels(corners, 32, 24)
+    assert labels.shape == (3, 4)
+    assert labels[0, 0] == 2 * 8 + 3 and labels[1, 1] == 1 * 8 + 2 and labels[2, 3] == 1 * 8 + 6
+    assert (np.delete(labels.ravel(), [0, 5, 11]) == 64).all()
+
+
+def test_dense_warp_moves_every_pixel_by_f_t_over_z(tmp_path: Path):
+    """The repeatability loss's warp on the analytic plane: frame j's crop pixel of frame
+    i's pixel u is u - fx * shift / z (camera moving sideways by ``shift``)."""
+    write_plane_sequence(tmp_path / "plane", [0.0, 0.04], z=2.0)
+    data = FPTrainData([tmp_path / "plane"], (1,), dense=True)
+    x0, y0, cw, ch = 96, 64, 128, 96
+    grid, valid = data._dense_warp(data.pairs[0], x0, y0, cw, ch)
+    u = (grid[..., 0] + 1) / 2 * cw - 0.5  # back from grid_sample's coordinates to crop pixels
+    v = (grid[..., 1] + 1) / 2 * ch - 0.5
+    du = CAM.fx * 0.04 / 2.0  # 10.7 px
+    ok = valid > 0
+    np.testing.assert_allclose(u[ok], (np.arange(cw)[None, :] - du).repeat(ch, 0)[ok], atol=1e-3)
+    np.testing.assert_allclose(v[ok], np.arange(ch)[:, None].repeat(cw, 1)[ok], atol=1e-3)
+    # Valid exactly where the moved pixel stays inside the crop (the plane has no occlusion).
+    assert not ok[:, :int(np.ceil(du))].any() and ok[:, int(np.ceil(du)) + 1:].all()
+
+
+def test_repeatability_rewards_sharp_agreeing_peaks_only():
+    """Two views of the same sharp peaks (identity warp) agree; peaks moved by 3 px in the
+    second view do not; flat maps (which a cosine of the two maps would call repeatable)
+    score worst: log(64) for an 8x8 patch."""
+    h, w = 32, 32
+    first = torch.full((1, 1, h, w), -6.0)
+    ys, xs = [6, 6, 22, 22], [5, 21, 6, 20]
+    for y, x in zip(ys, xs):
+        first[0, 0, y, x] = 3.0
+    ys_g, xs_g = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    grid = torch.stack([(xs_g + 0.5) / w * 2 - 1, (ys_g + 0.5) / h * 2 - 1], dim=-1)[None].float()
+    valid = torch.ones(1, 1, h, w)
+    heat = (torch.cat([first, first]) > 0).float()  # the labels: patches holding a peak count
+    same = repeatability(torch.cat([first, first]), heat, grid, valid, 8)
+    moved = repeatability(torch.cat([first, torch.roll(first, 3, dims=3)]), heat, grid, valid, 8)
+    flat = repeatability(torch.full((2, 1, h, w), -6.0), heat, grid, valid, 8)
+    assert float(same) < 0.01 and float(moved) > 5.0 and abs(float(flat) - np.log(64)) < 1e-4
 
 
 def test_no_keypoints_on_an_image_without_structure() -> None:

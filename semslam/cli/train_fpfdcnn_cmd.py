@@ -40,8 +40,13 @@ def fpfdcnn_command(
     blur_p: float = typer.Option(0.5, "--blur-p", min=0.0, max=1.0, help="Chance each image is motion-blurred."),
     lr: float = typer.Option(1e-3, "--lr"),
     target: str = typer.Option("corners", "--target", help="Detector labels: corners (Gaussian bumps on Harris "
-                                                           "corners) or harris (dense Harris response)."),
+                                                           "corners), harris (dense Harris response) or cells "
+                                                           "(SuperPoint's 8x8-cell softmax on Harris corners)."),
     pos_weight: float = typer.Option(20.0, "--pos-weight", min=0.0, help="Weight of the BCE's positive term."),
+    repeat_weight: float = typer.Option(0.0, "--repeat-weight", min=0.0,
+                                        help="Weight of the repeatability loss (the second view's probability map "
+                                             "warped onto the first with the true depth and poses; 0 = off)."),
+    repeat_patch: int = typer.Option(8, "--repeat-patch", min=2, help="Patch side (px) of the repeatability loss."),
     seed: int = typer.Option(0, "--seed", min=0),
     threads: int = typer.Option(1, "--threads", min=0, help="Torch threads (0 = torch's default)."),
     init: Path | None = typer.Option(None, "--init", help="Continue from this checkpoint (.pt, same --width) "
@@ -60,12 +65,13 @@ def fpfdcnn_command(
         raise ConfigError(f"--crop: expected WxH such as 320x240, got {crop!r}") from None
     cfg = FPTrainConfig(out=out, data=list(data), val=list(val), width=width, steps=steps, minutes=minutes,
                         batch=batch, crop=(w, h), gaps=_ints(gaps, "--gaps"), blur_p=blur_p, lr=lr, seed=seed,
-                        target=target, pos_weight=pos_weight,
-                        threads=threads, init=init)
+                        target=target, pos_weight=pos_weight, repeat_weight=repeat_weight,
+                        repeat_patch=repeat_patch, threads=threads, init=init)
     args = [x for d in data for x in ("--data", str(d))] + [x for v in val for x in ("--val", str(v))]
     args += ["--out", str(out), "--width", str(width), "--steps", str(steps), "--minutes", str(minutes),
              "--batch", str(batch), "--crop", crop, "--gaps", gaps, "--blur-p", str(blur_p), "--lr", str(lr),
              "--target", target, "--pos-weight", str(pos_weight),
+             *(["--repeat-weight", str(repeat_weight), "--repeat-patch", str(repeat_patch)] if repeat_weight > 0 else []),
              "--seed", str(seed), "--threads", str(threads)] + (["--init", str(init)] if init is not None else [])
     cfg.command = shlex.join(["semslam", "train", "fpfdcnn", *args])
     say = (lambda msg: None) if quiet else (lambda msg: typer.echo(msg, err=True))
