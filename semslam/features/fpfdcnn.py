@@ -13,10 +13,10 @@ Descriptors are unit length (distances in [0, 2]). ``TH_LOW`` / ``TH_HIGH`` (ORB
 TH_LOW / TH_HIGH) are the distances accepting as many keypoint pairs of unrelated images
 as ORB's 50 / 100 bits do (0.049 % / 14 % of 45 M pairs, the rule ``features/sift.py``
 uses), measured for the shipped weights by ``python benchmarks/sift_thresholds.py --other
-fpfdcnn``: 0.55 / 1.20 with the earlier 9x9 NMS window. At those, 97.8 % / 99.98 % of the true
-matches of freiburg2_desk pairs 3 and 10 frames apart are kept (ORB: 51 % / 84 %). Re-measured
-with the 5x5 window (2026-11-27): 0.51 / 1.18 (98.5 % / 99.99 % kept); the values were left as
-they are (within 7 %, and every `sdf` number in the README was measured with them).
+fpfdcnn``: 0.62 / 1.21 for the weights shipped 2026-11-29 (cell-softmax detector; at those
+98.5 % / 100 % of the true matches of freiburg2_desk pairs 3 and 10 frames apart are kept,
+ORB 52 % / 84 %). The earlier weights measured 0.55 / 1.20 (9x9 NMS window) and 0.51 / 1.18
+(5x5).
 
 Weights (``semslam/data/fpfdcnn.onnx``, run by ONNX Runtime without torch, unless given:
 an ``.onnx`` from ``semslam export-onnx`` or a ``.pt`` checkpoint, which torch runs) are
@@ -52,8 +52,8 @@ THRESHOLD = 0.015  # keypoint probability floor
 #: pixel) within 2 px must reach this. The shipped detector's probabilities do not separate
 #: texture from none (a black frame gave 1000 points above THRESHOLD), as FAST's threshold does.
 MIN_GRADIENT = 8.0
-TH_LOW = 0.55  # see the module doc
-TH_HIGH = 1.20
+TH_LOW = 0.62  # see the module doc
+TH_HIGH = 1.21
 
 
 class FpfdcnnExtractor:
