@@ -44,7 +44,7 @@ def fpfdcnn_command(
                                                            "(SuperPoint's 8x8-cell softmax on Harris corners)."),
     pos_weight: float = typer.Option(20.0, "--pos-weight", min=0.0, help="Weight of the BCE's positive term."),
     repeat_weight: float = typer.Option(0.0, "--repeat-weight", min=0.0,
-                                        help="Weight of the repeatability loss (the second view's probability map "
+                                        help="Weight of the repeatability loss (the second view's keypoint logits "
                                              "warped onto the first with the true depth and poses; 0 = off)."),
     repeat_patch: int = typer.Option(8, "--repeat-patch", min=2, help="Patch side (px) of the repeatability loss."),
     seed: int = typer.Option(0, "--seed", min=0),

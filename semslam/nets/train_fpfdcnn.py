@@ -102,6 +102,7 @@ class _Pair:
     j: int
     xy1: np.ndarray
     xy2: np.ndarray
+    camera: PinholeCamera  # the folder's
 
 
 class FPTrainData:
@@ -115,10 +116,9 @@ class FPTrainData:
             raise ConfigError(f"train fpfdcnn: --target must be one of {', '.join(TARGETS)}, got {target!r}")
         self.heat_sigma = heat_sigma
         self.target = target
-        self.dense = dense  # keep depth, poses and cameras for the dense warp of each batch
+        self.dense = dense  # keep depth and poses for the dense warp of each batch
         self.depth: list[np.ndarray] = []
         self.pose: list[np.ndarray] = []
-        self.camera: list[PinholeCamera] = []
         self.harris_scale: list[float] = []
         self.gray: list[np.ndarray] = []
         self.corners: list[np.ndarray] = []
@@ -132,7 +132,6 @@ class FPTrainData:
                 if dense:
                     self.depth.append(d)
                     self.pose.append(seq.poses[k])
-                    self.camera.append(seq.camera)
                 self.corners.append(harris_corners(g, max_corners, min_distance=min_distance))
                 self.harris_scale.append(float(np.quantile(_harris(g), 0.995)) or 1.0)
             for gap in gaps:
@@ -140,7 +139,7 @@ class FPTrainData:
                     xy1 = self.corners[base + i]
                     xy2, ok = transfer_corners(xy1, frames[i][1], frames[j][1], seq.camera, seq.poses[i], seq.poses[j])
                     if ok.sum() >= 8:
-                        self.pairs.append(_Pair(base + i, base + j, xy1[ok], xy2[ok].astype(np.float32)))
+                        self.pairs.append(_Pair(base + i, base + j, xy1[ok], xy2[ok].astype(np.float32), seq.camera))
         if not self.pairs:
             raise ConfigError(f"train fpfdcnn: no frame pairs with correspondences in {', '.join(map(str, folders))}")
 
@@ -201,7 +200,7 @@ class FPTrainData:
         grid_sample coordinates (h, w, 2) (align_corners=False) and validity (h, w) float."""
         ys, xs = np.mgrid[y0:y0 + ch, x0:x0 + cw]
         xy1 = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
-        xy2, ok = transfer_corners(xy1, self.depth[p.i], self.depth[p.j], self.camera[p.i],
+        xy2, ok = transfer_corners(xy1, self.depth[p.i], self.depth[p.j], p.camera,
                                    self.pose[p.i], self.pose[p.j])
         u, v = xy2[:, 0] - x0, xy2[:, 1] - y0
         ok &= (u >= 0) & (u <= cw - 1) & (v >= 0) & (v <= ch - 1)
@@ -235,7 +234,8 @@ class Losses(NamedTuple):
 
 
 def losses(model: FPFDCNN, batch: dict[str, torch.Tensor], pos_weight: float, repeat_patch: int = 8) -> Losses:
-    """Detector BCE, descriptor hinge and (with a dense batch) repeatability (module doc)."""
+    """Detector (BCE, or the cell softmax with a "cells" batch), descriptor hinge and (with a
+    dense batch) repeatability (module doc)."""
     logit, coarse = model.logits(batch["img"])
     if "cells" in batch:  # SuperPoint's cell softmax on the sigmoid head's logits, dustbin logit 0
         per_cell = F.pixel_unshuffle(logit, CELL_PX)
@@ -332,7 +332,7 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
         "max_corners": cfg.max_corners, "min_distance": cfg.min_distance, "heat_sigma": cfg.heat_sigma,
         "target": cfg.target, "repeat_weight": cfg.repeat_weight, "repeat_patch": cfg.repeat_patch,
         "seed": cfg.seed, "train_seconds": round(time.perf_counter() - t_start, 1), "history": history,
-        "losses": "detector: weighted BCE on Harris corners; descriptor: SuperPoint hinge (1 / 0.2)",
+        "losses": _loss_names(cfg),
         "full_width_parameters": count_parameters(FPFDCNN(1.0)),
     }
     if init_meta is not None:  # how the starting weights were made, so the chain is reproducible
@@ -344,6 +344,16 @@ def train(cfg: FPTrainConfig, say: Callable[[str], None] = lambda _: None, match
         say(f"validation: {meta['val']}")
     save_fpfdcnn(cfg.out, model, meta)
     return meta
+
+
+def _loss_names(cfg: FPTrainConfig) -> str:
+    """The loss terms of a run, for its checkpoint's metadata."""
+    det = ("SuperPoint cell softmax on Harris corners" if cfg.target == "cells"
+           else f"weighted BCE on Harris {'response' if cfg.target == 'harris' else 'corners'}")
+    names = f"detector: {det}; descriptor: SuperPoint hinge (1 / 0.2)"
+    if cfg.repeat_weight > 0:
+        names += f"; repeatability x {cfg.repeat_weight}: cross-entropy to the other view's patch maximum"
+    return names
 
 
 def _initial_model(cfg: FPTrainConfig) -> tuple[FPFDCNN, dict[str, Any] | None]:
