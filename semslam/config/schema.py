@@ -119,6 +119,14 @@ class SdfSlamConfig:
     # Local data correction: one world position per feature track, the median of its
     # observations' back-projections; tracking uses it for the reference's points.
     local_correction: bool = True
+    # Depth alignment (not in the paper): each tracked frame's predicted depth is fitted to
+    # the map's depth of its PnP inliers, and its new points and depth map take the fitted
+    # depth, so that keyframes keep the map's scale (metric through the first keyframe) instead
+    # of each frame's own. "scale": the median ratio; "power": z_map = c * z ** p (scale and
+    # depth contrast, fitted in log depth); "none": the paper's raw depth. Needs at least
+    # ``alignment_min_points`` inliers with depth; else the last fit is kept.
+    depth_alignment: str = "none"
+    alignment_min_points: int = 50
 
     def check(self) -> None:
         """Raise ConfigError on values the tracker cannot use."""
@@ -131,6 +139,10 @@ class SdfSlamConfig:
         if not 0.0 < self.min_depth_m < self.max_depth_m:
             raise ConfigError(f"sdf_slam.min_depth_m / max_depth_m: expected 0 < min < max, "
                               f"got {self.min_depth_m} / {self.max_depth_m}")
+        if self.depth_alignment not in ("none", "scale", "power"):
+            raise ConfigError(f"sdf_slam.depth_alignment: expected none, scale or power, got {self.depth_alignment!r}")
+        if self.alignment_min_points < 3:
+            raise ConfigError(f"sdf_slam.alignment_min_points: expected >= 3, got {self.alignment_min_points}")
         if self.global_every < 1 or self.global_pairs < 0:
             raise ConfigError(f"sdf_slam.global_every / global_pairs: expected >= 1 / >= 0, "
                               f"got {self.global_every} / {self.global_pairs}")

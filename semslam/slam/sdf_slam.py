@@ -19,7 +19,11 @@ SDFCNN; for tests the ``ground_truth_depth`` oracle), then the pose:
    velocity prediction is kept to search from), and after ``reanchor_after`` lost frames in
    a row a frame with enough keypoints with depth becomes a new keyframe at that prediction (a weak edge in the pose graph, which
    sampled pairs can then correct) so tracking starts again from the current view.
-5. Keyframe when the inliers fall below ``keyframe_min_inliers`` or the camera moved or
+5. Depth alignment (``sdf_slam.depth_alignment``, ours, not the paper's): a tracked frame's
+   predicted depth is fitted to the map's depth of its PnP inliers (a scale, or a scale and a
+   power in log depth) and its 3D points and depth map take the fitted depth, so the points it
+   places keep the map's scale; the last fit serves frames without one.
+6. Keyframe when the inliers fall below ``keyframe_min_inliers`` or the camera moved or
    turned past the thresholds: its features join the feature tracks (local correction), a
    snapshot with the predicted depth and the labels goes to the map builders (the semantic
    cloud), and every ``global_every`` keyframes sampled keyframe pairs are solved and the
@@ -51,8 +55,8 @@ from semslam.features.matching import matcher_for, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.io.trajectory import Trajectory
-from semslam.slam.sdf_slam_correction import (Edge, TrackTable, ViewFeatures, candidate_pairs, correct_poses,
-                                              match_views, pair_constraint, relative_motion)
+from semslam.slam.sdf_slam_correction import (DepthAlignment, Edge, TrackTable, ViewFeatures, candidate_pairs,
+                                              correct_poses, fit_depth_alignment, match_views, pair_constraint, relative_motion)
 from semslam.slam.frame_to_keyframe import sample_depth
 from semslam.slam.sdf_slam_pnp import PnpSettings, solve_pnp
 
@@ -87,6 +91,17 @@ class _Reference:
     features: ViewFeatures
     pts_w: Array
     kf_index: int  # -1 for the previous frame
+
+
+@dataclass
+class _PoseFit:
+    """A frame's pose against a reference, with the inlier matches behind it."""
+
+    T_wc: Array | None
+    inliers: NDArray[np.bool_]
+    n_matches: int
+    query: NDArray[np.intp]  # frame keypoint of each match
+    ref_pts_w: Array  # the reference's world point of each match
 
 
 @dataclass
@@ -137,10 +152,11 @@ class SdfSlamTracker:
         self._last_index = -1
         self._delta: Array | None = None  # inv(T_wc(k-2)) @ T_wc(k-1): constant velocity
         self._n_lost = 0
+        self._alignment = DepthAlignment()  # the last fit of predicted to map depth (depth_alignment)
         self._min_points = max(2 * c.min_inliers, 50)  # keypoints with depth to start from (first, re-anchor)
         self._stopped = False
         self.counters = {"reanchors": 0, "fallback_reference": 0, "global_rounds": 0, "global_pairs_tried": 0,
-                         "global_constraints": 0, "pose_graph_failed": 0}
+                         "global_constraints": 0, "pose_graph_failed": 0, "alignment_kept": 0}
 
     # ------------------------------------------------------------------ per frame
     def track(self, packet: FramePacket) -> TrackResult:
@@ -168,7 +184,10 @@ class SdfSlamTracker:
             return self._initialise(packet, view, depth, len(kps), timings)
 
         predicted = self._predict()
-        T_wc, inl, n_matches = self._estimate(view, predicted, timings)
+        fit = self._estimate(view, predicted, timings)
+        T_wc, inl, n_matches = fit.T_wc, fit.inliers, fit.n_matches
+        if self.cfg.depth_alignment != "none":
+            view, depth = self._align_depth(view, depth, fit)
         state = TrackingState.OK if T_wc is not None else TrackingState.LOST
         is_kf = False
         if T_wc is not None:
@@ -196,6 +215,25 @@ class SdfSlamTracker:
                            n_inliers=int(inl.sum()) if T_wc is not None else 0, n_keypoints=len(kps),
                            is_keyframe=is_kf, dynamic_ratio=float(dynamic.mean()) if dynamic is not None else 0.0,
                            timings=timings)
+
+    def _align_depth(self, view: ViewFeatures, depth: NDArray[np.float32], fit: _PoseFit
+                     ) -> tuple[ViewFeatures, NDArray[np.float32]]:
+        """The frame's predicted depth (its 3D points and its depth map) brought to the map's:
+        fitted on its PnP inliers (``sdf_slam.depth_alignment``), else (a lost frame, too few
+        inliers with depth, a fit out of bounds) by the last fit."""
+        if fit.T_wc is not None:
+            pts_w = fit.ref_pts_w[fit.inliers]
+            z_map = (pts_w - fit.T_wc[:3, 3]) @ fit.T_wc[:3, 2]
+            found = fit_depth_alignment(z_map, view.pts_c[fit.query[fit.inliers], 2], self.cfg.depth_alignment,
+                                        self.cfg.alignment_min_points)
+            if found is not None:
+                self._alignment = found
+            else:
+                self.counters["alignment_kept"] += 1
+        z = view.pts_c[:, 2]
+        factor = np.divide(self._alignment.apply(z), z, out=np.zeros_like(z), where=z > 0)
+        aligned = ViewFeatures(view.xy, view.descriptors, view.pts_c * factor[:, None], view.has_depth)
+        return aligned, self._alignment.apply(depth).astype(np.float32, copy=False)
 
     def _view(self, kps: Keypoints, depth: NDArray[np.float32]) -> ViewFeatures:
         xy = self.camera.undistort_points(kps.xy)
@@ -240,14 +278,13 @@ class SdfSlamTracker:
         return MotionPrior(self._last_index, invert(self._last_wc), velocity)
 
     # ------------------------------------------------------------------ pose
-    def _estimate(self, view: ViewFeatures, predicted: Array, timings: dict[str, float]
-                  ) -> tuple[Array | None, NDArray[np.bool_], int]:
+    def _estimate(self, view: ViewFeatures, predicted: Array, timings: dict[str, float]) -> _PoseFit:
         """The pose against the configured reference, else the other one (see the module doc)."""
         refs = [self._kf_ref, self._last_ref]
         if self.cfg.reference == "frame":
             refs.reverse()
         t_match = t_pose = 0.0
-        best: tuple[Array | None, NDArray[np.bool_], int] = (None, np.zeros(len(view), bool), 0)
+        best = _PoseFit(None, np.zeros(0, bool), 0, np.zeros(0, np.intp), np.zeros((0, 3)))
         for k, ref in enumerate(r for r in refs if r is not None):
             for guided in self._searches:
                 t0 = time.perf_counter()
@@ -263,9 +300,9 @@ class SdfSlamTracker:
                 t_pose += time.perf_counter() - t1
                 if T_cw is not None:
                     self.counters["fallback_reference"] += int(k > 0)
-                    best = (invert(T_cw), inl, len(qi))
+                    best = _PoseFit(invert(T_cw), inl, len(qi), qi, ref.pts_w[ti])
                     break
-            if best[0] is not None:
+            if best.T_wc is not None:
                 break
         timings["match"] = t_match * 1e3
         timings["pose"] = t_pose * 1e3

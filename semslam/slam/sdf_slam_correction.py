@@ -18,6 +18,10 @@ the feature point matching pairs". What is built here, and the choices the paper
   position is the MEDIAN (per coordinate) of its observations' back-projections through their
   keyframes' current poses: with two observations the mean, and one bad predicted depth among
   three or more cannot pull it. Tracking takes these positions as the reference's 3D points.
+
+Not in the paper, and kept apart from it (``sdf_slam.depth_alignment``): the fit of a frame's
+predicted depth to the map's depth of the same points (``fit_depth_alignment``), so that a
+depth network whose scale and contrast wander between views does not hand each keyframe its own.
 """
 
 from __future__ import annotations
@@ -165,6 +169,57 @@ def pair_constraint(view_i: ViewFeatures, view_j: ViewFeatures, matcher: Matcher
     if T_j_i is None:
         return None
     return invert(T_j_i), int(inl.sum())
+
+
+@dataclass(frozen=True)
+class DepthAlignment:
+    """``z_map = exp(log_scale) * z_predicted ** power``: how a frame's predicted depth is
+    brought to the map's (``power`` 1 for a pure scale)."""
+
+    power: float = 1.0
+    log_scale: float = 0.0
+
+    def apply(self, z: NDArray[np.floating]) -> NDArray[np.floating]:
+        """Aligned depths; zeros (no depth) stay zero."""
+        z = np.asarray(z)
+        positive = z > 0
+        out = np.zeros_like(z)
+        out[positive] = np.exp(self.log_scale + self.power * np.log(z[positive]))
+        return out
+
+
+#: A fitted ratio or power outside these is taken for a failure (wrong pose, broken depth map).
+SCALE_BOUNDS = (0.5, 2.0)
+POWER_BOUNDS = (0.4, 1.5)
+
+
+def fit_depth_alignment(z_map: Array, z_predicted: Array, mode: str, min_points: int) -> DepthAlignment | None:
+    """The alignment of predicted depths to the map's depths of the same points: ``scale``,
+    the median ratio; ``power``, a line in log depth (least squares, refitted without the
+    worst 20 % of residuals), i.e. scale and depth contrast, as monocular-depth evaluation
+    aligns predictions (MiDaS fits scale and shift). None with fewer than ``min_points``
+    positive pairs or a fit outside ``SCALE_BOUNDS`` / ``POWER_BOUNDS``."""
+    z_map = np.asarray(z_map, np.float64)
+    z_predicted = np.asarray(z_predicted, np.float64)
+    ok = (z_map > 0) & (z_predicted > 0) & np.isfinite(z_map) & np.isfinite(z_predicted)
+    if int(ok.sum()) < min_points:
+        return None
+    log_map, log_pred = np.log(z_map[ok]), np.log(z_predicted[ok])
+    if mode == "scale":
+        fit = DepthAlignment(1.0, float(np.median(log_map - log_pred)))
+    elif mode == "power":
+        A = np.stack([log_pred, np.ones_like(log_pred)], axis=1)
+        coef = np.linalg.lstsq(A, log_map, rcond=None)[0]
+        residual = np.abs(A @ coef - log_map)
+        keep = residual <= np.quantile(residual, 0.8)
+        coef = np.linalg.lstsq(A[keep], log_map[keep], rcond=None)[0]
+        if not POWER_BOUNDS[0] <= coef[0] <= POWER_BOUNDS[1]:
+            return None
+        fit = DepthAlignment(float(coef[0]), float(coef[1]))
+    else:
+        raise ValueError(f"depth alignment: expected scale or power, got {mode!r}")
+    ratio = float(np.median(fit.apply(z_predicted[ok]) / z_predicted[ok]))
+    return fit if SCALE_BOUNDS[0] <= ratio <= SCALE_BOUNDS[1] else None
 
 
 def relative_motion(T_a: Array, T_b: Array) -> tuple[float, float]:
