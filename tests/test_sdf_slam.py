@@ -21,7 +21,8 @@ from semslam.features.matching import matcher_for
 from semslam.geometry.se3 import invert, make_pose
 from semslam.io.trajectory import read_trajectory
 from semslam.slam.sdf_slam_correction import (DepthAlignment, Edge, TrackTable, ViewFeatures, candidate_pairs,
-                                              correct_poses, fit_depth_alignment, group_median, pair_constraint)
+                                              correct_poses, fit_depth_alignment, group_median, intersect_rays,
+                                              pair_constraint)
 from semslam.slam.sdf_slam_pnp import PnpSettings, solve_pnp
 from tests.conftest import run_cli
 
@@ -145,10 +146,10 @@ def small_static(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 #: ATE bounds on the 70-frame 320x240 render, from what was measured, with margin: the preset
-#: as shipped (FPFDCNN + range matcher, SDFCNN depth with the power depth alignment: 1.34 cm
-#: Sim(3), 1.36 cm SE(3), scale 0.982 with the weights of 2026-11-29; 1.27 / 1.28 cm without the
-#: alignment; the earlier weights gave 4.4 cm, scale 1.04-1.39) and with RootSIFT instead (0.26 cm
-#: Sim(3), 0.67 cm SE(3), scale 0.958; 0.24 / 0.80 cm without); the oracle depth (0.18 cm).
+#: as shipped (FPFDCNN + range matcher, SDFCNN depth, the power depth alignment and triangulated
+#: tracks: 1.20 cm Sim(3), 1.20 cm SE(3), scale 1.001 with the weights of 2026-11-29; 1.27 / 1.28 cm
+#: with neither; the earlier weights gave 4.4 cm, scale 1.04-1.39) and with RootSIFT instead
+#: (0.29 cm Sim(3), 0.43 cm SE(3), scale 0.978; 0.24 / 0.80 cm with neither); the oracle depth (0.18 cm).
 BOUNDS = {"fpfdcnn": (0.03, 0.04, 0.2), "sift": (0.015, 0.05, 0.2)}  # Sim(3) m, SE(3) m, |scale - 1|
 ORACLE_ATE_SIM3_BOUND_M = 0.01
 
@@ -212,6 +213,50 @@ def test_tracking_recovers_after_frames_without_features(small_static: Path) -> 
     assert all(s is TrackingState.LOST for s in states[16:22])
     assert all(s is TrackingState.OK for s in states[:16] + states[22:])
     assert len(traj) == 34 and ate(read_trajectory(small_static / "groundtruth.txt"), traj, "sim3").stats["rmse"] < ORACLE_ATE_SIM3_BOUND_M
+
+
+def test_rays_intersect_at_the_point_they_were_cast_through() -> None:
+    rng = np.random.default_rng(5)
+    points = rng.uniform([-1, -1, 2], [1, 1, 4], (30, 3))
+    group = np.repeat(np.arange(30), 3)
+    origins = rng.uniform(-0.3, 0.3, (90, 3))
+    rays = points[group] - origins
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    found, spread = intersect_rays(group, 30, origins, rays)
+    np.testing.assert_allclose(found, points, atol=1e-9)
+    assert (spread > 0).all()
+    # Two rays: the spread is their angle; one ray, or parallel rays, give no point.
+    d = np.array([[0.0, 0.0, 1.0], [np.sin(0.1), 0.0, np.cos(0.1)], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0, 0, 1.0]])
+    o = np.array([[0.0, 0, 0], [-0.2, 0, 0], [0, 0, 0], [0.5, 0, 0], [0, 0, 0]])
+    found, spread = intersect_rays(np.array([0, 0, 1, 1, 2]), 3, o, d)
+    assert spread[0] == pytest.approx(np.degrees(0.1)) and spread[1] == spread[2] == 0.0
+    assert np.isfinite(found[0]).all() and np.isnan(found[1:]).all()
+
+
+def test_triangulated_tracks_ignore_a_distorted_depth() -> None:
+    """Keyframes whose depth is 30 % long: the median of their back-projections inherits it,
+    the rays' intersection (rays spreading more than ``min_parallax_deg``) does not; with too
+    little parallax the median stays."""
+    rng = np.random.default_rng(6)
+    pts_w = rng.uniform([-1, -1, 3], [1, 1, 5], (50, 3))
+    poses = np.stack([make_pose(np.eye(3), np.array([x, 0.0, 0.0])) for x in (-0.3, 0.0, 0.3)])
+    table = TrackTable()
+    tracks = np.full(50, -1)
+    for k, T in enumerate(poses):
+        pc, _, _ = _project(T, pts_w)
+        tracks = table.add(k, 1.3 * pc, tracks)
+    ids, median = table.positions(poses)
+    _, crossed = table.positions(poses, min_parallax_deg=2.0)
+    assert np.abs(median - pts_w).max() > 0.5
+    np.testing.assert_allclose(crossed, pts_w, atol=1e-9)
+    _, too_narrow = table.positions(poses, min_parallax_deg=45.0)
+    np.testing.assert_array_equal(too_narrow, median)
+    # An intersection at under 0.6x the median's range is taken for a wrong match: the median stays.
+    far = TrackTable()
+    tracks = np.full(50, -1)
+    for k, T in enumerate(poses):
+        tracks = far.add(k, 2.0 * _project(T, pts_w)[0], tracks)
+    np.testing.assert_array_equal(far.positions(poses, min_parallax_deg=2.0)[1], far.positions(poses)[1])
 
 
 # ------------------------------------------------------------------------------ depth alignment

@@ -119,6 +119,9 @@ class SdfSlamConfig:
     # Local data correction: one world position per feature track, the median of its
     # observations' back-projections; tracking uses it for the reference's points.
     local_correction: bool = True
+    # ... or, for a track whose keyframe rays spread at least this many degrees, the rays'
+    # least-squares intersection (multi-view geometry; not in the paper). 0: the median only.
+    min_parallax_deg: float = 0.0
     # Depth alignment (not in the paper): each tracked frame's predicted depth is fitted to
     # the map's depth of its PnP inliers, and its new points and depth map take the fitted
     # depth, so that keyframes keep the map's scale (metric through the first keyframe) instead
@@ -141,6 +144,8 @@ class SdfSlamConfig:
                               f"got {self.min_depth_m} / {self.max_depth_m}")
         if self.depth_alignment not in ("none", "scale", "power"):
             raise ConfigError(f"sdf_slam.depth_alignment: expected none, scale or power, got {self.depth_alignment!r}")
+        if self.min_parallax_deg < 0:
+            raise ConfigError(f"sdf_slam.min_parallax_deg: expected >= 0 (0 = off), got {self.min_parallax_deg}")
         if self.alignment_min_points < 3:
             raise ConfigError(f"sdf_slam.alignment_min_points: expected >= 3, got {self.alignment_min_points}")
         if self.global_every < 1 or self.global_pairs < 0:

@@ -7,7 +7,9 @@ SDFCNN; for tests the ``ground_truth_depth`` oracle), then the pose:
 
 1. Reference: the last keyframe (``sdf_slam.reference: keyframe``) or the previous frame
    (``frame``, the paper's "two adjacent frames"); its keypoints with depth are 3D points in
-   the world (a keyframe's: its feature tracks' positions, the local data correction).
+   the world (a keyframe's: its feature tracks' positions, the local data correction: the
+   median of their back-projections, or with ``min_parallax_deg`` the intersection of their
+   rays where these spread enough).
 2. Matching with the extractor's matcher: among keypoints within ``search_radius_px`` of
    where the constant-velocity model projects the reference's points, else by brute force,
    or with ``features.matcher: range`` by SDF-SLAM's range matcher (eq. 8: the nearest
@@ -362,7 +364,7 @@ class SdfSlamTracker:
         pts_w = self._to_world(kf.features, kf.T_wc)
         if self.cfg.local_correction:
             has = np.flatnonzero(kf.features.has_depth)
-            ids, pos = self.tracks.positions(self._poses(), kf.tracks[has])
+            ids, pos = self.tracks.positions(self._poses(), kf.tracks[has], self.cfg.min_parallax_deg)
             pts_w[has] = pos[np.searchsorted(ids, kf.tracks[has])]
         return _Reference(kf.features, pts_w, kf.id)
 
@@ -432,7 +434,7 @@ class SdfSlamTracker:
         """One world position per feature track (the local data correction)."""
         if not self.keyframes:
             return np.zeros((0, 3))
-        return self.tracks.positions(self._poses())[1]
+        return self.tracks.positions(self._poses(), min_parallax_deg=self.cfg.min_parallax_deg)[1]
 
     def stats(self) -> dict[str, Any]:
         return {"map_points": self.tracks.n_tracks, "tracking_edges": sum(e.kind == "tracking" for e in self.edges),

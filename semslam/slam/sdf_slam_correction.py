@@ -18,6 +18,11 @@ the feature point matching pairs". What is built here, and the choices the paper
   position is the MEDIAN (per coordinate) of its observations' back-projections through their
   keyframes' current poses: with two observations the mean, and one bad predicted depth among
   three or more cannot pull it. Tracking takes these positions as the reference's 3D points.
+  With ``min_parallax_deg`` > 0 (the preset's 2 degrees; ours, the paper gives no rule) a track
+  whose rays spread at least that much takes their least-squares intersection instead (the
+  point nearest to all of its keyframes' rays: multi-view geometry, which does not inherit a
+  depth network's distortion of the room), unless that lands outside 0.6-1.6x the median's
+  range (a wrong match, a near-degenerate ray set).
 
 Not in the paper, and kept apart from it (``sdf_slam.depth_alignment``): the fit of a frame's
 predicted depth to the map's depth of the same points (``fit_depth_alignment``), so that a
@@ -69,6 +74,39 @@ def group_median(keys: NDArray[np.intp], values: Array) -> tuple[NDArray[np.intp
     return uniq, out
 
 
+#: A triangulated track is kept only within this factor of its median position's range.
+TRIANGULATION_RANGE_BOUNDS = (0.6, 1.6)
+
+
+#: Rays spreading less than this (degrees) are taken as parallel: no intersection.
+MIN_SPREAD_DEG = 0.01
+
+
+def intersect_rays(group: NDArray[np.intp], n_groups: int, origins: Array, directions: Array
+                   ) -> tuple[Array, Array]:
+    """Per group of rays (``group[k]`` in 0..n_groups-1; unit ``directions``), the point with
+    the least summed squared distance to its rays, and the rays' spread in degrees: twice the
+    largest angle between a ray and the group's mean direction (for two rays, their angle).
+    Groups of one ray have spread 0; they and parallel rays (spread < ``MIN_SPREAD_DEG``) get
+    a point of NaN."""
+    M = np.eye(3)[None] - directions[:, :, None] * directions[:, None, :]  # projects off the ray
+    A = np.zeros((n_groups, 3, 3))
+    np.add.at(A, group, M)
+    b = np.zeros((n_groups, 3))
+    np.add.at(b, group, np.einsum("nij,nj->ni", M, origins))
+    mean = np.zeros((n_groups, 3))
+    np.add.at(mean, group, directions)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", directions, mean[group]), -1.0, 1.0)))
+    spread = np.zeros(n_groups)
+    np.maximum.at(spread, group, 2.0 * angle)
+    spread[np.bincount(group, minlength=n_groups) < 2] = 0.0  # one ray: 0, not rounding noise
+    points = np.full((n_groups, 3), np.nan)
+    solvable = spread >= MIN_SPREAD_DEG
+    points[solvable] = np.linalg.solve(A[solvable], b[solvable][:, :, None])[:, :, 0]
+    return points, spread
+
+
 class TrackTable:
     """Feature tracks over keyframes: observations (keyframe, camera-frame point) per track."""
 
@@ -104,16 +142,35 @@ class TrackTable:
         """(keyframe index, track id, camera-frame point) of every observation."""
         return self._all()
 
-    def positions(self, poses_wc: Array, tracks: NDArray[np.intp] | None = None) -> tuple[NDArray[np.intp], Array]:
+    def positions(self, poses_wc: Array, tracks: NDArray[np.intp] | None = None, min_parallax_deg: float = 0.0
+                  ) -> tuple[NDArray[np.intp], Array]:
         """(track ids, world positions): the median of each track's back-projections through
-        ``poses_wc[keyframe index]``; only ``tracks`` when given (all tracks otherwise)."""
+        ``poses_wc[keyframe index]``, or where its rays spread at least ``min_parallax_deg``
+        (> 0) their intersection (see the module doc); only ``tracks`` when given (all tracks
+        otherwise)."""
         kf, tr, pc = self._all()
         if tracks is not None:
             keep = np.isin(tr, tracks)
             kf, tr, pc = kf[keep], tr[keep], pc[keep]
         P = poses_wc[kf]
-        pw = np.einsum("nij,nj->ni", P[:, :3, :3], pc) + P[:, :3, 3]
-        return group_median(tr, pw)
+        rays = np.einsum("nij,nj->ni", P[:, :3, :3], pc)
+        origins = P[:, :3, 3]
+        ids, pos = group_median(tr, rays + origins)
+        if min_parallax_deg <= 0.0 or len(ids) == 0:
+            return ids, pos
+        group = np.searchsorted(ids, tr)
+        rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+        crossing, spread = intersect_rays(group, len(ids), origins, rays)
+        centre = np.zeros((len(ids), 3))
+        np.add.at(centre, group, origins)
+        centre /= np.bincount(group, minlength=len(ids))[:, None]
+        take = np.flatnonzero(spread >= min_parallax_deg)
+        ratio = (np.linalg.norm(crossing[take] - centre[take], axis=1)
+                 / np.maximum(np.linalg.norm(pos[take] - centre[take], axis=1), 1e-9))
+        lo, hi = TRIANGULATION_RANGE_BOUNDS
+        take = take[(ratio > lo) & (ratio < hi)]
+        pos[take] = crossing[take]
+        return ids, pos
 
 
 # ------------------------------------------------------------------------------------ global
