@@ -22,9 +22,9 @@ def lounge_static(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 #: preset -> (extra options, Sim(3) bound m, SE(3) bound m, |scale - 1| bound), from what the
-#: shipped SDFCNN gave, with margin: ``sdf`` on RootSIFT 1.56 cm Sim(3), 5.3 cm SE(3), scale 1.60
-#: with the preset's depth alignment (1.5 / 5.5 cm, 1.65 without: SDFCNN's depth is ~40 % short
-#: in this larger room); ``sdf_rgbd`` 4.9 / 5.1 cm, scale 1.13.
+#: shipped SDFCNN gave, with margin: ``sdf`` on RootSIFT 1.28 cm Sim(3), 5.3 cm SE(3), scale 1.63
+#: with the preset's depth alignment and triangulated tracks (1.5 / 5.5 cm, 1.65 with neither:
+#: SDFCNN's depth is ~40 % short in this larger room); ``sdf_rgbd`` 4.9 / 5.1 cm, scale 1.13.
 RUNS = {
     "sdf": (["--set", "features.extractor=sift", "--set", "features.matcher=default"], 0.04, 0.12, 0.9),
     "sdf_rgbd": ([], 0.10, 0.12, 0.5),
