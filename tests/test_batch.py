@@ -148,7 +148,9 @@ def test_plan_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[
              "sequences: [x]\nvariants: [nope]\n": "variant 'nope': unknown preset 'nope'",
              "sequences: [x]\nvariants: [orb]\nrepeats: 2\nseeds: [1]\n": "seeds: 1 seeds for 2 repeats",
              "sequences: [x]\nvariants: [orb]\nthreads: 2\n": "unknown key 'threads'",
-             "sequences: [a/x, b/x]\nvariants: [orb]\n": "sequence label 'x' appears twice"}
+             "sequences: [a/x, b/x]\nvariants: [orb]\n": "sequence label 'x' appears twice",
+             "sequences: [{synth: static_xyz, layout: 500}]\nvariants: [orb]\n": "unknown layout 500",
+             "sequences: [{path: x, layout: 1}]\nvariants: [orb]\n": "layout: apply to synth: sequences"}
     for i, (text, message) in enumerate(cases.items()):
         path = tmp_path / f"p{i}.yaml"
         path.write_text(text)
@@ -218,3 +220,19 @@ def test_bench_repeats_report_the_spread(tmp_path: Path, capsys: pytest.CaptureF
     assert group["n_ok"] == 2 and group["ate_rmse_m"] == {"median": statistics.median(ate), "min": min(ate),
                                                           "max": max(ate)}
     assert "| static_xyz | 0 | orb (r1) | 10 (" in printed and "| static_xyz | orb | 2 / 2 |" in printed
+
+
+def test_plan_renders_a_synthetic_sequence_in_another_room(tmp_path: Path) -> None:
+    """``layout:`` renders the sequence in that room, into a folder (and label) of its own,
+    next to the same sequence in the office."""
+    from semslam.experiments.batch import render_synthetic
+
+    path = tmp_path / "plan.yaml"
+    path.write_text(f"sequences:\n  - synth: static_xyz\n  - synth: static_xyz\n    layout: 1\n"
+                    f"variants: [orb]\nframes: 2\ndata: {tmp_path / 'data'}\n")
+    plan = render_synthetic(load_plan(path), lambda _: None)
+    assert [s.label for s in plan.sequences] == ["static_xyz", "static_xyz_layout1"]
+    office, lounge = (json.loads((Path(s.source) / "sequence.json").read_text())["config"] for s in plan.sequences)
+    assert (office["layout"], lounge["layout"]) == (0, 1) and Path(plan.sequences[1].source).name == "static_xyz_layout1"
+    assert plan.to_dict()["sequences"][1] == {"label": "static_xyz_layout1", "source": plan.sequences[1].source,
+                                              "synth": "static_xyz", "layout": 1}

@@ -46,10 +46,12 @@ def render_synthetic(plan: Plan, log: Callable[[str], None]) -> Plan:
             continue
         frames = s.frames or plan.frames
         cfg = SEQUENCES[s.synth] if frames is None else SEQUENCES[s.synth].replace(frames=frames)
-        folder = plan.data.resolve() / s.synth  # absolute: jobs may run in another working directory
+        if s.layout is not None:
+            cfg = cfg.replace(layout=s.layout)
+        folder = plan.data.resolve() / s.render_name  # absolute: jobs may run in another working directory
         t0 = time.perf_counter()
         if ensure_rendered(cfg, folder):
-            log(f"rendered {s.synth} ({cfg.frames} frames) in {time.perf_counter() - t0:.1f} s")
+            log(f"rendered {s.render_name} ({cfg.frames} frames) in {time.perf_counter() - t0:.1f} s")
         sources[s.label] = str(folder)
     return plan.with_sources(sources)
 

@@ -9,6 +9,8 @@ The plan is read and checked here once, so a typo fails before any job starts (o
       - tum/fr3_walking_xyz     # a name: opened as `semslam run NAME` opens it
       - synth: walking_xyz      # rendered (cached) into `data`
         frames: 300             # optional, per sequence
+      - synth: static_xyz       # in another room (`semslam synth --layout`): the lounge,
+        layout: 1               # held out from every shipped network; label static_xyz_layout1
       - {path: /data/seq, label: seq-a}
     variants:                   # presets with --set overrides
       - orb                     # a bare preset is its own label
@@ -71,6 +73,12 @@ class SequenceSpec:
     source: str = ""
     synth: str = ""
     frames: int | None = None  # synthetic only: frames to render
+    layout: int | None = None  # synthetic only: the room (None: the sequence's own, the office)
+
+    @property
+    def render_name(self) -> str:
+        """The render's folder name under the plan's data folder (one per sequence and room)."""
+        return self.synth if self.layout is None else f"{self.synth}_layout{self.layout}"
 
 
 @dataclass(frozen=True)
@@ -248,21 +256,29 @@ def _sequence(item: Any, where: str) -> SequenceSpec:
     if not isinstance(item, dict):
         raise ConfigError(f"{where}: sequences: expected a folder, a dataset name or a mapping, got {item!r}")
     keys = set(item)
-    if not keys <= {"path", "synth", "label", "frames"} or len(keys & {"path", "synth"}) != 1:
+    if not keys <= {"path", "synth", "label", "frames", "layout"} or len(keys & {"path", "synth"}) != 1:
         raise ConfigError(f"{where}: sequences: {item!r}: give one of path: or synth: (with optional label:, "
-                          f"and frames: for synth:)")
+                          f"and frames: and layout: for synth:)")
     frames = _number(item, "frames", int, where, None)
+    layout = _number(item, "layout", int, where, None)
     if "synth" in item:
         from semslam.synth import SEQUENCES
+        from semslam.synth.layouts import get_layout
 
         name = str(item["synth"])
         if name not in SEQUENCES:
             raise ConfigError(f"{where}: sequences: unknown synthetic sequence {name!r} "
                               f"(known: {', '.join(SEQUENCES)})")
-        return SequenceSpec(str(item.get("label", name)), synth=name, frames=frames)
-    if frames is not None:
-        raise ConfigError(f"{where}: sequences: {item!r}: frames: applies to synth: sequences (use the plan's "
-                          f"frames: to limit every run)")
+        if layout is not None:
+            try:
+                get_layout(layout)
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: sequences: {item!r}: {exc}") from None
+        spec = SequenceSpec("", synth=name, frames=frames, layout=layout)
+        return replace(spec, label=str(item.get("label", spec.render_name)))
+    if frames is not None or layout is not None:
+        raise ConfigError(f"{where}: sequences: {item!r}: frames: and layout: apply to synth: sequences (use the "
+                          f"plan's frames: to limit every run)")
     source = str(item["path"])
     return SequenceSpec(str(item.get("label", default_label(source))), source=absolute_source(source))
 
