@@ -189,7 +189,7 @@ class SdfSlamTracker:
         fit = self._estimate(view, predicted, timings)
         T_wc, inl, n_matches = fit.T_wc, fit.inliers, fit.n_matches
         if self.cfg.depth_alignment != "none":
-            view, depth = self._align_depth(view, depth, fit)
+            view = self._align_depth(view, fit)
         state = TrackingState.OK if T_wc is not None else TrackingState.LOST
         is_kf = False
         if T_wc is not None:
@@ -218,11 +218,11 @@ class SdfSlamTracker:
                            is_keyframe=is_kf, dynamic_ratio=float(dynamic.mean()) if dynamic is not None else 0.0,
                            timings=timings)
 
-    def _align_depth(self, view: ViewFeatures, depth: NDArray[np.float32], fit: _PoseFit
-                     ) -> tuple[ViewFeatures, NDArray[np.float32]]:
-        """The frame's predicted depth (its 3D points and its depth map) brought to the map's:
-        fitted on its PnP inliers (``sdf_slam.depth_alignment``), else (a lost frame, too few
-        inliers with depth, a fit out of bounds) by the last fit."""
+    def _align_depth(self, view: ViewFeatures, fit: _PoseFit) -> ViewFeatures:
+        """The frame's 3D points with the predicted depth brought to the map's: fitted on its
+        PnP inliers (``sdf_slam.depth_alignment``), else (a lost frame, too few inliers with
+        depth, a fit out of bounds) by the last fit. The depth map follows at keyframes only
+        (``_feed_builders``): nothing else reads it."""
         if fit.T_wc is not None:
             pts_w = fit.ref_pts_w[fit.inliers]
             z_map = (pts_w - fit.T_wc[:3, 3]) @ fit.T_wc[:3, 2]
@@ -234,8 +234,7 @@ class SdfSlamTracker:
                 self.counters["alignment_kept"] += 1
         z = view.pts_c[:, 2]
         factor = np.divide(self._alignment.apply(z), z, out=np.zeros_like(z), where=z > 0)
-        aligned = ViewFeatures(view.xy, view.descriptors, view.pts_c * factor[:, None], view.has_depth)
-        return aligned, self._alignment.apply(depth).astype(np.float32, copy=False)
+        return ViewFeatures(view.xy, view.descriptors, view.pts_c * factor[:, None], view.has_depth)
 
     def _view(self, kps: Keypoints, depth: NDArray[np.float32]) -> ViewFeatures:
         xy = self.camera.undistort_points(kps.xy)
@@ -375,6 +374,8 @@ class SdfSlamTracker:
         if not self.map_builders:
             return
         dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
+        if self.cfg.depth_alignment != "none":  # the frame's fit, as its points took it
+            depth = self._alignment.apply(depth).astype(np.float32, copy=False)
         snap = KeyframeSnapshot(kf.id, kf.timestamp, kf.T_wc.copy(), packet.frame.rgb, depth, dynamic,
                                 packet.labels, self.camera)
         for builder in self.map_builders:
