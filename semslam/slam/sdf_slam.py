@@ -155,6 +155,7 @@ class SdfSlamTracker:
         self._delta: Array | None = None  # inv(T_wc(k-2)) @ T_wc(k-1): constant velocity
         self._n_lost = 0
         self._alignment = DepthAlignment()  # the last fit of predicted to map depth (depth_alignment)
+        self._fits: list[tuple[float, float]] = []  # (power, median ratio) of every fit, for stats()
         self._min_points = max(2 * c.min_inliers, 50)  # keypoints with depth to start from (first, re-anchor)
         self._stopped = False
         self.counters = {"reanchors": 0, "fallback_reference": 0, "global_rounds": 0, "global_pairs_tried": 0,
@@ -230,6 +231,9 @@ class SdfSlamTracker:
                                         self.cfg.alignment_min_points)
             if found is not None:
                 self._alignment = found
+                z_in = view.pts_c[fit.query[fit.inliers], 2]
+                z_in = z_in[z_in > 0]
+                self._fits.append((found.power, float(np.median(found.apply(z_in) / z_in))))
             else:
                 self.counters["alignment_kept"] += 1
         z = view.pts_c[:, 2]
@@ -438,8 +442,16 @@ class SdfSlamTracker:
         return self.tracks.positions(self._poses(), min_parallax_deg=self.cfg.min_parallax_deg)[1]
 
     def stats(self) -> dict[str, Any]:
+        """Counters, and how far the depth source's scale and contrast wandered: the 5th, 50th
+        and 95th percentiles of the depth alignment's fitted power and map / predicted ratio
+        (1 and 1 for a depth that agrees with the map)."""
+        fits = {}
+        if self._fits:
+            power, ratio = np.percentile(np.array(self._fits), [5, 50, 95], axis=0).T
+            fits = {"depth_alignment_fits": len(self._fits), "depth_alignment_power_p5_p50_p95": power.round(4).tolist(),
+                    "depth_alignment_ratio_p5_p50_p95": ratio.round(4).tolist()}
         return {"map_points": self.tracks.n_tracks, "tracking_edges": sum(e.kind == "tracking" for e in self.edges),
-                **self.counters}
+                **self.counters, **fits}
 
     def save_map(self, path: Path) -> None:
         raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
