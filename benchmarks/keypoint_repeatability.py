@@ -16,12 +16,12 @@ import argparse
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
 from semslam.eval.feature_eval import lookup_depth, transfer_points
-from semslam.nets.fp_dataset import FPPair, FPSequence
+from semslam.features.fpfdcnn import THRESHOLD
+from semslam.nets.fp_dataset import FPPair, FPSequence, harris_response
 from semslam.nets.onnx_load import load_net
 from semslam.nets.outputs import NMS_RADIUS, select_points
 
@@ -53,11 +53,10 @@ def main(argv: list[str] | None = None) -> int:
 
     def fpfdcnn(gray: np.ndarray) -> np.ndarray:
         prob = net.run(gray[None, None])[0][0, 0]
-        return select_points(prob, args.points, 0.015, NMS_RADIUS)[0]
+        return select_points(prob, args.points, THRESHOLD, NMS_RADIUS)[0]
 
     def harris(gray: np.ndarray) -> np.ndarray:
-        response = cv2.cornerHarris(gray.astype(np.float32) / 255.0, 3, 3, 0.04)
-        return select_points(response, args.points, 1e-6, NMS_RADIUS)[0]
+        return select_points(harris_response(gray), args.points, 1e-6, NMS_RADIUS)[0]
 
     hits: dict[str, list[np.ndarray]] = {}
     for seq_dir in args.sequences:

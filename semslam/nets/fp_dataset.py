@@ -47,6 +47,12 @@ def harris_corners(gray: NDArray[np.uint8], max_corners: int = 500, quality: flo
     return np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
 
 
+def harris_response(gray: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """OpenCV's dense Harris response (block 3, Sobel 3, k = 0.04) of a grey image in [0, 1]:
+    the score ``harris_corners`` ranks by, for every pixel."""
+    return cv2.cornerHarris(gray.astype(np.float32) / 255.0, 3, 3, 0.04)
+
+
 def motion_blur_kernel(length: int, angle_deg: float) -> NDArray[np.float32]:
     """A normalised line kernel of ``length`` px at ``angle_deg`` (camera shake along a line)."""
     size = int(length) | 1

@@ -60,7 +60,7 @@ import torch.nn.functional as F
 from semslam.errors import ConfigError
 from semslam.eval.feature_eval import correct_matches
 from semslam.geometry.camera import PinholeCamera
-from semslam.nets.fp_dataset import FPSequence, blur, harris_corners, transfer_corners
+from semslam.nets.fp_dataset import FPSequence, blur, harris_corners, harris_response, transfer_corners
 from semslam.nets.fpfdcnn import FPFDCNN, count_parameters, load_fpfdcnn, sample_descriptors, save_fpfdcnn
 
 POS_MARGIN, NEG_MARGIN, NEG_MIN_PX = 1.0, 0.2, 8.0
@@ -133,7 +133,7 @@ class FPTrainData:
                     self.depth.append(d)
                     self.pose.append(seq.poses[k])
                 self.corners.append(harris_corners(g, max_corners, min_distance=min_distance))
-                self.harris_scale.append(float(np.quantile(_harris(g), 0.995)) or 1.0)
+                self.harris_scale.append(float(np.quantile(harris_response(g), 0.995)) or 1.0)
             for gap in gaps:
                 for i, j in seq.pair_indices(gap):
                     xy1 = self.corners[base + i]
@@ -164,7 +164,7 @@ class FPTrainData:
                 g = g[y0:y0 + ch, x0:x0 + cw].astype(np.float32) * rng.uniform(0.7, 1.3) + rng.uniform(-25, 25)
                 imgs.append(np.clip(g, 0, 255) / 255.0)
                 if self.target == "harris":
-                    heats.append(np.clip(_harris(self.gray[k])[y0:y0 + ch, x0:x0 + cw] / self.harris_scale[k], 0, 1))
+                    heats.append(np.clip(harris_response(self.gray[k])[y0:y0 + ch, x0:x0 + cw] / self.harris_scale[k], 0, 1))
                     continue
                 heat = np.zeros((ch, cw), np.float32)
                 c = np.rint(self.corners[k]).astype(int) - [x0, y0]
@@ -218,11 +218,6 @@ def _cell_labels(corners: np.ndarray, cw: int, ch: int) -> np.ndarray:
     rev = corners[::-1]  # weakest first: numpy keeps the last of repeated indices, the strongest
     labels[rev[:, 1] // c, rev[:, 0] // c] = (rev[:, 1] % c) * c + rev[:, 0] % c
     return labels
-
-
-def _harris(gray: np.ndarray) -> np.ndarray:
-    """OpenCV's Harris response (block 3, Sobel 3, k 0.04) of a clear frame."""
-    return cv2.cornerHarris(gray.astype(np.float32) / 255.0, 3, 3, 0.04)
 
 
 class Losses(NamedTuple):

@@ -225,15 +225,13 @@ class SdfSlamTracker:
         depth, a fit out of bounds) by the last fit. The depth map follows at keyframes only
         (``_feed_builders``): nothing else reads it."""
         if fit.T_wc is not None:
-            pts_w = fit.ref_pts_w[fit.inliers]
-            z_map = (pts_w - fit.T_wc[:3, 3]) @ fit.T_wc[:3, 2]
-            found = fit_depth_alignment(z_map, view.pts_c[fit.query[fit.inliers], 2], self.cfg.depth_alignment,
-                                        self.cfg.alignment_min_points)
+            z_map = (fit.ref_pts_w[fit.inliers] - fit.T_wc[:3, 3]) @ fit.T_wc[:3, 2]
+            z_predicted = view.pts_c[fit.query[fit.inliers], 2]
+            found = fit_depth_alignment(z_map, z_predicted, self.cfg.depth_alignment, self.cfg.alignment_min_points)
             if found is not None:
                 self._alignment = found
-                z_in = view.pts_c[fit.query[fit.inliers], 2]
-                z_in = z_in[z_in > 0]
-                self._fits.append((found.power, float(np.median(found.apply(z_in) / z_in))))
+                z = z_predicted[z_predicted > 0]
+                self._fits.append((found.power, float(np.median(found.apply(z) / z))))
             else:
                 self.counters["alignment_kept"] += 1
         z = view.pts_c[:, 2]
