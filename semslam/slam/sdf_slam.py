@@ -224,18 +224,19 @@ class SdfSlamTracker:
         PnP inliers (``sdf_slam.depth_alignment``), else (a lost frame, too few inliers with
         depth, a fit out of bounds) by the last fit. The depth map follows at keyframes only
         (``_feed_builders``): nothing else reads it."""
+        z = view.pts_c[:, 2]
+        fitted: NDArray[np.intp] | None = None  # the inliers' indices into the view, when this frame was fitted
         if fit.T_wc is not None:
+            inliers = fit.query[fit.inliers]
             z_map = (fit.ref_pts_w[fit.inliers] - fit.T_wc[:3, 3]) @ fit.T_wc[:3, 2]
-            z_predicted = view.pts_c[fit.query[fit.inliers], 2]
-            found = fit_depth_alignment(z_map, z_predicted, self.cfg.depth_alignment, self.cfg.alignment_min_points)
+            found = fit_depth_alignment(z_map, z[inliers], self.cfg.depth_alignment, self.cfg.alignment_min_points)
             if found is not None:
-                self._alignment = found
-                z = z_predicted[z_predicted > 0]
-                self._fits.append((found.power, float(np.median(found.apply(z) / z))))
+                self._alignment, fitted = found, inliers
             else:
                 self.counters["alignment_kept"] += 1
-        z = view.pts_c[:, 2]
         factor = np.divide(self._alignment.apply(z), z, out=np.zeros_like(z), where=z > 0)
+        if fitted is not None:  # stats(): the fit's power and its median map / predicted ratio
+            self._fits.append((self._alignment.power, float(np.median(factor[fitted][z[fitted] > 0]))))
         return ViewFeatures(view.xy, view.descriptors, view.pts_c * factor[:, None], view.has_depth)
 
     def _view(self, kps: Keypoints, depth: NDArray[np.float32]) -> ViewFeatures:
