@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from semslam.cli.main import main
-from semslam.eval.feature_eval import correct_matches, lookup_depth, pose_errors, relative_pose_pnp
+from semslam.eval.feature_eval import correct_matches, lookup_depth, pose_errors, relative_pose_pnp, table6_targets
 from semslam.geometry.se3 import invert, make_pose, so3_exp
 from semslam.nets.fp_dataset import FPSequence
 from semslam.nets.fpfdcnn import FPFDCNN, save_fpfdcnn
@@ -44,6 +44,20 @@ def test_pose_errors_follow_eqs_11_to_14():
     assert e.trans_err_pct == pytest.approx(10.0) and e.rot_err_deg_per_m == pytest.approx(20.0)
 
 
+def test_table6_targets_need_blurred_at_least_orb_and_clear_within_2_points():
+    def row(method, scenario, rate):
+        return {"method": method, "scenario": scenario, "correct_rate": rate}
+
+    rows = [row("orb+bf", "clear", 0.902), row("orb+bf", "blurred", 0.726),
+            row("a", "clear", 0.8821), row("a", "blurred", 0.726),  # 2.0 points below; level
+            row("b", "clear", 0.8819), row("b", "blurred", 0.7259)]  # just beyond both
+    a = {t["scenario"]: t for t in table6_targets(rows, "a")}
+    b = {t["scenario"]: t for t in table6_targets(rows, "b")}
+    assert a["clear"]["met"] and a["blurred"]["met"] and not b["clear"]["met"] and not b["blurred"]["met"]
+    assert a["clear"]["gap_points"] == pytest.approx(-1.99) and a["blurred"]["reference_pct"] == pytest.approx(72.6)
+    assert table6_targets(rows[:2], "a") == []  # no row of the method: nothing judged
+
+
 def test_eval_features_cli_on_a_small_render(tmp_path: Path):
     seq = render_sequence(SEQUENCES["static_xyz"].replace(frames=7, fps=10.0), tmp_path / "render", workers=1)
     torch.manual_seed(0)
@@ -59,4 +73,7 @@ def test_eval_features_cli_on_a_small_render(tmp_path: Path):
     assert orb["pairs"] == 3 and orb["correct_rate"] > 0.8 and orb["trans_err_m"] < 0.02  # ORB works on clear frames
     fp = rows[("fpfdcnn+range", "clear")]
     assert fp["matches"] > 0 and fp["points_per_image"] == 500
+    judged = [t for t in res["targets"] if t["judged"]]  # the mutual row, clear and blurred
+    assert {(t["method"], t["scenario"]) for t in judged} == {("fpfdcnn+range+mutual", s) for s in ("clear", "blurred")}
+    assert len(res["targets"]) == 4
     assert main(["eval-features", str(tmp_path / "nope")]) == 2

@@ -14,6 +14,14 @@
   metric); those units are reported too, per metre travelled over all pairs: the sum of
   translation errors in % of the sum of true translations, and the sum of rotation errors
   in degrees per metre of it.
+* Issue 12's Table 6 targets (``table6_targets``): FPFDCNN + range matcher at least ORB + BF
+  on blurred pairs and at most 2 points below it on clear ones. The paper's own counts say
+  which range matcher that is: of 500 points per image it matched 405 (clear) and 304
+  (blurred), ORB + BF 329 and 249. Eq. 8 alone matches every point that has a candidate in
+  its 140-px window (all of them on our pairs, clear or blurred), so the paper's matcher
+  also rejected matches, and more of them under blur, as a cross-check does; our range
+  matcher's mutual check (the same cross-check as the BF baseline's) keeps 72 / 65 % of the
+  points on the benchmark pairs, the paper's 81 / 61 %. The target is judged on that row; eq. 8 alone is reported.
 """
 
 from __future__ import annotations
@@ -27,10 +35,16 @@ from numpy.typing import NDArray
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, rotation_angle
 
-__all__ = ["CORRECT_PX", "PairPose", "correct_matches", "lookup_depth", "pose_errors", "project",
-           "relative_pose_pnp", "transfer_points"]
+__all__ = ["CORRECT_PX", "PAPER_TABLE6", "PairPose", "correct_matches", "lookup_depth", "pose_errors", "project",
+           "relative_pose_pnp", "table6_targets", "transfer_points"]
 
 CORRECT_PX = 5.0  # Table 6: correct within plus and minus five pixels
+CLEAR_MARGIN_POINTS = 2.0  # issue 12: within 2 points of ORB + BF on clear pairs
+
+# SDF-SLAM Table 6: (correct, matches) with 500 points per image.
+PAPER_TABLE6: dict[tuple[str, str], tuple[int, int]] = {
+    ("orb+bf", "clear"): (276, 329), ("fpfdcnn+range", "clear"): (368, 405),
+    ("orb+bf", "blurred"): (161, 249), ("fpfdcnn+range", "blurred"): (263, 304)}
 
 
 def transfer_points(xy1: NDArray[np.floating], z1: NDArray[np.floating], camera: PinholeCamera,
@@ -181,3 +195,22 @@ class MethodScore:
         out["trans_err_pct"] = 100 * sum(p.trans_err_m for p in poses) / moved if moved > 0 else None
         out["rot_err_deg_per_m"] = sum(p.rot_err_deg for p in poses) / moved if moved > 0 else None
         return out
+
+
+def table6_targets(rows: list[dict[str, object]], method: str,
+                   reference: str = "orb+bf") -> list[dict[str, object]]:
+    """Issue 12's Table 6 targets for ``method`` against ``reference`` (rows of
+    ``MethodScore.to_dict``): >= on blurred pairs, at most 2 points below on clear ones.
+    A scenario missing either row is left out."""
+    rate = {(r["method"], r["scenario"]): r["correct_rate"] for r in rows}
+    out: list[dict[str, object]] = []
+    for scenario, margin in (("blurred", 0.0), ("clear", CLEAR_MARGIN_POINTS)):
+        ours, ref = rate.get((method, scenario)), rate.get((reference, scenario))
+        if ours is None or ref is None:
+            continue
+        gap = 100 * (float(ours) - float(ref))  # type: ignore[arg-type]
+        need = f">= {reference}" if margin == 0 else f">= {reference} - {margin:g} points"
+        out.append({"target": f"{scenario}: {method} {need}", "method": method, "scenario": scenario,
+                    "value_pct": 100 * float(ours), "reference_pct": 100 * float(ref),  # type: ignore[arg-type]
+                    "gap_points": gap, "met": gap >= -margin})
+    return out

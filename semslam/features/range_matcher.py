@@ -5,10 +5,13 @@ a square of side ``window_px`` = 140 px centred on it (|dx| <= 70 and |dy| <= 70
 included); the match is the candidate with the smallest L2 descriptor distance (eq. 8).
 A query with no candidate in its window has no match.
 
-As in the paper, nothing else is checked by default: several queries may take the same
-train point, there is no distance limit, no ratio test and no mutual check. ``ratio``
-(Lowe's test against the second-nearest candidate in the window) and ``mutual`` (the
-train point's nearest query in its own window must be this query) are optional and off.
+Eq. 8 says nothing else, so nothing else is checked by default: several queries may take
+the same train point, there is no distance limit, no ratio test and no mutual check.
+``ratio`` (Lowe's test against the second-nearest candidate in the window) and ``mutual``
+(the train point's nearest query in its own window must be this query) are optional. The
+paper's Table 6 counts show its matcher rejected matches as ``mutual`` does, so Table 6's
+target is judged with it (``eval.feature_eval``); the ``sdf`` tracker keeps it off, where
+PnP-RANSAC removes wrong matches and the check measured no better (README).
 
 Vectorised: the query x train distance matrix is computed by blocks of queries with one
 matrix product (``L2Matcher.distance_matrix``), pairs outside the window are set to
