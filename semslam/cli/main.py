@@ -34,6 +34,8 @@ def _register_commands() -> None:
     dataset_cmd.register(app)
     from semslam.cli import batch_cmd  # semslam batch PLAN.yaml (issue 14)
     batch_cmd.register(app)
+    from semslam.cli import train_reproduce_cmd  # semslam train reproduce sdfcnn|fpfdcnn
+    train_reproduce_cmd.register(app)
 
 
 def main(argv: list[str] | None = None) -> int:
