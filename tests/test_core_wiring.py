@@ -88,12 +88,12 @@ def test_monocular_folder_and_save_map_are_refused_before_the_run(
     assert main(["run", str(static_seq / "rgb"), "--out", str(tmp_path / "mono"), "-q", "--preset", "orb"]) == 2
     err = capsys.readouterr().err
     assert "no depth images" in err and "sensor: mono" in err and len(err.strip().splitlines()) == 1
-    # --save-map with a tracker that has no map: refused before any frame is tracked.
-    t0 = time.perf_counter()
+    # --save-map with a tracker that has no map: refused before any frame is tracked (a run
+    # would have written its trajectory and stats, even an interrupted one).
     assert main(["run", str(static_seq), "--out", str(tmp_path / "f2kf"), "-q", "--preset", "f2kf",
                  "--save-map", str(tmp_path / "m.npz")]) == 2
     assert "--save-map needs a tracker with a map" in capsys.readouterr().err
-    assert not (tmp_path / "f2kf" / "trajectory.txt").exists() and time.perf_counter() - t0 < 10
+    assert not (tmp_path / "f2kf" / "trajectory.txt").exists() and not (tmp_path / "f2kf" / "stats.json").exists()
 
 
 # ---------------------------------------------------------------- resources
@@ -129,9 +129,8 @@ def test_inbox_wait_idle_wakes_on_done_and_times_out() -> None:
         inbox.done()
 
     threading.Thread(target=worker).start()
-    t0 = time.perf_counter()
-    assert inbox.wait_idle(timeout=5.0)
-    assert time.perf_counter() - t0 < 2.0 and inbox.idle()
+    assert inbox.wait_idle(timeout=5.0)  # True: idle came before the timeout
+    assert inbox.idle()
     inbox.close()
     assert inbox.take() is None
 

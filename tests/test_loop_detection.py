@@ -11,7 +11,6 @@ queried and the groups are updated.
 from __future__ import annotations
 
 import threading
-import time
 import tracemalloc
 from collections.abc import Callable
 from typing import Any
@@ -90,13 +89,11 @@ def test_groups_stay_bounded_when_every_candidate_touches_every_group() -> None:
     100 x 100 groups after the second keyframe and 10^6 after the third."""
     lc = LoopConsistency(threshold=3)
     n_cand = 100
-    t0 = time.perf_counter()
-    for k in range(300):
+    for k in range(300):  # (how long it takes is the benchmarks' business: the bound is the test)
         cands = [_cand(1000 * k + j, 0) for j in range(n_cand)]  # all share keyframe 0
         accepted = lc.update(cands)
         assert len(lc.groups) <= n_cand
         assert accepted == ([c.kf_id for c in cands] if k >= 3 else [])
-    assert time.perf_counter() - t0 < 5.0  # measured ~0.1 s
 
 
 # ---------------------------------------------------------------- through LoopClosing
@@ -183,7 +180,6 @@ def test_hundreds_of_alike_keyframes_keep_detection_bounded() -> None:
                                 PointFusion(slam_map, cam, 40.0), KeyframeInbox(), KeyframeInbox())
     max_groups = 0
     tracemalloc.start()
-    t0 = time.perf_counter()
     try:
         for kf in slam_map.all_keyframes():
             n_queries = len(closer.n_candidates)
@@ -191,7 +187,6 @@ def test_hundreds_of_alike_keyframes_keep_detection_bounded() -> None:
             if len(closer.n_candidates) > n_queries:  # this keyframe was checked for loops
                 assert len(closer.consistency.groups) <= closer.n_candidates[-1]
             max_groups = max(max_groups, len(closer.consistency.groups))
-        elapsed = time.perf_counter() - t0
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -201,7 +196,6 @@ def test_hundreds_of_alike_keyframes_keep_detection_bounded() -> None:
     assert all(closer.lock_free_during["query"]) and closer.lock_free_during["query"]
     assert all(closer.lock_free_during["consistency"]) and closer.lock_free_during["consistency"]
     assert peak < 50e6, f"peak {peak / 1e6:.1f} MB"  # measured 0.35 MB
-    assert elapsed < 20.0, f"{elapsed:.1f} s"  # measured 0.7 s (with tracemalloc)
 
 
 # ---------------------------------------------------------------- RANSAC
