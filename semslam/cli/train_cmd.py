@@ -15,7 +15,7 @@ import typer
 from semslam.errors import ConfigError
 
 train_app = typer.Typer(
-    help="Train the project's own models (ORB vocabulary, STDC, DUNet).",
+    help="Train the project's own models (ORB vocabulary, STDC, DUNet, SDFCNN, FPFDCNN), or remake the shipped ones.",
     no_args_is_help=True,
     add_completion=False,
 )
