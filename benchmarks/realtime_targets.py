@@ -22,7 +22,9 @@
    every frame processed and none lost.
 
 Prints a JSON document, then markdown tables with each target and whether it is met.
-Numbers come from this run on this machine; the load average is reported with them.
+Numbers come from this run on this machine; the load average is reported with them, and the
+machine's speed before and after the runs (``experiments/speed_probe.py``: a Python loop and
+ORB extraction on a fixed image), since these machines' speed changes from day to day.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ import numpy as np
 
 from semslam.core.types import RunResult
 from semslam.experiments.bench import emit_json, machine, targets_table
+from semslam.experiments.speed_probe import speed_probe
 from semslam.synth import SEQUENCES, ensure_rendered
 
 PRESETS = ["orb", "default", "stdc", "ddl"]
@@ -98,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
 
-    doc: dict[str, Any] = {"machine": {**machine(), "loadavg_before": os.getloadavg()}, "runs": {}, "targets": []}
+    doc: dict[str, Any] = {"machine": {**machine(), "loadavg_before": os.getloadavg(), "speed_before": speed_probe()},
+                           "runs": {}, "targets": []}
     modes = [m for m in args.modes.split(",") if m]
     for mode in modes:
         if mode not in MODES:
@@ -152,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
         doc["targets"].append({"target": "default on one core: every frame tracked", "value":
                                f"{stats['tracked_frames']}/{stats['frames']}", "met": ok})
     doc["machine"]["loadavg_after"] = os.getloadavg()
+    doc["machine"]["speed_after"] = speed_probe()
 
     emit_json(doc, args.json)
     print("\n| preset | sequence | ms/frame median / p95 | extract | track | local map | lock wait median / p95 / max "
@@ -169,6 +174,10 @@ def main(argv: list[str] | None = None) -> int:
                   + " " + ", ".join(f"{x['ms_median']:.1f}" for x in r["repeats"]) + " |")
     print("\n" + targets_table(doc["targets"], digits=1))
     print(f"\nload average before / after: {doc['machine']['loadavg_before']} / {doc['machine']['loadavg_after']}")
+    sb, sa = doc["machine"]["speed_before"], doc["machine"]["speed_after"]
+    print(f"machine speed before / after (experiments/speed_probe.py): Python loop of 10^7 additions "
+          f"{sb['python_loop_1e7_s']:.2f} / {sa['python_loop_1e7_s']:.2f} s, ORB-SLAM2 extraction on the probe "
+          f"image {sb['orb_extract_ms']:.1f} / {sa['orb_extract_ms']:.1f} ms")
     return 0
 
 
