@@ -4,8 +4,10 @@ recipe end to end (a tiny one here; the real ones take an hour)."""
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -88,9 +90,10 @@ def test_fpfdcnn_recipe_is_every_stage_the_shipped_weights_record():
 def test_dry_run_lists_every_command_and_marks_finished_renders(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
     first = RECIPES["fpfdcnn"].renders[0]
     done = tmp_path / "data" / first.name
-    done.mkdir(parents=True)
-    (done / "groundtruth.txt").write_text("# t tx ty tz qx qy qz qw\n")
-    (done / "rgb.txt").write_text("# t file\n" + "".join(f"{i} rgb/{i}.png\n" for i in range(first.config().frames)))
+    done.mkdir(parents=True)  # what a finished render of that configuration leaves (synth.needs_render)
+    for name in ("groundtruth.txt", "scene.json", "movers.json"):
+        (done / name).write_text("{}")
+    (done / "sequence.json").write_text(json.dumps({"config": asdict(first.config())}))
     assert main(["train", "reproduce", "fpfdcnn", "--work", str(tmp_path), "--dry-run"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 7 + 4 and lines[0].startswith(f"# done: semslam synth {done}")

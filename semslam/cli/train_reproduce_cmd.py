@@ -1,8 +1,9 @@
 """``semslam train reproduce sdfcnn|fpfdcnn --work DIR``: remake shipped weights in one command.
 
 Runs a recipe of ``semslam.nets.recipes``: its renders (``semslam synth``, skipped when the
-folder is complete), its training stages and the ONNX export (each skipped when its output
-exists, so an interrupted run continues), each as its own ``semslam`` process. ``--dry-run``
+folder holds that very render, complete: ``synth.needs_render``), its training stages and the
+ONNX export (each skipped when its output exists, so an interrupted run continues), each as its
+own ``semslam`` process. ``--dry-run``
 prints the commands instead. The results stay in DIR; copying them to ``semslam/data/``
 ships them.
 """
@@ -20,15 +21,6 @@ from semslam.cli.train_cmd import train_app
 from semslam.errors import ConfigError
 
 
-def _rendered(folder: Path, frames: int) -> bool:
-    """True when ``folder`` holds a finished render of ``frames`` frames (rgb.txt is written last)."""
-    rgb = folder / "rgb.txt"
-    if not (rgb.is_file() and (folder / "groundtruth.txt").is_file()):
-        return False
-    rows = [ln for ln in rgb.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
-    return len(rows) == frames
-
-
 def reproduce_command(
     name: str = typer.Argument(..., help="sdfcnn or fpfdcnn"),
     work: Path = typer.Option(..., "--work", "-w", help="Folder for the renders (WORK/data) and the weights."),
@@ -36,6 +28,7 @@ def reproduce_command(
 ) -> None:
     """Remake a shipped network's weights: render its data, train, export to ONNX."""
     from semslam.nets.recipes import RECIPES
+    from semslam.synth import needs_render
 
     if name not in RECIPES:
         raise ConfigError(f"train reproduce: unknown recipe {name!r} (known: {', '.join(sorted(RECIPES))})")
@@ -43,7 +36,7 @@ def reproduce_command(
     data = work / "data"
     commands: list[tuple[list[str], bool]] = []  # (argv after `semslam`, already done)
     for r in recipe.renders:
-        commands.append((r.argv(data), _rendered(data / r.name, r.config().frames)))
+        commands.append((r.argv(data), not needs_render(data / r.name, r.config())))
     for step in recipe.steps:
         commands.append((step.resolve(data, work), (work / step.output).is_file()))
     if dry_run:

@@ -35,16 +35,11 @@ from numpy.typing import NDArray
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, rotation_angle
 
-__all__ = ["CORRECT_PX", "PAPER_TABLE6", "PairPose", "correct_matches", "lookup_depth", "pose_errors", "project",
+__all__ = ["CORRECT_PX", "PairPose", "correct_matches", "lookup_depth", "pose_errors", "project",
            "relative_pose_pnp", "table6_targets", "transfer_points"]
 
 CORRECT_PX = 5.0  # Table 6: correct within plus and minus five pixels
 CLEAR_MARGIN_POINTS = 2.0  # issue 12: within 2 points of ORB + BF on clear pairs
-
-# SDF-SLAM Table 6: (correct, matches) with 500 points per image.
-PAPER_TABLE6: dict[tuple[str, str], tuple[int, int]] = {
-    ("orb+bf", "clear"): (276, 329), ("fpfdcnn+range", "clear"): (368, 405),
-    ("orb+bf", "blurred"): (161, 249), ("fpfdcnn+range", "blurred"): (263, 304)}
 
 
 def transfer_points(xy1: NDArray[np.floating], z1: NDArray[np.floating], camera: PinholeCamera,
