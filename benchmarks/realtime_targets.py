@@ -59,11 +59,20 @@ def _row(r: Any) -> dict[str, Any]:
         "ate_cm": None if r.ate_rmse is None else 100 * r.ate_rmse,
         "ms_median": r.ms_per_frame["median"], "ms_p95": r.ms_per_frame["p95"], "ms_max": r.ms_per_frame["max"],
         "fps_wall": r.fps, "stages_ms_median": r.stages_ms_median,
+        # The tracking thread's per-frame CPU, run-queue wait and sleep (GIL, locks, a mask).
+        "tracking_thread_ms": r.tracking_thread_ms or None,
         "lock_wait_ms": {"median": r.stages_ms_median.get("lock_wait"), "p95": r.stages_ms_p95.get("lock_wait"),
                          "max": r.stages_ms_max.get("lock_wait")},
         "local_ba_ms_median": r.get("local_ba_ms_median"), "jit_warmup_s": r.get("jit_warmup_s"),
         "latency_ms": r.latency_ms or None, "late_frames": r.late_frames if r.realtime else None,
     }
+
+
+def _split(split: dict[str, float] | None) -> str:
+    """"CPU / run queue / asleep" ms of the tracking thread ("-" where not measured)."""
+    if not split:
+        return "-"
+    return " / ".join("-" if split.get(k) is None else f"{split[k]:.1f}" for k in ("cpu", "runqueue", "asleep"))
 
 
 def _median_run(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -159,13 +168,15 @@ def main(argv: list[str] | None = None) -> int:
     doc["machine"]["speed_after"] = speed_probe()
 
     emit_json(doc, args.json)
-    print("\n| preset | sequence | ms/frame median / p95 | extract | track | local map | lock wait median / p95 / max "
-          "| local BA ms | ATE cm | latency median / p95 | late frames | every repeat's median |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| preset | sequence | ms/frame median / p95 | tracking thread: CPU / run queue / asleep | extract | track "
+          "| local map | lock wait median / p95 / max | local BA ms | ATE cm | latency median / p95 | late frames "
+          "| every repeat's median |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for preset, runs in doc["runs"].items():
         for name, r in runs.items():
             s, w = r["stages_ms_median"], r["lock_wait_ms"]
-            print(f"| {preset} | {name} | {r['ms_median']:.1f} / {r['ms_p95']:.1f} | {s.get('extract', 0):.1f} | "
+            print(f"| {preset} | {name} | {r['ms_median']:.1f} / {r['ms_p95']:.1f} | {_split(r['tracking_thread_ms'])} | "
+                  f"{s.get('extract', 0):.1f} | "
                   f"{s.get('track', 0):.1f} | {s.get('local_map', 0):.1f} | {w['median'] or 0:.2f} / {w['p95'] or 0:.1f}"
                   f" / {w['max'] or 0:.1f} | {r['local_ba_ms_median'] or 0:.0f} | "
                   f"{'n/a' if r['ate_cm'] is None else format(r['ate_cm'], '.2f')} | "

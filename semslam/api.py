@@ -41,6 +41,7 @@ from semslam.io.images import depth_to_metres
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
 from semslam.io.trajectory import Trajectory, write_tum
 from semslam.run_record import RunTiming, evaluate, timing_stats
+from semslam.thread_clock import ThreadClock
 from semslam.slam.system import System as SlamSystem
 
 log = logging.getLogger(__name__)
@@ -80,6 +81,7 @@ class System:
         self._slam: SlamSystem | None = None
         self._start_lock = threading.Lock()
         self._timing = RunTiming()
+        self._clock = ThreadClock()  # where each frame's tracking time went (CPU / run queue / asleep)
         self._last_t = -np.inf
         self._n_given = 0
         self._closed = False
@@ -179,9 +181,13 @@ class System:
         if self.closed:
             raise SemslamError("System.track_frame: the system is closed (save() or close() ended the run)")
         slam = self._start()
+        cpu0, runq0 = self._clock.read()
         t0 = time.perf_counter()
         result = slam.track(packet)
-        self._timing.add(t0, time.perf_counter(), result, arrived)
+        done = time.perf_counter()
+        cpu1, runq1 = self._clock.read()
+        self._timing.add(t0, done, result, arrived, cpu1 - cpu0,
+                         None if runq0 is None or runq1 is None else runq1 - runq0)
         return result
 
     # ------------------------------------------------------------------ at any time
@@ -312,6 +318,7 @@ class System:
             stages_ms_median={k: float(np.median(v)) for k, v in timing.stage_ms.items()},
             stages_ms_p95={k: float(np.percentile(v, 95)) for k, v in timing.stage_ms.items()},
             stages_ms_max={k: float(np.max(v)) for k, v in timing.stage_ms.items()},
+            tracking_thread_ms=timing.thread_split(),
             realtime=self.config.slam.realtime, late_frames=timing.late_frames,
             latency_ms=timing_stats(timing.latency_ms) if timing.latency_ms else {},
             dynamic_ratio_mean=float(np.mean(timing.dynamic_ratio)) if timing.dynamic_ratio else 0.0,

@@ -28,17 +28,27 @@ class RunTiming:
         self.dynamic_ratio: array[float] = array("d")
         self.stage_ms: dict[str, array[float]] = {}
         self.latency_ms: array[float] = array("d")
+        # The tracking thread's CPU and run-queue ms per frame (thread_clock; run queue Linux only).
+        self.cpu_ms: array[float] = array("d")
+        self.runqueue_ms: array[float] = array("d")
         self.late_frames = 0
         self.interrupted = False
         self.t_first: float | None = None
         self.last_done = -np.inf
         self.wall_s = 0.0
 
-    def add(self, t0: float, done: float, result: TrackResult, arrived: float | None) -> None:
-        """One frame tracked from ``t0`` to ``done``; wall time counts from the first frame."""
+    def add(self, t0: float, done: float, result: TrackResult, arrived: float | None,
+            cpu_ms: float | None = None, runqueue_ms: float | None = None) -> None:
+        """One frame tracked from ``t0`` to ``done``, with ``cpu_ms`` of the tracking thread's
+        CPU and ``runqueue_ms`` waiting for a core in between; wall time counts from the
+        first frame."""
         if self.t_first is None:
             self.t_first = t0 if arrived is None else min(t0, arrived)
         self.frame_ms.append((done - t0) * 1e3)
+        if cpu_ms is not None:
+            self.cpu_ms.append(cpu_ms)
+            if runqueue_ms is not None:
+                self.runqueue_ms.append(runqueue_ms)
         self.dynamic_ratio.append(result.dynamic_ratio)
         for stage, v in result.timings.items():
             values = self.stage_ms.get(stage)
@@ -50,6 +60,21 @@ class RunTiming:
             self.latency_ms.append((done - arrived) * 1e3)
         self.last_done = done
         self.wall_s = done - self.t_first
+
+
+    def thread_split(self) -> dict[str, float]:
+        """Per-frame medians of the tracking thread's CPU, run-queue and asleep ms (the
+        asleep time is wall - CPU - run queue, frame by frame); {} if not measured."""
+        n = len(self.cpu_ms)
+        if n == 0 or n != len(self.frame_ms):
+            return {}
+        cpu = np.asarray(self.cpu_ms)
+        out = {"cpu": float(np.median(cpu))}
+        if len(self.runqueue_ms) == n:
+            runq = np.asarray(self.runqueue_ms)
+            out["runqueue"] = float(np.median(runq))
+            out["asleep"] = float(np.median(np.maximum(np.asarray(self.frame_ms) - cpu - runq, 0.0)))
+        return out
 
 
 def timing_stats(values: Sequence[float]) -> dict[str, float]:

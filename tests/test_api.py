@@ -135,6 +135,9 @@ def test_save_writes_what_evo_reads(render: Path, frames: list, tmp_path: Path) 
     kfs = file_interface.read_tum_trajectory_file(str(out / "keyframes.txt"))
     assert traj.num_poses == stats["tracked_frames"] == 30 and kfs.num_poses == stats["keyframes"] >= 2
     assert stats["threaded"] is True and Path(stats["paths"]["keyframe_cloud"]).stat().st_size > 1000
+    split = stats["tracking_thread_ms"]  # the tracking thread's CPU (and on Linux its waits) per frame
+    assert 0.0 < split["cpu"] <= stats["ms_per_frame"]["max"]
+    assert all(v >= 0.0 for v in split.values())
     assert json.loads((out / "config.json").read_text())["maps"]["builders"] == ["keyframe_cloud"]
 
 

@@ -65,6 +65,10 @@ def print_summary(result: RunResult) -> None:
         table.add_row("RPE rot RMSE (1 s)", f"{r.rpe_rot_deg_1s['rmse']:.3f} deg")
     ms = r.ms_per_frame
     table.add_row("ms/frame (median / p95)", f"{ms['median']:.1f} / {ms['p95']:.1f}")
+    split = r.tracking_thread_ms
+    if "asleep" in split:  # Linux: where a frame's time went (semslam.thread_clock)
+        table.add_row("tracking thread: CPU / run queue / asleep", f"{split['cpu']:.1f} / {split['runqueue']:.1f} / "
+                                                            f"{split['asleep']:.1f} ms (medians)")
     table.add_row("fps (tracking / wall incl. I/O)", f"{r.tracking_fps:.1f} / {r.fps:.1f}")
     console.print(table)
     outputs = [Path(p).name for p in r.paths.values()]

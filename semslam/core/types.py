@@ -208,6 +208,10 @@ class RunResult:
     stages_ms_median: dict[str, float] = field(default_factory=dict)
     stages_ms_p95: dict[str, float] = field(default_factory=dict)
     stages_ms_max: dict[str, float] = field(default_factory=dict)
+    # Where each frame's tracking time went, per-frame medians (ms; ``semslam.thread_clock``):
+    # "cpu" the tracking thread's own CPU time, "runqueue" waiting for a core, "asleep" the
+    # rest (the GIL, a lock, a mask). Linux only for the last two.
+    tracking_thread_ms: dict[str, float] = field(default_factory=dict)
     # Camera-rate runs (slam.realtime): time from a frame's arrival to its pose, and the
     # frames that arrived while the previous one was still being tracked.
     realtime: bool = False
