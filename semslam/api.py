@@ -41,7 +41,7 @@ from semslam.io.images import depth_to_metres
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
 from semslam.io.trajectory import Trajectory, write_tum
 from semslam.run_record import RunTiming, evaluate, timing_stats
-from semslam.thread_clock import ThreadClock
+from semslam.thread_clock import thread_times
 from semslam.slam.system import System as SlamSystem
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,6 @@ class System:
         self._slam: SlamSystem | None = None
         self._start_lock = threading.Lock()
         self._timing = RunTiming()
-        self._clock = ThreadClock()  # where each frame's tracking time went (CPU / run queue / asleep)
         self._last_t = -np.inf
         self._n_given = 0
         self._closed = False
@@ -181,11 +180,11 @@ class System:
         if self.closed:
             raise SemslamError("System.track_frame: the system is closed (save() or close() ended the run)")
         slam = self._start()
-        cpu0, runq0 = self._clock.read()
+        cpu0, runq0 = thread_times()  # where the frame's time goes: CPU / run queue / asleep
         t0 = time.perf_counter()
         result = slam.track(packet)
         done = time.perf_counter()
-        cpu1, runq1 = self._clock.read()
+        cpu1, runq1 = thread_times()
         self._timing.add(t0, done, result, arrived, cpu1 - cpu0,
                          None if runq0 is None or runq1 is None else runq1 - runq0)
         return result

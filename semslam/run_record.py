@@ -61,7 +61,6 @@ class RunTiming:
         self.last_done = done
         self.wall_s = done - self.t_first
 
-
     def thread_split(self) -> dict[str, float]:
         """Per-frame medians of the tracking thread's CPU, run-queue and asleep ms (the
         asleep time is wall - CPU - run queue, frame by frame); {} if not measured."""

@@ -70,7 +70,8 @@ class BenchRow:
             "relocalisations": r.get("relocalisations"), "ate_rmse_m": r.ate_rmse,
             "rpe_trans_rmse_m_1s": r.rpe_trans_rmse, "ms_per_frame_median": r.ms_per_frame.get("median"),
             "ms_per_frame_p95": r.ms_per_frame.get("p95"), "stages_ms_median": r.stages_ms_median,
-            "tracking_thread_ms": r.tracking_thread_ms, "dynamic_ratio_mean": r.dynamic_ratio_mean, "out_dir": str(r.out_dir), "repeat": self.repeat,
+            "tracking_thread_ms": r.tracking_thread_ms, "dynamic_ratio_mean": r.dynamic_ratio_mean,
+            "out_dir": str(r.out_dir), "repeat": self.repeat,
         }
 
 
