@@ -43,14 +43,10 @@ def _probe_image() -> np.ndarray:
 
 def speed_probe(repeats: int = 15) -> dict[str, Any]:
     """{"python_loop_1e7_s", "orb_extract_ms" (median of ``repeats``, 1000 features)}; ~2-3 s."""
+    from semslam.experiments.bench import time_calls
     from semslam.features.orb_slam2 import OrbSlamExtractor
 
     image = _probe_image()
     extractor = OrbSlamExtractor(1000)  # ORB-SLAM2's defaults; compiles or loads the kernels
-    extractor.extract(image)  # warm-up, not counted
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        extractor.extract(image)
-        times.append(1e3 * (time.perf_counter() - t0))
-    return {"python_loop_1e7_s": round(_python_loop_s(), 3), "orb_extract_ms": round(float(np.median(times)), 2)}
+    wall_ms, _ = time_calls(lambda: extractor.extract(image), max(1, repeats), warmup=1)
+    return {"python_loop_1e7_s": round(_python_loop_s(), 3), "orb_extract_ms": round(float(np.median(wall_ms)), 2)}
