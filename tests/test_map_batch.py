@@ -158,7 +158,8 @@ def test_ba_problem_from_an_observation_table_equals_the_direct_one() -> None:
     """build_ba_problem gives the same arrays whether it walks the observations itself or
     gets local mapping's one-pass table of every observer."""
     from semslam.geometry.camera import PinholeCamera
-    from semslam.slam.local_mapping import build_ba_problem, observation_table
+    from semslam.slam.local_mapping import build_ba_problem
+    from semslam.slam.map_batch import observation_table
 
     rng = np.random.default_rng(5)
     m, points = _world(rng, orb_spec(1.2, 8))
@@ -286,7 +287,7 @@ def test_normals_of_a_pending_change_equal_those_after_it() -> None:
 def test_observation_table_lists_every_observation_in_order() -> None:
     """The flattened table equals walking each point's observations in order, with every
     keyframe numbered first-seen, or by a given index (observers outside it left out)."""
-    from semslam.slam.local_mapping import observation_table
+    from semslam.slam.map_batch import observation_table
 
     rng = np.random.default_rng(11)
     m, points = _world(rng, orb_spec(1.2, 8))
@@ -302,3 +303,53 @@ def test_observation_table_lists_every_observation_in_order() -> None:
     assert [(int(a), kfs[b], int(c)) for a, b, c in zip(pr, kr, kp)] == [t for t in direct if t[1] in index]
     empty = observation_table([])
     assert all(a.size == 0 for a in empty[:3]) and empty[3] == []
+
+
+def test_store_gathers_equal_the_per_point_attributes() -> None:
+    """The point store's flags and rows give what the objects say: a keyframe's good points
+    and free slots, and ``PointArrays`` (gathered by rows, and point by point for points
+    in stores of their own)."""
+    from semslam.slam.fusion import PointArrays
+
+    rng = np.random.default_rng(8)
+    m, points = _world(rng, orb_spec(1.2, 8))
+    kf = m.all_keyframes()[0]
+    for i, p in enumerate(points[:40]):
+        kf.points[i] = p
+    for p in points[:40:3]:
+        p.bad = True
+    assert kf.valid_points() == [p for p in kf.points if p is not None and not p.bad]
+    np.testing.assert_array_equal(kf.free_mask(), [p is None or p.bad for p in kf.points])
+    arrays = PointArrays.of(points)
+    loose = [MapPoint(1000 + i, p.pos, p.descriptor, p.ref_kf) for i, p in enumerate(points)]  # own stores
+    for q, p in zip(loose, points):
+        q.bad, q.min_dist, q.max_dist, q.normal = p.bad, p.min_dist, p.max_dist, p.normal
+    per_point = PointArrays.of(loose)
+    assert arrays.points == [p for p in points if not p.bad]
+    for name in ("pos", "min_dist", "max_dist", "normal", "descriptors"):
+        np.testing.assert_array_equal(getattr(arrays, name), getattr(per_point, name))
+    assert len(arrays.points) == len(per_point.points) > 100
+
+
+def test_fusion_apply_leaves_each_merged_point_its_distinctive_descriptor() -> None:
+    """apply computes the merged points' descriptors in one batch at its end: each equals
+    the per-point original over the point's final observations, as replace_point leaves it."""
+    from semslam.geometry.camera import PinholeCamera
+    from semslam.slam.fusion import PointFusion
+
+    m, kfs, a, b = _fusion_world()
+    rng = np.random.default_rng(9)
+    kfs[2].keypoints.descriptors[:] = rng.integers(0, 256, kfs[2].keypoints.descriptors.shape, dtype=np.uint8)
+    kfs[1].keypoints.descriptors[:, :4] ^= 0x0F  # three different observations per point
+    fusion = PointFusion(m, PinholeCamera(525.0, 525.0, 319.5, 239.5, width=640, height=480), 40.0)
+    plan = [(p, i) for i, p in enumerate(a)]  # every a[i] onto keyframe 2's b[i]
+    for p in a:
+        p.descriptor = np.zeros(32, np.uint8)  # stale: none of its observations'
+    stale = {p.id: p.descriptor.copy() for p in a}
+    assert fusion.apply(kfs[2], plan) == len(a)
+    changed = 0
+    for p in a:
+        assert not p.bad and kfs[2] in p.observations
+        np.testing.assert_array_equal(p.descriptor, _reference_descriptor(p, m.matcher))
+        changed += not np.array_equal(p.descriptor, stale[p.id])
+    assert changed == len(a)  # the batch did recompute them

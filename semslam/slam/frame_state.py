@@ -99,10 +99,7 @@ class FrameState:
 
     def matched_indices(self, store: PointStore) -> NDArray[np.intp]:
         """Keypoints with a good map point."""
-        rows = self.points.rows
-        has = rows >= 0
-        has[has] = ~store.bad[rows[has]]
-        return np.flatnonzero(has)
+        return self.points.good(store)
 
     def free_mask(self, store: PointStore) -> NDArray[np.bool_]:
         """Keypoints without a (good, observed) map point."""

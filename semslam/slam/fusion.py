@@ -11,6 +11,7 @@ keyframe) and returns the matches; :meth:`PointFusion.apply` changes the map (th
 from __future__ import annotations
 
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -18,7 +19,10 @@ from numpy.typing import NDArray
 
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map_batch import distinctive_descriptors, shared_store, store_rows
 from semslam.slam.search import project
+
+_ID = attrgetter("id")
 
 
 def adopt_matched_points(slam_map: Map, kf: KeyFrame, matched: dict[int, MapPoint]) -> None:
@@ -50,13 +54,26 @@ class PointArrays:
 
     @classmethod
     def of(cls, points: list[MapPoint]) -> "PointArrays":
-        pts = [p for p in points if not p.bad]
+        """The good ones of ``points``, gathered by store rows (attribute by attribute only
+        for points that do not share one store: made outside a map, in tests)."""
+        store = shared_store(points)
+        if store is None:
+            pts = [p for p in points if not p.bad]
+            rows = None
+        else:
+            rows = store_rows(points)
+            keep = np.flatnonzero(~store.bad[rows])
+            pts = [points[i] for i in keep.tolist()]
+            rows = rows[keep]
         n = len(pts)
         if n == 0:
             return cls([], np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
                        np.zeros((0, 3)), np.zeros((0, 0), np.uint8))
-        return cls(pts, np.fromiter((p.id for p in pts), np.int64, n),
-                   np.array([p.pos for p in pts]),
+        ids = np.fromiter(map(_ID, pts), np.int64, n)
+        if store is not None and rows is not None:
+            return cls(pts, ids, store.pos[rows], store.min_dist[rows], store.max_dist[rows], store.normal[rows],
+                       store.descriptor[rows])
+        return cls(pts, ids, np.array([p.pos for p in pts]),
                    np.fromiter((p.min_dist for p in pts), np.float64, n),
                    np.fromiter((p.max_dist for p in pts), np.float64, n),
                    np.array([p.normal for p in pts]), np.stack([p.descriptor for p in pts]))
@@ -85,7 +102,7 @@ class PointFusion:
         Points ``kf`` already observes (its own map points) are skipped."""
         if not src.points or kf.bad:
             return []
-        own = np.fromiter((p.id for p in kf.points if p is not None and not p.bad), np.int64)
+        own = np.fromiter(map(_ID, kf.valid_points()), np.int64)
         keep = ~np.isin(src.ids, own) if own.size else np.ones(len(src.points), bool)
         cand = np.flatnonzero(keep)
         if cand.size == 0:
@@ -132,13 +149,15 @@ class PointFusion:
         if kf.bad:
             return 0
         n = 0
+        merged: dict[int, MapPoint] = {}  # points that took another's observations
         for p, t in matches:
             if p.bad or kf in p.observations:
                 continue
             existing = kf.points[t]
             if existing is not None and not existing.bad:
                 keep, drop = (existing, p) if len(existing.observations) > len(p.observations) else (p, existing)
-                self.map.replace_point(drop, keep)
+                self.map.replace_point(drop, keep, descriptor=False)
+                merged[keep.id] = keep
             else:
                 p.add_observation(kf, t)
                 kf.points[t] = p
@@ -146,5 +165,9 @@ class PointFusion:
             if touched is not None:
                 touched[keep.id] = keep
             n += 1
+        # Their distinctive descriptors, as replace_point computes them, in one batch: no
+        # descriptor is read in between, and a point's observations change after its last
+        # merge here only by another merge into it (a point kf observes is not matched again).
+        distinctive_descriptors([p for p in merged.values() if not p.bad], self.map.matcher).write()
         self.n_fused += n
         return n

@@ -22,7 +22,6 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import partial
-from itertools import chain, repeat
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -36,7 +35,8 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
 from semslam.slam.map import KeyFrame, Map, MapPoint
-from semslam.slam.map_batch import distinctive_descriptors, normals_and_depths
+from semslam.slam.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
+                                    point_positions)
 from semslam.slam.map_batch import warm_up as warm_up_kernels
 from semslam.slam.search import project
 
@@ -44,49 +44,6 @@ if TYPE_CHECKING:
     from semslam.place.vocabulary import Vocabulary
 
 log = logging.getLogger(__name__)
-
-
-def observation_table(points: list[MapPoint], kf_index: dict[KeyFrame, int] | None = None
-                      ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[KeyFrame]]:
-    """Every observation of ``points`` as flat arrays (point row, keyframe row, keypoint
-    index), point-major in observation order, and the keyframes the rows refer to.
-
-    With ``kf_index`` only the observations by those keyframes are listed (rows from it);
-    without, every observing keyframe gets a row in first-seen order."""
-    # Flattened with chain/map (loops in C): tens of thousands of observations per call.
-    obs_dicts = [p.observations for p in points]
-    counts = np.fromiter(map(len, obs_dicts), np.intp, len(obs_dicts))
-    obs_kf = list(chain.from_iterable(obs_dicts))
-    kp = np.fromiter(chain.from_iterable(d.values() for d in obs_dicts), np.intp, len(obs_kf))
-    point_row = np.repeat(np.arange(len(obs_dicts), dtype=np.intp), counts)
-    if kf_index is None:
-        kfs = list(dict.fromkeys(obs_kf))  # first-seen order
-        kf_index = {kf: k for k, kf in enumerate(kfs)}
-        kf_row = np.fromiter(map(kf_index.__getitem__, obs_kf), np.intp, len(obs_kf))
-        return point_row, kf_row, kp, kfs
-    kf_row = np.fromiter(map(kf_index.get, obs_kf, repeat(-1, len(obs_kf))), np.intp, len(obs_kf))
-    keep = kf_row >= 0
-    return point_row[keep], kf_row[keep], kp[keep], list(kf_index)
-
-
-def gather_keypoints(kfs: list[KeyFrame], kf_row: NDArray[np.intp], kp: NDArray[np.intp]
-                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
-    """(uv, ur, octave) of keypoint ``kp[m]`` of keyframe ``kfs[kf_row[m]]``, one fancy index
-    per keyframe."""
-    m = kp.size
-    uv = np.empty((m, 2))
-    ur = np.empty(m)
-    octave = np.empty(m, np.intp)
-    order = np.argsort(kf_row, kind="stable")
-    bounds = np.searchsorted(kf_row[order], np.arange(len(kfs) + 1))
-    for k, kf in enumerate(kfs):
-        sel = order[bounds[k]:bounds[k + 1]]
-        if sel.size:
-            i = kp[sel]
-            uv[sel] = kf.xy[i]
-            ur[sel] = kf.ur[i]
-            octave[sel] = kf.keypoints.octave[i]
-    return uv, ur, octave
 
 
 def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points: list[MapPoint],
@@ -110,7 +67,7 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
     return BAProblem(
         poses_cw=np.stack([kf.T_cw for kf in kfs]),
         pose_fixed=np.array([False] * len(kfs_free) + [True] * len(kfs_fixed)),
-        points_w=np.array([p.pos for p in points]).reshape(-1, 3),
+        points_w=point_positions(points),
         obs_pose=obs_pose,
         obs_point=obs_point,
         uv=uv,
@@ -272,7 +229,7 @@ class LocalMapping(KeyframeWorker):
         the matching and triangulation run without the lock, the new points are added under
         it (in slices, ``apply_in_slices``)."""
         baseline = self.cfg.bf / self.camera.fx
-        free1 = np.array([p is None or p.bad for p in kf.points], bool)
+        free1 = kf.free_mask()
         new: list[tuple[KeyFrame, int, int]] = []
         new_pos = []
         for nb in kf.best_covisibles(10):
@@ -280,7 +237,7 @@ class LocalMapping(KeyframeWorker):
                 break
             if np.linalg.norm(nb.center - kf.center) < baseline:
                 continue
-            free2 = np.array([p is None or p.bad for p in nb.points], bool)
+            free2 = nb.free_mask()
             i1, i2 = self._epipolar_matches(kf, nb, free1, free2)
             if len(i1) == 0:
                 continue

@@ -80,6 +80,7 @@ class PointStore:
         return [objs[r] for r in rows.tolist()]
 
 
+
 def _row_property(field_name: str, kind: type, copy: bool = False) -> property:
     """A MapPoint attribute stored in ``PointStore.<field_name>[row]``."""
     if copy:
@@ -208,6 +209,20 @@ class PointSlots(list):  # type: ignore[type-arg]
         super().__setitem__(i, p)
         self.rows[i] = -1 if p is None else p._row
 
+    def good(self, store: PointStore) -> NDArray[np.intp]:
+        """Slots holding a point that is not bad (``store``: the points' store)."""
+        rows = self.rows
+        has = rows >= 0
+        has[has] = ~store.bad[rows[has]]
+        return np.flatnonzero(has)
+
+    def free(self, store: PointStore) -> NDArray[np.bool_]:
+        """Slots without a point, or with a bad one (``store``: the points' store)."""
+        rows = self.rows
+        free = rows < 0
+        free[~free] = store.bad[rows[~free]]
+        return free
+
     def _unsupported(self, *args: Any, **kwargs: Any) -> None:
         raise TypeError("a keyframe's point slots have a fixed length")
 
@@ -284,17 +299,35 @@ class KeyFrame:
             self.featvec = featvec
             self.bow = bow
 
+    def point_store(self) -> PointStore | None:
+        """Where this keyframe's points live: its map's store (or, for a keyframe outside a
+        map, its first point's); None without points."""
+        if self.map is not None:
+            return self.map.store
+        return next((p._store for p in self.points if p is not None), None)
+
     def tracked_points(self, min_obs: int = 1) -> int:
         """Points with at least ``min_obs`` observations (ORB-SLAM TrackedMapPoints)."""
         rows = self.points.rows
         rows = rows[rows >= 0]
         if len(rows) == 0:
             return 0
-        store = self.map.store if self.map is not None else next(p for p in self.points if p is not None)._store
+        store = self.point_store()
         return int((~store.bad[rows] & (store.n_obs[rows] >= min_obs)).sum())
 
+    def valid_indices(self) -> NDArray[np.intp]:
+        """Keypoints with a good map point (by the store's flags: no property per point)."""
+        store = self.point_store()
+        return np.zeros(0, np.intp) if store is None else self.points.good(store)
+
     def valid_points(self) -> list[MapPoint]:
-        return [p for p in self.points if p is not None and not p.bad]
+        pts = self.points
+        return [pts[i] for i in self.valid_indices().tolist()]
+
+    def free_mask(self) -> NDArray[np.bool_]:
+        """Keypoints without a map point, or with a bad one."""
+        store = self.point_store()
+        return np.ones(len(self.points), bool) if store is None else self.points.free(store)
 
     def best_covisibles(self, n: int) -> list["KeyFrame"]:
         return [kf for kf in self.ordered_covis[:n] if not kf.bad]
@@ -391,8 +424,10 @@ class Map:
         p.clear_observations()
         self.points.pop(p.id, None)
 
-    def replace_point(self, old: MapPoint, new: MapPoint) -> None:
-        """Fuse ``old`` into ``new`` (duplicates found by projection or loop fusion)."""
+    def replace_point(self, old: MapPoint, new: MapPoint, descriptor: bool = True) -> None:
+        """Fuse ``old`` into ``new`` (duplicates found by projection or loop fusion).
+        ``descriptor=False`` leaves ``new``'s distinctive descriptor to the caller, who
+        computes it once for many replaced points (``slam.map_batch``)."""
         if old is new or old.bad or new.bad:
             return
         for kf, idx in list(old.observations.items()):
@@ -408,7 +443,8 @@ class Map:
         old.bad = True
         old.replaced_by = new
         self.points.pop(old.id, None)
-        new.compute_distinctive_descriptor(self.matcher)
+        if descriptor:
+            new.compute_distinctive_descriptor(self.matcher)
 
     def set_bad_keyframe(self, kf: KeyFrame) -> None:
         """Remove a redundant keyframe, re-parenting its children (ORB-SLAM KeyFrame::SetBadFlag)."""

@@ -17,7 +17,8 @@ assignment per field; without a store, attribute by attribute.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from itertools import chain
+from itertools import chain, repeat
+from operator import attrgetter
 from typing import TYPE_CHECKING, Any
 
 import numba
@@ -33,8 +34,86 @@ if TYPE_CHECKING:
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int32)
 
 
-def _rows(points: list["MapPoint"]) -> NDArray[np.intp]:
-    return np.fromiter((p.row for p in points), np.intp, len(points))
+_ROW = attrgetter("_row")
+_STORE = attrgetter("_store")
+
+
+def store_rows(points: list["MapPoint"]) -> NDArray[np.intp]:
+    """The store rows of ``points`` (one C-level pass: no property per point)."""
+    return np.fromiter(map(_ROW, points), np.intp, len(points))
+
+
+def shared_store(points: list["MapPoint"]) -> "PointStore | None":
+    """The one store all ``points`` live in (a map's), or None if they are in several
+    (points made outside a map, in tests) or there are none."""
+    stores = set(map(_STORE, points))
+    return stores.pop() if len(stores) == 1 else None
+
+
+def observation_table(points: list["MapPoint"], kf_index: dict["KeyFrame", int] | None = None
+                      ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list["KeyFrame"]]:
+    """Every observation of ``points`` as flat arrays (point row, keyframe row, keypoint
+    index), point-major in observation order, and the keyframes the rows refer to.
+
+    With ``kf_index`` only the observations by those keyframes are listed (rows from it);
+    without, every observing keyframe gets a row in first-seen order."""
+    # Flattened with chain/map (loops in C): tens of thousands of observations per call.
+    obs_dicts = [p.observations for p in points]
+    counts = np.fromiter(map(len, obs_dicts), np.intp, len(obs_dicts))
+    obs_kf = list(chain.from_iterable(obs_dicts))
+    kp = np.fromiter(chain.from_iterable(d.values() for d in obs_dicts), np.intp, len(obs_kf))
+    point_row = np.repeat(np.arange(len(obs_dicts), dtype=np.intp), counts)
+    if kf_index is None:
+        kfs = list(dict.fromkeys(obs_kf))  # first-seen order
+        kf_index = {kf: k for k, kf in enumerate(kfs)}
+        kf_row = np.fromiter(map(kf_index.__getitem__, obs_kf), np.intp, len(obs_kf))
+        return point_row, kf_row, kp, kfs
+    kf_row = np.fromiter(map(kf_index.get, obs_kf, repeat(-1, len(obs_kf))), np.intp, len(obs_kf))
+    keep = kf_row >= 0
+    return point_row[keep], kf_row[keep], kp[keep], list(kf_index)
+
+
+def _per_keyframe(kf_row: NDArray[np.intp], n_kfs: int) -> list[NDArray[np.intp]]:
+    """For each keyframe row k, the positions m with ``kf_row[m] == k`` (ascending)."""
+    order = np.argsort(kf_row, kind="stable")
+    bounds = np.searchsorted(kf_row[order], np.arange(n_kfs + 1))
+    return [order[bounds[k]:bounds[k + 1]] for k in range(n_kfs)]
+
+
+def gather_keypoints(kfs: list["KeyFrame"], kf_row: NDArray[np.intp], kp: NDArray[np.intp]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
+    """(uv, ur, octave) of keypoint ``kp[m]`` of keyframe ``kfs[kf_row[m]]``, one fancy index
+    per keyframe."""
+    m = kp.size
+    uv = np.empty((m, 2))
+    ur = np.empty(m)
+    octave = np.empty(m, np.intp)
+    for kf, sel in zip(kfs, _per_keyframe(kf_row, len(kfs))):
+        if sel.size:
+            i = kp[sel]
+            uv[sel] = kf.xy[i]
+            ur[sel] = kf.ur[i]
+            octave[sel] = kf.keypoints.octave[i]
+    return uv, ur, octave
+
+
+def gather_descriptors(kfs: list["KeyFrame"], kf_row: NDArray[np.intp], kp: NDArray[np.intp]) -> NDArray[Any]:
+    """The descriptor of keypoint ``kp[m]`` of keyframe ``kfs[kf_row[m]]`` (row m), one
+    fancy index per keyframe (a map's keyframes hold one kind of descriptor)."""
+    like = kfs[0].keypoints.descriptors
+    out = np.empty((kp.size, like.shape[1]), like.dtype)
+    for kf, sel in zip(kfs, _per_keyframe(kf_row, len(kfs))):
+        if sel.size:
+            out[sel] = kf.keypoints.descriptors[kp[sel]]
+    return out
+
+
+def point_positions(points: list["MapPoint"]) -> NDArray[np.float64]:
+    """(N, 3) positions of ``points``: one fancy index when they share a store."""
+    store = shared_store(points)
+    if store is None:
+        return np.array([p.pos for p in points]).reshape(-1, 3)
+    return store.pos[store_rows(points)]
 
 
 @dataclass
@@ -48,7 +127,7 @@ class DescriptorUpdate:
         if not self.points or self.descriptors is None:
             return
         if store is not None:
-            store.descriptor[_rows(self.points)] = self.descriptors
+            store.descriptor[store_rows(self.points)] = self.descriptors
             return
         for p, d in zip(self.points, self.descriptors):
             p.descriptor = d
@@ -64,19 +143,18 @@ def distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher") -> Des
     The median runs over the full distance row, the zero distance to itself included, as
     ``MapPoint.compute_distinctive_descriptor`` always did.
     """
-    owners: list[MapPoint] = []
-    counts: list[int] = []
-    rows: list[NDArray] = []
-    for p in points:
-        obs = [kf.keypoints.descriptors[i] for kf, i in p.observations.items() if not kf.bad]
-        if obs:
-            owners.append(p)
-            counts.append(len(obs))
-            rows.extend(obs)
-    if not owners:
+    point_row, kf_row, kp, kfs = observation_table(points)
+    good_kf = np.fromiter((not kf.bad for kf in kfs), bool, len(kfs))
+    if not good_kf.all():
+        keep = good_kf[kf_row]
+        point_row, kf_row, kp = point_row[keep], kf_row[keep], kp[keep]
+    if not point_row.size:
         return DescriptorUpdate()
-    desc = np.stack(rows)
-    cnt = np.asarray(counts, np.intp)
+    per_point = np.bincount(point_row, minlength=len(points))
+    owner_idx = np.flatnonzero(per_point)
+    owners = [points[i] for i in owner_idx.tolist()]
+    desc = gather_descriptors(kfs, kf_row, kp)  # point-major, in observation order
+    cnt = per_point[owner_idx]
     start = np.zeros(cnt.size, np.intp)
     np.cumsum(cnt[:-1], out=start[1:])
     if isinstance(matcher, HammingMatcher) and desc.dtype == np.uint8:
@@ -106,7 +184,7 @@ class NormalUpdate:
         if not self.points or self.normal is None:
             return
         if store is not None:
-            rows = _rows(self.points)
+            rows = store_rows(self.points)
             store.normal[rows] = self.normal
             store.min_dist[rows[self.ranged]] = self.min_dist
             store.max_dist[rows[self.ranged]] = self.max_dist
@@ -163,7 +241,7 @@ def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float
     rows = np.fromiter(map(kf_row.__getitem__, flat), np.intp, len(flat))
     counts = np.fromiter(map(len, obs_kfs), np.intp, len(live))
     center = np.array([centers[kf] if kf in centers else kf.center for kf in kf_row])
-    xyz = np.array([p.pos for p in live]) if pos is None else np.asarray(pos)[live_idx]
+    xyz = point_positions(live) if pos is None else np.asarray(pos)[live_idx]
     d = np.repeat(xyz, counts, axis=0) - center[rows]
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
     starts = np.zeros(len(live), np.intp)
