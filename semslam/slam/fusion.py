@@ -121,21 +121,22 @@ class PointFusion:
         if len(sel) == 0:
             return []
         level = self.pyr.predict_level(max_d[sel], dist[sel])
-        lists = kf.tree().query_ball_point(uv[sel], r=th * self.pyr.scales[level])
-        counts = np.fromiter((len(x) for x in lists), np.intp, len(lists))
-        if counts.sum() == 0:
+        # Keypoints within th * scale pixels at the predicted level or one below (compiled,
+        # without the GIL), per point in keypoint order.
+        cq, ct = kf.grid(*self.camera.image_size).pairs_in_radius(
+            uv[sel], th * self.pyr.scales[level], level - 1, level, np.ones(len(kf.xy), bool))
+        if cq.size == 0:
             return []
-        cq = np.repeat(np.arange(len(lists)), counts)
-        ct = np.fromiter((j for x in lists for j in x), np.intp, int(counts.sum()))
+        order = np.lexsort((ct, cq))
+        cq, ct = cq[order], ct[order]
         lvl = kf.keypoints.octave[ct]
-        good = (lvl >= level[cq] - 1) & (lvl <= level[cq])
         # Reprojection check (chi2 with 3 dof where the keypoint has depth, 2 otherwise).
         e = ((uv[sel][cq] - kf.xy[ct]) ** 2).sum(1)
         ur_pred = uv[sel][cq, 0] - self.bf / np.maximum(z[sel][cq], 1e-9)
         has_r = kf.ur[ct] >= 0
         e = e + np.where(has_r, (ur_pred - kf.ur[ct]) ** 2, 0.0)
         e = e * self.pyr.inv_sigma2[lvl]
-        good &= np.where(has_r, e < 7.8, e < 5.99)
+        good = np.where(has_r, e < 7.8, e < 5.99)
         cq, ct = cq[good], ct[good]
         desc = src.descriptors[cand[sel]]
         qi, ti, _ = self.map.matcher.match_candidates(desc, kf.keypoints.descriptors, cq, ct,

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from semslam.core.protocols import Matcher
 from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
+from semslam.features.keypoint_grid import KeypointGrid
 from semslam.features.matching import matcher_for
 from semslam.geometry.se3 import invert
 
@@ -261,6 +262,7 @@ class KeyFrame:
     map_id: int = 0
     origin: bool = False
     _tree: Any = None
+    _grid: KeypointGrid | None = None
     _center: Array = field(default_factory=lambda: np.zeros(3), repr=False)
 
     def __hash__(self) -> int:
@@ -367,6 +369,13 @@ class KeyFrame:
 
             self._tree = cKDTree(self.xy)
         return self._tree
+
+    def grid(self, width: float, height: float) -> KeypointGrid:
+        """The keypoints in ORB-SLAM's 64 x 48 grid over the image, for compiled radius
+        queries (built once; ``xy`` does not change once a frame is a keyframe)."""
+        if self._grid is None:
+            self._grid = KeypointGrid(self.xy, self.keypoints.octave, width, height)
+        return self._grid
 
 
 class Map:
