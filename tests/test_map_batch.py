@@ -353,3 +353,21 @@ def test_fusion_apply_leaves_each_merged_point_its_distinctive_descriptor() -> N
         np.testing.assert_array_equal(p.descriptor, _reference_descriptor(p, m.matcher))
         changed += not np.array_equal(p.descriptor, stale[p.id])
     assert changed == len(a)  # the batch did recompute them
+
+
+def test_point_slots_put_equals_item_assignment() -> None:
+    """put() sets many slots (and their store rows) as item assignment does one by one."""
+    from semslam.slam.map import PointSlots
+
+    rng = np.random.default_rng(10)
+    _, points = _world(rng, orb_spec(1.2, 8), n_pts=20)
+    one, many = PointSlots([None] * 30), PointSlots([None] * 30)
+    idx = np.array([3, 7, 8, 20, 29, 7], np.intp)  # 7 twice: the last wins
+    new = [points[0], points[1], None, points[2], points[3], points[4]]
+    for i, p in zip(idx.tolist(), new):
+        one[i] = p
+    many.put(idx, new)
+    assert list(one) == list(many) and np.array_equal(one.rows, many.rows)
+    many.put(idx[:2], [points[5], points[6]], np.array([points[5].row, points[6].row]))
+    one[3], one[7] = points[5], points[6]
+    assert list(one) == list(many) and np.array_equal(one.rows, many.rows)

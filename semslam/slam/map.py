@@ -210,6 +210,16 @@ class PointSlots(list):  # type: ignore[type-arg]
         super().__setitem__(i, p)
         self.rows[i] = -1 if p is None else p._row
 
+    def put(self, idx: NDArray[np.intp], points: list[Any], rows: NDArray[np.intp] | None = None) -> None:
+        """``self[idx[k]] = points[k]`` for every k at once (``rows``: the points' store rows,
+        when the caller has them; None entries clear slots)."""
+        setitem = super().__setitem__
+        for i, p in zip(idx.tolist(), points):
+            setitem(i, p)
+        if rows is None:
+            rows = np.fromiter((-1 if p is None else p._row for p in points), np.intp, len(points))
+        self.rows[idx] = rows
+
     def good(self, store: PointStore) -> NDArray[np.intp]:
         """Slots holding a point that is not bad (``store``: the points' store)."""
         rows = self.rows

@@ -273,8 +273,8 @@ class Tracking:
                         is_kf = True
                         self.n_coast_keyframes += settled
                     # Outliers are not carried to the next frame (ORB-SLAM discards them here).
-                    for i in np.nonzero(cur.outlier)[0]:
-                        cur.points[i] = None
+                    out = np.flatnonzero(cur.outlier)
+                    cur.points.put(out, [None] * out.size, np.full(out.size, -1, np.intp))
                     cur.outlier[:] = False
                 else:
                     self.velocity = None
@@ -798,8 +798,7 @@ class Tracking:
             cur.clear_points()
         if len(ti) < 20:
             return False
-        for obj, t in zip(store.points(rows[sel]), ti.tolist()):
-            cur.points[t] = obj
+        cur.points.put(ti, store.points(rows[sel]), rows[sel])
         self._optimize(cur)
         return self._discard_outliers(cur) >= 10
 
@@ -900,8 +899,7 @@ class Tracking:
                 # ORB-SLAM also widens the radius for points seen at a grazing angle (cos < 0.998).
                 radius = th * np.where(view_cos[sel] > 0.998, 2.5, 4.0) * self.pyr.scales[level]
                 qi, ti = self._search(cur, uv[sel], radius, level - 1, level, store.descriptor[cand[sel]])
-                for obj, t in zip(store.points(cand[sel[qi]]), ti.tolist()):
-                    cur.points[t] = obj
+                cur.points.put(ti, store.points(cand[sel[qi]]), cand[sel[qi]])
         self._optimize(cur)
         rows = cur.points.rows
         inlier_rows = rows[(rows >= 0) & ~cur.outlier]
