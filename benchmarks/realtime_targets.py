@@ -64,6 +64,8 @@ def _row(r: Any) -> dict[str, Any]:
         "lock_wait_ms": {"median": r.stages_ms_median.get("lock_wait"), "p95": r.stages_ms_p95.get("lock_wait"),
                          "max": r.stages_ms_max.get("lock_wait")},
         "local_ba_ms_median": r.get("local_ba_ms_median"), "jit_warmup_s": r.get("jit_warmup_s"),
+        # Local mapping's CPU (its Python holds the GIL tracking needs): total and per keyframe.
+        "local_mapping_cpu_ms": r.get("local_mapping_cpu_ms"),
         "latency_ms": r.latency_ms or None, "late_frames": r.late_frames if r.realtime else None,
     }
 
@@ -169,9 +171,9 @@ def main(argv: list[str] | None = None) -> int:
 
     emit_json(doc, args.json)
     print("\n| preset | sequence | ms/frame median / p95 | tracking thread: CPU / run queue / asleep | extract | track "
-          "| local map | lock wait median / p95 / max | local BA ms | ATE cm | latency median / p95 | late frames "
+          "| local map | lock wait median / p95 / max | local BA ms | local mapping CPU ms / keyframe | ATE cm | latency median / p95 | late frames "
           "| every repeat's median |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for preset, runs in doc["runs"].items():
         for name, r in runs.items():
             s, w = r["stages_ms_median"], r["lock_wait_ms"]
@@ -179,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{s.get('extract', 0):.1f} | "
                   f"{s.get('track', 0):.1f} | {s.get('local_map', 0):.1f} | {w['median'] or 0:.2f} / {w['p95'] or 0:.1f}"
                   f" / {w['max'] or 0:.1f} | {r['local_ba_ms_median'] or 0:.0f} | "
+                  f"{(r['local_mapping_cpu_ms'] or {}).get('per_keyframe', 0):.0f} | "
                   f"{'n/a' if r['ate_cm'] is None else format(r['ate_cm'], '.2f')} | "
                   + (f"{r['latency_ms']['median']:.1f} / {r['latency_ms']['p95']:.1f} | {r['late_frames']} |"
                      if r["latency_ms"] else "- | - |")

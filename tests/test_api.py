@@ -138,6 +138,10 @@ def test_save_writes_what_evo_reads(render: Path, frames: list, tmp_path: Path) 
     split = stats["tracking_thread_ms"]  # the tracking thread's CPU (and on Linux its waits) per frame
     assert 0.0 < split["cpu"] <= stats["ms_per_frame"]["max"]
     assert all(v >= 0.0 for v in split.values())
+    mapping = stats["local_mapping_cpu_ms"]  # local mapping's CPU per step, in total and per keyframe
+    steps = {k: v for k, v in mapping.items() if k not in ("total", "per_keyframe")}
+    assert mapping["total"] > 0.0 and mapping["total"] == pytest.approx(sum(steps.values()))
+    assert mapping["per_keyframe"] <= mapping["total"] and "new_keyframe" in steps
     assert json.loads((out / "config.json").read_text())["maps"]["builders"] == ["keyframe_cloud"]
 
 

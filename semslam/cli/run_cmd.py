@@ -69,6 +69,10 @@ def print_summary(result: RunResult) -> None:
     if "asleep" in split:  # Linux: where a frame's time went (semslam.thread_clock)
         table.add_row("tracking thread: CPU / run queue / asleep", f"{split['cpu']:.1f} / {split['runqueue']:.1f} / "
                                                             f"{split['asleep']:.1f} ms (medians)")
+    mapping = r.tracker.get("local_mapping_cpu_ms", {})
+    if mapping.get("total"):
+        table.add_row("local mapping CPU (total / per keyframe)",
+                      f"{mapping['total'] / 1e3:.1f} s / {mapping['per_keyframe']:.0f} ms")
     table.add_row("fps (tracking / wall incl. I/O)", f"{r.tracking_fps:.1f} / {r.fps:.1f}")
     console.print(table)
     outputs = [Path(p).name for p in r.paths.values()]

@@ -156,6 +156,15 @@ class LocalMapping(KeyframeWorker):
                 desc.write(self.map.store)
             normals.write(self.map.store)
 
+    def cpu_ms(self) -> dict[str, float]:
+        """This thread's CPU milliseconds over the run, per step, in total and per keyframe
+        processed: what local mapping takes from the two cores (and, for its Python, from the
+        GIL it shares with tracking), steadier from run to run than wall times."""
+        steps = {name: float(sum(rec["cpu_ms"])) for name, rec in self.stats["steps"].items()}
+        total = sum(steps.values())
+        n = len(self.stats["steps"].get("new_keyframe", {}).get("cpu_ms", []))
+        return {"total": total, "per_keyframe": total / n if n else 0.0, **steps}
+
     def yield_to_tracking(self) -> None:
         """In a threaded run, wait (at most ``slam.yield_to_tracking_ms``) until tracking has
         finished its frame before a Python-heavy step: both threads share one GIL, and a

@@ -241,6 +241,7 @@ class OrbSlamSystem:
             "local_ba": mapper.stats["local_ba"],
             "local_ba_failed": mapper.stats["local_ba_failed"],
             "local_ba_ms_median": float(np.median(lba)) if lba else 0.0,
+            "local_mapping_cpu_ms": mapper.cpu_ms(),
             "global_ba": closer.stats["global_ba"],
             "global_ba_failed": closer.stats["global_ba_failed"],
             "pose_graph_failed": closer.stats["pose_graph_failed"],
