@@ -38,7 +38,7 @@ from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
                                     point_positions)
 from semslam.slam.map_batch import warm_up as warm_up_kernels
-from semslam.slam.search import project
+from semslam.slam.search import node_pairs, project
 
 if TYPE_CHECKING:
     from semslam.place.vocabulary import Vocabulary
@@ -295,20 +295,9 @@ class LocalMapping(KeyframeWorker):
 
     def _epipolar_matches(self, kf1: KeyFrame, kf2: KeyFrame, free1: NDArray[np.bool_], free2: NDArray[np.bool_]
                           ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        qa, qb = [], []
-        for node, ia in kf1.featvec.items():
-            ib = kf2.featvec.get(node)
-            if ib is None or len(ib) == 0:
-                continue
-            a = np.asarray(ia, np.intp)
-            b = np.asarray(ib, np.intp)
-            a, b = a[free1[a]], b[free2[b]]
-            if len(a) and len(b):
-                qa.append(np.repeat(a, len(b)))
-                qb.append(np.tile(b, len(a)))
-        if not qa:
-            return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        ca, cb = np.concatenate(qa), np.concatenate(qb)
+        ca, cb = node_pairs(kf1.featvec, kf2.featvec, free1, free2)
+        if ca.size == 0:
+            return ca, cb
         # Fundamental matrix F12 with x1^T F12 x2 = 0 (pixels, undistorted).
         T12 = kf1.T_cw @ kf2.T_wc
         R12, t12 = T12[:3, :3], T12[:3, 3]

@@ -78,6 +78,49 @@ def search_by_projection(
     return qi, ti
 
 
+def _flat_feature_vector(featvec: dict[int, Any], keep: NDArray[np.bool_]
+                         ) -> tuple[NDArray[np.intp], NDArray[np.int64]]:
+    """The kept features of a DBoW2 feature vector and their nodes, node by node in the
+    vector's order (each node's features contiguous, in its order)."""
+    if not featvec:
+        return np.zeros(0, np.intp), np.zeros(0, np.int64)
+    groups = [np.asarray(ia, np.intp) for ia in featvec.values()]
+    idx = np.concatenate(groups)
+    node = np.repeat(np.fromiter(featvec.keys(), np.int64, len(featvec)),
+                     np.fromiter(map(len, groups), np.intp, len(groups)))
+    sel = keep[idx]
+    return idx[sel], node[sel]
+
+
+def node_pairs(featvec_a: dict[int, Any], featvec_b: dict[int, Any], keep_a: NDArray[np.bool_],
+               keep_b: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
+    """Every (feature of A, feature of B) pair under one vocabulary node, among the kept
+    ones: node by node in A's order, A's features in order, each with B's in order (what
+    a loop over A's nodes with ``repeat``/``tile`` gives), in a few array operations
+    instead of a few per node."""
+    a_idx, a_node = _flat_feature_vector(featvec_a, keep_a)
+    b_idx, b_node = _flat_feature_vector(featvec_b, keep_b)
+    if a_idx.size == 0 or b_idx.size == 0:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    # B's runs of one node (contiguous), looked up by node id.
+    run_start = np.flatnonzero(np.r_[True, b_node[1:] != b_node[:-1]])
+    run_len = np.diff(np.r_[run_start, b_node.size])
+    run_node = b_node[run_start]
+    order = np.argsort(run_node, kind="stable")
+    pos = np.minimum(np.searchsorted(run_node[order], a_node), order.size - 1)
+    hit = run_node[order[pos]] == a_node
+    run = order[pos]
+    count = np.where(hit, run_len[run], 0)
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    first = np.cumsum(count) - count  # where each A feature's pairs begin
+    within = np.arange(total) - np.repeat(first, count)
+    cq = np.repeat(a_idx, count)
+    ct = b_idx[np.repeat(run_start[run], count) + within]
+    return cq, ct
+
+
 def search_by_bow(
     featvec_a: dict[int, list[int]],
     desc_a: NDArray[Any],
@@ -91,21 +134,8 @@ def search_by_bow(
 ) -> tuple[IntArray, IntArray]:
     """Match features of A (with map points, ``valid_a``) to features of B that fall under
     the same vocabulary node (ORB-SLAM SearchByBoW). Returns (indices in A, indices in B)."""
-    qa, qb = [], []
-    for node, ia in featvec_a.items():
-        ib = featvec_b.get(node)
-        if ib is None or len(ib) == 0:
-            continue
-        ia_arr = np.asarray(ia, np.intp)
-        ib_arr = np.asarray(ib, np.intp)
-        ia_arr = ia_arr[valid_a[ia_arr]]
-        ib_arr = ib_arr[free_b[ib_arr]]
-        if len(ia_arr) == 0 or len(ib_arr) == 0:
-            continue
-        qa.append(np.repeat(ia_arr, len(ib_arr)))
-        qb.append(np.tile(ib_arr, len(ia_arr)))
-    if not qa:
-        return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    cq, ct = np.concatenate(qa), np.concatenate(qb)
+    cq, ct = node_pairs(featvec_a, featvec_b, valid_a, free_b)
+    if cq.size == 0:
+        return cq, ct
     qi, ti, _ = matcher.match_candidates(desc_a, desc_b, cq, ct, max_distance, ratio)
     return qi, ti
