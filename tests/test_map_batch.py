@@ -371,3 +371,17 @@ def test_point_slots_put_equals_item_assignment() -> None:
     many.put(idx[:2], [points[5], points[6]], np.array([points[5].row, points[6].row]))
     one[3], one[7] = points[5], points[6]
     assert list(one) == list(many) and np.array_equal(one.rows, many.rows)
+
+
+def test_valid_points_skip_a_slot_cleared_between_rows_and_list() -> None:
+    """Local mapping reads keyframes without the map lock; tracking clears a slot (list
+    first, then rows). Caught in between, valid_points skips the slot instead of
+    returning None, and good() reads one snapshot of the rows."""
+    rng = np.random.default_rng(11)
+    m, points = _world(rng, orb_spec(1.2, 8))
+    kf = m.all_keyframes()[0]
+    for i, p in enumerate(points[:10]):
+        kf.points[i] = p
+    list.__setitem__(kf.points, 4, None)  # the list cleared, its row not yet
+    assert None not in kf.valid_points() and len(kf.valid_points()) == 9
+    assert 4 in kf.points.good(m.store).tolist()  # rows still say a point is there

@@ -473,12 +473,16 @@ class LocalMapping(KeyframeWorker):
             return
         # Each candidate's live points by store row, numbered in first-seen order.
         store = self.map.store
-        idx_of = []
+        # One snapshot of each candidate's rows: tracking may clear a slot meanwhile (a culled
+        # point), and a second read would give row -1, the newest point's, maybe half-made.
+        idx_of, rows_of = [], []
         for c in cands:
-            slot_rows = c.points.rows
+            slot_rows = c.points.rows.copy()
             idx = np.flatnonzero(slot_rows >= 0)
-            idx_of.append(idx[~store.bad[slot_rows[idx]]])
-        all_rows = np.concatenate([c.points.rows[idx] for c, idx in zip(cands, idx_of)])
+            idx = idx[~store.bad[slot_rows[idx]]]
+            idx_of.append(idx)
+            rows_of.append(slot_rows[idx])
+        all_rows = np.concatenate(rows_of)
         if not all_rows.size:
             return
         uniq, first, inverse = np.unique(all_rows, return_index=True, return_inverse=True)

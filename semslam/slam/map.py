@@ -221,15 +221,18 @@ class PointSlots(list):  # type: ignore[type-arg]
         self.rows[idx] = rows
 
     def good(self, store: PointStore) -> NDArray[np.intp]:
-        """Slots holding a point that is not bad (``store``: the points' store)."""
-        rows = self.rows
+        """Slots holding a point that is not bad (``store``: the points' store). Safe
+        without the map lock: one snapshot of the rows (a slot cleared meanwhile would
+        otherwise read row -1, the newest point's)."""
+        rows = self.rows.copy()
         has = rows >= 0
         has[has] = ~store.bad[rows[has]]
         return np.flatnonzero(has)
 
     def free(self, store: PointStore) -> NDArray[np.bool_]:
-        """Slots without a point, or with a bad one (``store``: the points' store)."""
-        rows = self.rows
+        """Slots without a point, or with a bad one (``store``: the points' store); one
+        snapshot of the rows, as ``good``."""
+        rows = self.rows.copy()
         free = rows < 0
         free[~free] = store.bad[rows[~free]]
         return free
@@ -333,8 +336,10 @@ class KeyFrame:
         return np.zeros(0, np.intp) if store is None else self.points.good(store)
 
     def valid_points(self) -> list[MapPoint]:
+        """The good points, in slot order. Local mapping reads without the map lock, and
+        tracking may clear a slot (a point culled) between the rows and the list: skipped."""
         pts = self.points
-        return [pts[i] for i in self.valid_indices().tolist()]
+        return [p for p in map(pts.__getitem__, self.valid_indices().tolist()) if p is not None]
 
     def free_mask(self) -> NDArray[np.bool_]:
         """Keypoints without a map point, or with a bad one."""
