@@ -81,7 +81,6 @@ class PointStore:
         return [objs[r] for r in rows.tolist()]
 
 
-
 def _row_property(field_name: str, kind: type, copy: bool = False) -> property:
     """A MapPoint attribute stored in ``PointStore.<field_name>[row]``."""
     if copy:
@@ -331,9 +330,11 @@ class KeyFrame:
         return int((~store.bad[rows] & (store.n_obs[rows] >= min_obs)).sum())
 
     def valid_indices(self) -> NDArray[np.intp]:
-        """Keypoints with a good map point (by the store's flags: no property per point)."""
-        store = self.point_store()
-        return np.zeros(0, np.intp) if store is None else self.points.good(store)
+        """Keypoints with a good map point (in a map: by the store's flags, no property per
+        point; outside one, as tests build them, point by point)."""
+        if self.map is None:
+            return np.array([i for i, p in enumerate(self.points) if p is not None and not p.bad], np.intp)
+        return self.points.good(self.map.store)
 
     def valid_points(self) -> list[MapPoint]:
         """The good points, in slot order. Local mapping reads without the map lock, and
@@ -342,9 +343,10 @@ class KeyFrame:
         return [p for p in map(pts.__getitem__, self.valid_indices().tolist()) if p is not None]
 
     def free_mask(self) -> NDArray[np.bool_]:
-        """Keypoints without a map point, or with a bad one."""
-        store = self.point_store()
-        return np.ones(len(self.points), bool) if store is None else self.points.free(store)
+        """Keypoints without a map point, or with a bad one (as ``valid_indices`` reads them)."""
+        if self.map is None:
+            return np.array([p is None or p.bad for p in self.points], bool)
+        return self.points.free(self.map.store)
 
     def best_covisibles(self, n: int) -> list["KeyFrame"]:
         return [kf for kf in self.ordered_covis[:n] if not kf.bad]
