@@ -21,7 +21,7 @@ from semslam.config import SystemConfig
 from semslam.core.protocols import FramePacket, SequenceSource as Sequence
 from semslam.core.types import Frame, RunResult, TrackResult
 from semslam.errors import ConfigError, DataError, RunInterrupted
-from semslam.runtime import lower_thread_priority, stop_requested
+from semslam.runtime import lower_thread_priority, stop_requested, tracking_core
 
 if TYPE_CHECKING:
     from semslam.viz.rerun_log import RerunRecorder
@@ -93,7 +93,22 @@ def run_slam(
     if config.sensor == "rgbd" and not sequence.has_depth:
         raise DataError(sequence.root, "no depth images: this is a monocular sequence; run it with sensor: mono "
                                        "(--preset sdf)")
-    system = System(config, sequence.camera, load_map=load_map, name=str(sequence.root))
+    # Entered before the system starts its threads and processes, which then move to the
+    # other CPUs (runtime.lower_thread_priority); this thread tracks. Not where tracking
+    # waits for every frame's mask (semantics.schedule: every, `ddl` and `stdc`): its CPU
+    # would idle while the semantic thread shares the other with local mapping, whose map
+    # lock slices then got preempted (`ddl` on walking_xyz: median 49-51 -> 44-49 ms, but
+    # lock-wait p95 0.02-3.0 -> 2.2-6.4 ms).
+    waits_for_masks = config.dynamics.semantic and config.semantics.schedule == "every"
+    with tracking_core(config.slam.pin_tracking and not waits_for_masks):
+        system = System(config, sequence.camera, load_map=load_map, name=str(sequence.root))
+        return _run(system, sequence, config, out, max_frames, progress, report, save_map, rerun, rerun_spawn)
+
+
+def _run(system: System, sequence: Sequence, config: SystemConfig, out: Path, max_frames: int | None,
+         progress: bool, report: bool, save_map: str | Path | None, rerun: str | Path | None,
+         rerun_spawn: bool) -> RunResult:
+    """``run_slam``'s body, once the system is made."""
     if save_map and not system.has_map:  # before any frame, not after the whole run
         system.close()
         raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")

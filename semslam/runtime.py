@@ -53,15 +53,113 @@ BACKGROUND_NICE = int(os.environ.get("SEMSLAM_BACKGROUND_NICE", "5"))
 #: median (5 alternating runs each, the same wall time: 7.1 -> 7.0 s for 300 frames).
 
 
+#: Where the tracking thread runs alone (``tracking_core``, ``slam.pin_tracking``): one CPU
+#: for the thread that tracks, the others for everything else. On 2 cores the scheduler
+#: otherwise puts a background thread (local mapping, decoding, segmentation, niced +5 but
+#: still given about a quarter of a shared core) beside tracking: `default` on walking_xyz
+#: spent 3-4 ms a frame waiting for a core (run queue); pinned, 0.1 ms, but everything else
+#: then shares one core (see ``SlamConfig.pin_tracking`` for why it is off by default).
+#: The environment variable carries the background CPUs to worker processes.
+BACKGROUND_CPUS_VARIABLE = "SEMSLAM_BACKGROUND_CPUS"
+
+
+class tracking_core:  # noqa: N801  (used as a context manager, like a function)
+    """While active, the thread that entered runs on one CPU of its own and the threads
+    and processes that call ``move_off_tracking_core`` (every background thread of a run
+    does, through ``lower_thread_priority``) run on the others. Needs Linux and two or
+    more allowed CPUs; otherwise, or with ``enabled=False``, nothing changes.
+
+    Several runs at once (two ``semslam run`` processes, a batch's workers) each take a
+    different CPU: a CPU is claimed with a lock file (released when the process ends,
+    however it ends), and a run that finds every CPU taken is not pinned. On exit the
+    thread's CPUs are restored."""
+
+    def __init__(self, enabled: bool = True) -> None:
+        self.enabled = enabled
+        self.cpu: int | None = None
+        self._allowed: set[int] = set()
+        self._lock_fd: int | None = None
+
+    def __enter__(self) -> "tracking_core":
+        if not self.enabled or not hasattr(os, "sched_setaffinity"):
+            return self
+        try:
+            self._allowed = set(os.sched_getaffinity(0))
+        except OSError:
+            return self
+        if len(self._allowed) < 2 or os.environ.get(BACKGROUND_CPUS_VARIABLE):  # one pinned run per process
+            return self
+        for cpu in sorted(self._allowed):
+            fd = _claim_cpu(cpu)
+            if fd is None:
+                continue
+            try:
+                os.sched_setaffinity(0, {cpu})
+            except OSError:
+                os.close(fd)
+                return self
+            self.cpu, self._lock_fd = cpu, fd
+            os.environ[BACKGROUND_CPUS_VARIABLE] = ",".join(str(c) for c in sorted(self._allowed - {cpu}))
+            break
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.cpu is None:
+            return
+        os.environ.pop(BACKGROUND_CPUS_VARIABLE, None)
+        try:
+            os.sched_setaffinity(0, self._allowed)
+        except OSError:
+            pass
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)  # releases the claim
+        self.cpu = self._lock_fd = None
+
+
+def _claim_cpu(cpu: int) -> int | None:
+    """An open, exclusively locked lock file for ``cpu`` (close it to release), or None if
+    another process holds it or locks cannot be had here."""
+    import fcntl
+    import tempfile
+
+    path = os.path.join(tempfile.gettempdir(), f"semslam-tracking-cpu{cpu}.lock")
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def move_off_tracking_core() -> bool:
+    """Run the calling thread (and what it starts later) on the CPUs ``tracking_core``
+    left to background work, if a run's tracking thread is pinned; returns whether it
+    moved."""
+    cpus = os.environ.get(BACKGROUND_CPUS_VARIABLE)
+    if not cpus or not hasattr(os, "sched_setaffinity"):
+        return False
+    try:
+        os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})
+    except (OSError, ValueError):
+        return False
+    return True
+
+
 def lower_thread_priority(increment: int | None = None) -> bool:
-    """Run the calling thread ``increment`` (default ``BACKGROUND_NICE``) below the process's
-    main thread (Linux applies a niceness per thread). Relative to the process, not to the
-    calling thread: a thread inherits the niceness of the thread that started it (a pool's
-    worker starts in whichever thread first submits to it), so adding to its own would nice
-    twice. Never raises nor raises priority: returns whether the thread is now that low (a
-    platform without per-thread priorities just runs as is)."""
+    """Run the calling thread off the tracking thread's CPU (``move_off_tracking_core``)
+    and ``increment`` (default ``BACKGROUND_NICE``) below the process's main thread (Linux
+    applies a niceness per thread). Relative to the process, not to the calling thread: a
+    thread inherits the niceness of the thread that started it (a pool's worker starts in
+    whichever thread first submits to it), so adding to its own would nice twice. Never
+    raises nor raises priority: returns whether the thread is now that low (a platform
+    without per-thread priorities just runs as is)."""
     import threading
 
+    move_off_tracking_core()
     inc = BACKGROUND_NICE if increment is None else increment
     if inc <= 0 or not hasattr(os, "setpriority"):
         return False

@@ -248,6 +248,14 @@ class SlamConfig:
     # tracked before their time, and each frame's latency is reported. Off: as fast as
     # frames decode.
     realtime: bool = False
+    # The thread that tracks on a CPU of its own, every other thread and worker process on
+    # the rest (Linux, 2+ CPUs; runs at once each take their own CPU, see
+    # runtime.tracking_core; not with semantics.schedule: every). Off by default: on 2
+    # cores it removes tracking's 3-4 ms a frame of waiting for a core (`default` on
+    # walking_xyz, -1 to -4 ms median), but the rest of the pipeline then shares one core:
+    # map-lock waits p95 1.6-3.0 ms instead of 0.05-2.2, and with local mapping at full
+    # priority there the reader fell behind (wall time +10-30 %).
+    pin_tracking: bool = False
     # Local mapping starts each step once tracking has finished its frame, waiting at most
     # this long (0: never waits).
     yield_to_tracking_ms: float = 15.0

@@ -72,9 +72,10 @@ def _create_state(names: list[str], cfg: MapsConfig, inpainted_dir: Path | None,
     if lower_priority:
         import os
 
-        from semslam.runtime import limit_threads
+        from semslam.runtime import limit_threads, move_off_tracking_core
 
         limit_threads()
+        move_off_tracking_core()  # a worker process: off a pinned tracking thread's CPU
         try:
             os.nice(MAP_NICE)
         except OSError:
