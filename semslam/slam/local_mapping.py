@@ -473,15 +473,9 @@ class LocalMapping(KeyframeWorker):
             return
         # Each candidate's live points by store row, numbered in first-seen order.
         store = self.map.store
-        # One snapshot of each candidate's rows: tracking may clear a slot meanwhile (a culled
+        # Slots and rows from one snapshot each: tracking may clear a slot meanwhile (a culled
         # point), and a second read would give row -1, the newest point's, maybe half-made.
-        idx_of, rows_of = [], []
-        for c in cands:
-            slot_rows = c.points.rows.copy()
-            idx = np.flatnonzero(slot_rows >= 0)
-            idx = idx[~store.bad[slot_rows[idx]]]
-            idx_of.append(idx)
-            rows_of.append(slot_rows[idx])
+        idx_of, rows_of = zip(*(c.points.good_rows(store) for c in cands))
         all_rows = np.concatenate(rows_of)
         if not all_rows.size:
             return

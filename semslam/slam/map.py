@@ -219,14 +219,19 @@ class PointSlots(list):  # type: ignore[type-arg]
             rows = np.fromiter((-1 if p is None else p._row for p in points), np.intp, len(points))
         self.rows[idx] = rows
 
-    def good(self, store: PointStore) -> NDArray[np.intp]:
-        """Slots holding a point that is not bad (``store``: the points' store). Safe
-        without the map lock: one snapshot of the rows (a slot cleared meanwhile would
-        otherwise read row -1, the newest point's)."""
+    def good_rows(self, store: PointStore) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Slots holding a point that is not bad (``store``: the points' store) and those
+        points' store rows. Safe without the map lock: one snapshot of the rows (a slot
+        cleared meanwhile would otherwise read row -1, the newest point's)."""
         rows = self.rows.copy()
         has = rows >= 0
         has[has] = ~store.bad[rows[has]]
-        return np.flatnonzero(has)
+        idx = np.flatnonzero(has)
+        return idx, rows[idx]
+
+    def good(self, store: PointStore) -> NDArray[np.intp]:
+        """The slots of ``good_rows``."""
+        return self.good_rows(store)[0]
 
     def free(self, store: PointStore) -> NDArray[np.bool_]:
         """Slots without a point, or with a bad one (``store``: the points' store); one
