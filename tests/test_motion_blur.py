@@ -154,6 +154,38 @@ def test_blurred_glance_coasts_on_the_images_shift(
     assert coast < 0.5 * without and coast < 9.0, (coast, without)
 
 
+def _not_again(gray: np.ndarray) -> float:
+    raise AssertionError("sharpness measured again on the tracking thread")
+
+
+def test_sharpness_measured_ahead_by_the_reader_tracks_the_same(
+        blurred: tuple[list[Frame], np.ndarray, PinholeCamera], monkeypatch: pytest.MonkeyPatch) -> None:
+    """``System.prepare`` (the reader thread of a run) measures each frame's sharpness where
+    tracking compares it, off the tracking thread: the same value, and the blurred glance
+    coasts to the same poses, to the byte, as when tracking measures it itself."""
+    frames, _poses, cam = blurred
+    off = System(load_config("orb", ["slam.sequential=true"]), cam)
+    assert off.prepare(frames[0]).sharpness is None  # nothing compares it: not measured
+    off.shutdown()
+    runs = []
+    for ahead in (False, True):
+        system = System(load_config("orb", ["slam.sequential=true", "slam.blur_coast_sharp_ratio=0.6"]), cam)
+        for f in frames:
+            f = Frame(f.index, f.timestamp, f.rgb, f.depth)  # no grey image cached from the other run
+            if ahead:
+                packet = system.prepare(f)
+                assert packet.sharpness == sharpness(f.gray)
+                with monkeypatch.context() as m:  # tracking takes the packet's value
+                    m.setattr(tracking_module, "sharpness", _not_again)
+                    system.track(packet)
+            else:
+                system.track(f)
+        system.shutdown()
+        runs.append((system.trajectory().poses, system.stats()["coasted_frames"]))
+    assert runs[0][1] >= 3 and runs[1][1] == runs[0][1]
+    assert np.array_equal(runs[0][0], runs[1][0])
+
+
 @pytest.mark.slow
 def test_coasting_leaves_a_sharp_glance_to_the_byte() -> None:
     """The same glance without blur: no frame is blurred, so turning coasting on (``default``

@@ -54,6 +54,10 @@ class FramePacket:
     #: On the packet, not on TrackResult, so a run does not keep them for every frame.
     keypoints_xy: NDArray[np.float32] | None = None
     keypoint_static: NDArray[np.bool_] | None = None
+    #: The frame's sharpness (``backend.depth_odometry.sharpness``), measured ahead of tracking
+    #: by ``System.prepare`` in the reader thread when the tracker compares frames' sharpness
+    #: (blur coasting, depth odometry); None: the tracker measures it if it needs it.
+    sharpness: float | None = None
 
 
 @dataclass

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.backend.depth_odometry import sharpness
 from semslam.config import SystemConfig
 from semslam.core import registry
 from semslam.core.protocols import DepthSource, FramePacket, MapBuilder, Tracker, TrackerInputs
@@ -71,6 +72,12 @@ class System:
         packet = frame if isinstance(frame, FramePacket) else FramePacket(frame)
         if self.dynamics is not None:
             self.dynamics.prepare(packet)
+        # Work that depends on the image alone runs here too, off the tracking thread: the grey
+        # conversion (cached on the frame) and, where tracking compares frames' sharpness, that.
+        gray = packet.frame.gray
+        slam = self.config.slam
+        if packet.sharpness is None and (slam.blur_coast_sharp_ratio > 0 or slam.depth_odometry_sharp_ratio > 0):
+            packet.sharpness = sharpness(gray)
         return packet
 
     def track(self, frame: FramePacket | Frame) -> TrackResult:

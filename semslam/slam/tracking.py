@@ -193,6 +193,7 @@ class Tracking:
 
     def _track(self, packet: FramePacket) -> TrackResult:
         frame = packet.frame
+        self._current_sharpness = packet.sharpness  # measured ahead by the reader, or None
         timings: dict[str, float] = {}
         dynamic, mask = None, None
         if self.dynamics is not None:
@@ -343,7 +344,8 @@ class Tracking:
         assert self.shift is not None
         self._shift_turn_deg = None
         self._shift_prediction = None
-        self._current_sharpness = sharpness(gray)
+        if self._current_sharpness is None:
+            self._current_sharpness = sharpness(gray)
         last, prev = self.last, self._prev_gray
         if (self.state is not TrackingState.OK or last is None or last.T_cw is None or prev is None
                 or prev[0] != last.index or prev[1].shape != gray.shape or len(self._steady_centres) < 2):
