@@ -328,12 +328,17 @@ class Tracking:
         return ((self.velocity is not None and rotation_angle_deg(self.velocity) > fast)
                 or (cur_T is not None and rotation_angle_deg(cur_T @ invert(last.T_cw)) > fast))
 
-    def _is_sharp(self, gray: NDArray[np.uint8], ratio: float) -> bool:
-        """This frame's sharpness against the sharpest of the last tracked (not coasted) frames."""
+    def _sharpness(self, gray: NDArray[np.uint8]) -> float:
+        """This frame's sharpness: the packet's (measured ahead by the reader), else measured
+        here, once per frame."""
         if self._current_sharpness is None:
             self._current_sharpness = sharpness(gray)
+        return self._current_sharpness
+
+    def _is_sharp(self, gray: NDArray[np.uint8], ratio: float) -> bool:
+        """This frame's sharpness against the sharpest of the last tracked (not coasted) frames."""
         recent = self._recent_sharpness
-        return not recent or self._current_sharpness >= ratio * max(recent)
+        return not recent or self._sharpness(gray) >= ratio * max(recent)
 
     def _measure_blur(self, gray: NDArray[np.uint8], cur_t: float) -> None:
         """This frame's sharpness; on a blurred frame, or while coasting, the turn since the
@@ -344,8 +349,7 @@ class Tracking:
         assert self.shift is not None
         self._shift_turn_deg = None
         self._shift_prediction = None
-        if self._current_sharpness is None:
-            self._current_sharpness = sharpness(gray)
+        self._sharpness(gray)
         last, prev = self.last, self._prev_gray
         if (self.state is not TrackingState.OK or last is None or last.T_cw is None or prev is None
                 or prev[0] != last.index or prev[1].shape != gray.shape or len(self._steady_centres) < 2):
