@@ -28,6 +28,7 @@ from semslam.features.orb import (
     scale_factors,
 )
 from semslam.features.orb import fast_kernels as fk
+from semslam.features.orb.detection import cell_grid, detection_region
 
 
 def _frames(shared_data: Path) -> dict[str, np.ndarray]:
@@ -166,6 +167,31 @@ def test_detect_level_on_small_and_odd_inputs() -> None:
             for mask in _masks(shape, seed=shape[0]):
                 ref = detect_level_reference(image, t_hi, t_lo, mask)
                 assert _same(detect_level(image, t_hi, t_lo, mask), ref), (shape, t_hi, t_lo)
+
+
+def test_cells_the_mask_forbids_entirely_are_skipped_with_the_same_keypoints(test_frames: dict[str, np.ndarray]
+                                                                             ) -> None:
+    """A cell whose every tested pixel is masked is neither scored nor retried at the low
+    threshold (nothing found there could be kept): ``_masked_cells`` against a numpy
+    reference, and on a frame with a person box (whole cells forbidden) and an all-zero
+    mask the keypoints are still the per-cell reference's."""
+    gray = test_frames["synthetic"]
+    image = detection_levels(build_pyramid(gray, 8, 1.2).levels)[0]
+    w, h = detection_region(image)
+    g = cell_grid(w, h)
+    box = _masks((h, w))[1]
+    rows, cols = np.arange(h, dtype=np.int64), np.arange(w, dtype=np.int64)
+    got = fk._masked_cells(w, h, g.n_cols, g.n_rows, g.w_cell, g.h_cell, box, rows, cols, True)
+    ref = np.array([not box[3 + i * g.h_cell:min(3 + (i + 1) * g.h_cell, h - 3),
+                            3 + j * g.w_cell:min(3 + (j + 1) * g.w_cell, w - 3)].any()
+                    for i in range(g.n_rows) for j in range(g.n_cols)])
+    assert ref.sum() >= 4 and not ref.all() and np.array_equal(got, ref)
+    assert not fk._masked_cells(w, h, g.n_cols, g.n_rows, g.w_cell, g.h_cell, box, rows, cols, False).any()
+    box = _masks(gray.shape)[1]
+    for mask in (box, np.zeros_like(box)):
+        lmask = level_mask(mask, image.shape, 1.0)
+        assert _same(detect_level(image, 20, 7, lmask), detect_level_reference(image, 20, 7, lmask))
+    assert len(detect_level(image, 20, 7, np.zeros_like(box))[0]) == 0
 
 
 def test_detect_levels_with_mask_samplers_equals_materialised_masks(test_frames: dict[str, np.ndarray]) -> None:

@@ -398,6 +398,13 @@ def _fast_pass(work, flags, keep, positions, cells, width, y0, y1, x0, x1, t, wa
                 y += 1
                 row_end += width
             cells[k] = row_cell[y] * n_cols + col_cell[p - (row_end - width)]
+        kept = 0  # only the wanted cells' corners are scored
+        for k in range(n):
+            if wanted[cells[k]]:
+                positions[kept] = positions[k]
+                cells[kept] = cells[k]
+                kept += 1
+        n = kept
     else:
         x0, x1 = _flag_span(work, width, y0, y1, x0, x1, t, flags)
         n = _scan_cells(flags, width, y0, y1, i, n_cols, w_cell, wanted, positions, cells)
@@ -452,8 +459,11 @@ def _detect_region(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows,
         last_row[y] = y + 1 == height - 3 or (y >= 3 and (y - 2) % h_cell == 0)
     _copy_region(src, base, stride, width, height, work)
 
-    # Every cell at the high threshold; the mask drops keypoints after suppression.
-    wanted = np.ones(n_cells, np.bool_)
+    # Every cell at the high threshold, but those the mask forbids entirely (nothing
+    # found there could be kept: the same keypoints, without scoring the people of a
+    # masked frame); the mask drops keypoints after suppression.
+    blocked = _masked_cells(width, height, n_cols, n_rows, w_cell, h_cell, mask, mrows, mcols, use_mask)
+    wanted = ~blocked
     m = _fast_pass(work, flags, keep, positions, cells, width, 3, height - 3, 3, width - 3, t_hi, wanted, -1, n_cols,
                    w_cell, col_cell, row_cell, left, right, first_row, last_row)
     if out.shape[0] < n_out + m:
@@ -470,7 +480,7 @@ def _detect_region(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows,
         count[cells[k]] += 1
         n += 1
 
-    # The low threshold in the cells left empty, band by band.
+    # The low threshold in the cells left empty (not those forbidden), band by band.
     if t_lo >= 0:
         for i in range(n_rows):
             y0 = 3 + i * h_cell
@@ -479,7 +489,7 @@ def _detect_region(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows,
             for j in range(n_cols):
                 c = i * n_cols + j
                 c0, c1 = 3 + j * w_cell, min(3 + (j + 1) * w_cell, width - 3)
-                wanted[c] = count[c] == 0 and y1 > y0 and c1 > c0
+                wanted[c] = count[c] == 0 and y1 > y0 and c1 > c0 and not blocked[c]
                 if wanted[c]:
                     x0, x1 = min(x0, c0), max(x1, c1)
             if x1 <= x0:
@@ -509,6 +519,31 @@ def _detect_region(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows,
         out[n_out + first[c]] = block[k]
         first[c] += 1
     return out, n
+
+
+@njit(cache=True, nogil=True)
+def _masked_cells(width, height, n_cols, n_rows, w_cell, h_cell, mask, mrows, mcols, use_mask):
+    """Which cells (raster order) the mask forbids entirely: every pixel of the cell's
+    tested range has ``mask[mrows[y], mcols[x]] == 0``. A cell with an allowed pixel is
+    usually found at its first one; a forbidden cell costs one read per pixel."""
+    blocked = np.zeros(n_cols * n_rows, np.bool_)
+    if not use_mask:
+        return blocked
+    for i in range(n_rows):
+        y0, y1 = 3 + i * h_cell, min(3 + (i + 1) * h_cell, height - 3)
+        for j in range(n_cols):
+            x0, x1 = 3 + j * w_cell, min(3 + (j + 1) * w_cell, width - 3)
+            full = True
+            for y in range(y0, y1):
+                row = mask[mrows[y]]
+                for x in range(x0, x1):
+                    if row[mcols[x]] != 0:
+                        full = False
+                        break
+                if not full:
+                    break
+            blocked[i * n_cols + j] = full
+    return blocked
 
 
 @njit(cache=True, nogil=True)
