@@ -583,7 +583,8 @@ def detect_cells(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows, w
     least ``width * height``; ``positions``: int64 buffer of as many.
 
     How: ``_fast_pass`` at ``t_hi`` over the whole region, then at ``t_lo`` over each band
-    of cell rows that holds a cell left empty, for its empty cells only.
+    of cell rows that holds a cell left empty, for its empty cells only. A cell the mask
+    forbids entirely is skipped in both passes (nothing found there could be kept).
 
     Returns x, y (region pixels, int64), score (uint8) and cell index of the keypoints,
     cell by cell in raster order and row-major inside a cell (ORB-SLAM's order)."""
