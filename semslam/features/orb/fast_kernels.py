@@ -342,6 +342,13 @@ def _suppress(scores, width, y0, y1, x0, x1, left, right, first_row, last_row, k
 
 
 @njit(cache=True, nogil=True)
+def _cell_span(k, cell, size):
+    """[first, end) of the pixels cell ``k`` (of ``cell`` px) tests along a side of ``size``
+    px: the cells' tested ranges tile ``[3, size - 3)``."""
+    return 3 + k * cell, min(3 + (k + 1) * cell, size - 3)
+
+
+@njit(cache=True, nogil=True)
 def _scan_cells(flags, width, y0, y1, i, n_cols, w_cell, wanted, positions, cells):
     """Flat indices of the non-zero flags inside the wanted cells of cell row ``i`` (rows
     ``[y0, y1)``), row-major, into ``positions``, their cells into ``cells``; returns how
@@ -352,7 +359,8 @@ def _scan_cells(flags, width, y0, y1, i, n_cols, w_cell, wanted, positions, cell
         for j in range(n_cols):
             c = i * n_cols + j
             if wanted[c]:
-                m = _scan_range(flags, r + 3 + j * w_cell, r + min(3 + (j + 1) * w_cell, width - 3), positions, n)
+                c0, c1 = _cell_span(j, w_cell, width)
+                m = _scan_range(flags, r + c0, r + c1, positions, n)
                 for k in range(n, m):
                     cells[k] = c
                 n = m
@@ -398,13 +406,14 @@ def _fast_pass(work, flags, keep, positions, cells, width, y0, y1, x0, x1, t, wa
                 y += 1
                 row_end += width
             cells[k] = row_cell[y] * n_cols + col_cell[p - (row_end - width)]
-        kept = 0  # only the wanted cells' corners are scored
-        for k in range(n):
-            if wanted[cells[k]]:
-                positions[kept] = positions[k]
-                cells[kept] = cells[k]
-                kept += 1
-        n = kept
+        if not wanted.all():  # only the wanted cells' corners are scored
+            kept = 0
+            for k in range(n):
+                if wanted[cells[k]]:
+                    positions[kept] = positions[k]
+                    cells[kept] = cells[k]
+                    kept += 1
+            n = kept
     else:
         x0, x1 = _flag_span(work, width, y0, y1, x0, x1, t, flags)
         n = _scan_cells(flags, width, y0, y1, i, n_cols, w_cell, wanted, positions, cells)
@@ -483,12 +492,11 @@ def _detect_region(src, base, stride, width, height, t_hi, t_lo, n_cols, n_rows,
     # The low threshold in the cells left empty (not those forbidden), band by band.
     if t_lo >= 0:
         for i in range(n_rows):
-            y0 = 3 + i * h_cell
-            y1 = min(y0 + h_cell, height - 3)
+            y0, y1 = _cell_span(i, h_cell, height)
             x0, x1 = width, 0  # columns of the band's empty cells
             for j in range(n_cols):
                 c = i * n_cols + j
-                c0, c1 = 3 + j * w_cell, min(3 + (j + 1) * w_cell, width - 3)
+                c0, c1 = _cell_span(j, w_cell, width)
                 wanted[c] = count[c] == 0 and y1 > y0 and c1 > c0 and not blocked[c]
                 if wanted[c]:
                     x0, x1 = min(x0, c0), max(x1, c1)
@@ -530,9 +538,9 @@ def _masked_cells(width, height, n_cols, n_rows, w_cell, h_cell, mask, mrows, mc
     if not use_mask:
         return blocked
     for i in range(n_rows):
-        y0, y1 = 3 + i * h_cell, min(3 + (i + 1) * h_cell, height - 3)
+        y0, y1 = _cell_span(i, h_cell, height)
         for j in range(n_cols):
-            x0, x1 = 3 + j * w_cell, min(3 + (j + 1) * w_cell, width - 3)
+            x0, x1 = _cell_span(j, w_cell, width)
             full = True
             for y in range(y0, y1):
                 row = mask[mrows[y]]
