@@ -1,5 +1,5 @@
-"""ORB extraction as ORB-SLAM2/3 does it (``ORBextractor.cc``), with OpenCV (resize, blur)
-and compiled numba kernels for the rest: scale pyramid, FAST per ~30 px cell with a
+"""ORB extraction as ORB-SLAM2/3 does it (``ORBextractor.cc``), with OpenCV (resize) and
+compiled numba kernels for the rest: scale pyramid, FAST per ~30 px cell with a
 lower threshold for empty cells, quadtree distribution, intensity-centroid orientation,
 steered rBRIEF on the blurred level image.
 
@@ -34,9 +34,10 @@ Stages and where they differ from ORB-SLAM (all else is meant to be identical):
   OpenCV's orb.cpp, the learned rBRIEF test pairs, round-half-even like ``cvRound``;
   each rotated offset is ``rint(fma(b, -y, a x))``, i.e. one product rounded and one
   fused, as the float32 BLAS product of the earlier numpy version did), compiled, for
-  all levels at once; the 7x7 sigma-2 blur is one call on the stacked levels, each
-  padded with BORDER_REFLECT_101 (identical to blurring each level on its own as
-  ORB-SLAM does); bit ``k`` of byte ``i`` is test ``8 i + k``.
+  all levels at once; the 7x7 sigma-2 blur is one compiled call on the stacked levels'
+  pixels (``orb.blur``: OpenCV's fixed-point 8-bit arithmetic, each level padded with
+  BORDER_REFLECT_101, so the bytes of ORB-SLAM's per-level ``GaussianBlur``); bit ``k``
+  of byte ``i`` is test ``8 i + k``.
 
 The kernels live in ``semslam.features.orb`` (shared with ``qtree_orb``); this module is
 the extractor that puts them together and its registry factory. Its constructor calls

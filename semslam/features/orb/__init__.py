@@ -3,7 +3,8 @@ scale pyramid, FAST detection per cell, the quadtree with its split rule, IC ang
 steered rBRIEF. Each extractor module is then only its own choices on top of these.
 
 The per-pixel and per-keypoint work runs in numba kernels (``fast_kernels``,
-``quadtree_kernels``, ``brief_kernels``, ``pyramid_kernels``, ``harris_kernels``: ``nogil``, cached on disk;
+``quadtree_kernels``, ``brief_kernels``, ``pyramid_kernels``, ``blur_kernels``, ``harris_kernels``: ``nogil``,
+cached on disk;
 ``warm_up`` compiles them once per process); the numpy / OpenCV versions they replaced
 are kept next to them as references (``fast_points_cv2``, ``detect_level_reference``,
 ``*_numpy``) and the tests check they agree exactly.

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.features.orb.blur import blur_levels
 from semslam.features.orb.brief_kernels import ic_moments, steered_brief
 from semslam.features.orb.pyramid import HALF_PATCH_SIZE, StackedPyramid
 from semslam.features.orb.scratch import Scratch, kernel_array
@@ -281,21 +282,39 @@ class SteeredBrief:
     def __init__(self) -> None:
         self.scratch = Scratch()
         self._blur_buffer: NDArray[np.uint8] | None = None
+        self._blur_ring: NDArray[np.int32] | None = None
 
     def compute(self, pyr: StackedPyramid, sx: NDArray[np.integer], sy: NDArray[np.integer],
                 clock: StageClock | None = None) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
         """(angles in degrees, 32-byte descriptors) of keypoints at buffer pixels (sx, sy);
         laps ``clock`` after the orientation and after the blur."""
-        # All levels live in one buffer: one gather for the orientations, one blur (pad 3
-        # = the 7x7 kernel's radius, BORDER_REFLECT_101 like ORB-SLAM's per-level blur)
-        # and one gather for the descriptors.
+        # All levels live in one buffer: one gather for the orientations, one compiled
+        # blur of the levels' pixels (BORDER_REFLECT_101 like ORB-SLAM's per-level blur)
+        # and one gather for the descriptors, whose tests stay inside the keypoint's level.
+        _check_inside_levels(pyr, sx, sy, _PATTERN_REACH)
         angle = ic_angles(pyr.buffer, sx, sy, self.scratch)
         if clock is not None:
             clock.lap()
         if self._blur_buffer is None or self._blur_buffer.shape != pyr.buffer.shape:
-            self._blur_buffer = np.empty_like(pyr.buffer)
-        blurred = cv2.GaussianBlur(pyr.buffer, (7, 7), 2, dst=self._blur_buffer, sigmaY=2,
-                                   borderType=cv2.BORDER_REFLECT_101)
+            self._blur_buffer = np.zeros_like(pyr.buffer)
+        self._blur_ring = blur_levels(pyr, self._blur_buffer, self._blur_ring)
         if clock is not None:
             clock.lap()
-        return angle, orb_descriptors(blurred, sx, sy, angle, self.scratch)
+        return angle, orb_descriptors(self._blur_buffer, sx, sy, angle, self.scratch)
+
+
+def _check_inside_levels(pyr: StackedPyramid, sx: NDArray[np.integer], sy: NDArray[np.integer],
+                         reach: int) -> None:
+    """Raise unless every buffer pixel (sx, sy) is >= ``reach`` px inside its own level.
+    Why: only the levels' pixels are blurred, so a test pixel in the padding would read
+    an unblurred value. ORB-SLAM's keypoints are EDGE_THRESHOLD (19) px inside."""
+    if len(sx) == 0:
+        return
+    sx, sy = np.asarray(sx), np.asarray(sy)
+    level = np.searchsorted(pyr.rows, sy, side="right") - 1
+    widths = np.array([lv.shape[1] for lv in pyr.levels])
+    heights = np.array([lv.shape[0] for lv in pyr.levels])
+    x, y = sx - pyr.pad, sy - pyr.rows[np.maximum(level, 0)]
+    if (level.min() < 0 or x.min() < reach or y.min() < reach or (x >= widths[level] - reach).any()
+            or (y >= heights[level] - reach).any()):
+        raise ValueError(f"keypoints must be >= {reach} px inside their pyramid level")

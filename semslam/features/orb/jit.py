@@ -10,7 +10,7 @@ starting the tracking thread.
 
 numba keys a cached kernel by the file it is defined in, so each kernel module
 (``fast_kernels``, ``brief_kernels``, ``quadtree_kernels``, ``pyramid_kernels``,
-``harris_kernels``) only
+``blur_kernels``, ``harris_kernels``) only
 calls kernels of its own module: editing one can never leave a stale copy inlined in
 another.
 """
@@ -43,6 +43,7 @@ def warm_up() -> float:
 
 def _run_kernels() -> None:
     """Every kernel once, on inputs of the types the extractors pass."""
+    from semslam.features.orb.blur import blur_levels
     from semslam.features.orb.descriptors import ic_angles, orb_descriptors
     from semslam.features.orb.detection import detect_levels, detect_levels_two_thresholds, fast_points
     from semslam.features.orb.harris import harris_responses
@@ -52,7 +53,8 @@ def _run_kernels() -> None:
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (48, 48), dtype=np.uint8)
     mask = np.ones((48, 48), np.uint8)
-    build_pyramid(image, 2, 1.2, pad=3)
+    pyr = build_pyramid(image, 2, 1.2, pad=3)
+    blur_levels(pyr, np.zeros_like(pyr.buffer))
     fast_points(image, 20)
     x, y, score, level = detect_levels([image], 20, 7, [MaskSampler.same_size(mask)])
     for masks in (None, [MaskSampler.same_size(mask)]):

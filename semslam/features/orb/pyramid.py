@@ -84,8 +84,9 @@ class StackedPyramid:
     stride, each surrounded by ``pad`` px of BORDER_REFLECT_101.
 
     Why: per-keypoint gathers (orientation patch, BRIEF tests) for all levels become one
-    numpy gather; one 7x7 blur of the buffer equals blurring every level on its own with
-    BORDER_REFLECT_101 (ORB-SLAM) as long as the kernel radius is <= ``pad``; and the
+    numpy gather; blurring each level's pixels reading the padding around it equals
+    blurring every level on its own with BORDER_REFLECT_101 (ORB-SLAM) as long as the
+    kernel radius is <= ``pad`` (``orb.blur``); and the
     buffer is reused from frame to frame (fresh multi-MB arrays cost page faults).
     Level ``l``'s pixel (x, y) is ``buffer[rows[l] + y, pad + x]``; ``levels[l]`` is a
     view of it."""
