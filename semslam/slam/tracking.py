@@ -7,9 +7,8 @@ The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comm
 from __future__ import annotations
 
 import time
-from collections import Counter, deque
+from collections import deque
 from dataclasses import dataclass
-from itertools import chain
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -856,11 +855,11 @@ class Tracking:
         rows in first-seen order (UpdateLocalPoints)."""
         rows = cur.points.rows[(cur.points.rows >= 0) & ~cur.outlier]
         store = self.map.store
-        # Observing keyframes counted in first-seen order (Counter counts in C).
-        counts = Counter(chain.from_iterable(p.observations for p in store.points(rows[~store.bad[rows]])))
-        if not counts:
+        # Observing keyframes counted in first-seen order (the store's observer rows).
+        observers, counts = store.observer_counts(rows[~store.bad[rows]])
+        if not observers:
             return
-        local: dict[KeyFrame, None] = {kf: None for kf in counts if not kf.bad}
+        local: dict[KeyFrame, None] = {kf: None for kf in observers if not kf.bad}
         for kf in list(local)[:80]:
             for nb in kf.best_covisibles(10):
                 local.setdefault(nb)
@@ -870,7 +869,7 @@ class Tracking:
             if kf.parent is not None and not kf.parent.bad:
                 local.setdefault(kf.parent)
         self.local_kfs = list(local)
-        best = max(counts, key=lambda k: counts[k])
+        best = observers[int(np.argmax(counts))]  # the first of the most observed, like max()
         if not best.bad:
             self.ref_kf = best
             cur.ref_kf = best
