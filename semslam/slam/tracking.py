@@ -885,7 +885,10 @@ class Tracking:
         frame_rows = cur.points.rows[cur.points.rows >= 0]
         frame_rows = frame_rows[~store.bad[frame_rows]]
         np.add.at(store.n_visible, frame_rows, 1)
-        cand = self.local_rows[~np.isin(self.local_rows, cur.points.rows) & ~store.bad[self.local_rows]]
+        # Local points the frame does not already hold (a mark per store row: np.isin sorts).
+        held = np.zeros(store.size, bool)
+        held[cur.points.rows[cur.points.rows >= 0]] = True
+        cand = self.local_rows[~held[self.local_rows] & ~store.bad[self.local_rows]]
         if len(cand):
             assert cur.T_cw is not None
             pos = store.pos[cand]
