@@ -79,6 +79,13 @@ def test_grid_pairs_equal_kdtree_ball_query(seed: int) -> None:
            if free[t] and lo[q] <= octave[t] <= hi[q]}
     assert got == ref
     assert len(got) == len(cq)  # no pair twice
+    # In ORB-SLAM's GetFeaturesInArea order: by query, then by grid cell (row-major), then
+    # by keypoint index within a cell (the matcher keeps the first of equal distances).
+    col = np.clip(np.floor(xy[:, 0] / 10.0), 0, 63).astype(int)
+    row = np.clip(np.floor(xy[:, 1] / 10.0), 0, 47).astype(int)
+    cell = row * 64 + col
+    assert sorted(zip(cq.tolist(), ct.tolist()), key=lambda p: (p[0], cell[p[1]], p[1])) == list(
+        zip(cq.tolist(), ct.tolist()))
 
 
 def _keyframe(slam_map: Map, n: int, ur: np.ndarray) -> KeyFrame:

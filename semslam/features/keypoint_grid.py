@@ -34,35 +34,35 @@ def _pairs_in_radius(uv: NDArray[np.float64], radius: NDArray[np.float64], level
                      free: NDArray[np.bool_], order: NDArray[np.intp], start: NDArray[np.intp],
                      cell_w: float, cell_h: float, n_cols: int, n_rows: int
                      ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """``xy``, ``octave`` and ``free`` are in cell order (``order[s]`` is the keypoint at
+    position ``s``), so the cells of one grid row a query covers are one contiguous run."""
     cap = 16 * len(uv) + 16
     cq = np.empty(cap, np.intp)
     ct = np.empty(cap, np.intp)
     n = 0
     for q in range(len(uv)):
         u, v, r = uv[q, 0], uv[q, 1], radius[q]
+        lo, hi = level_lo[q], level_hi[q]
         r2 = r * r
         c0 = min(max(int(np.floor((u - r) / cell_w)), 0), n_cols - 1)
         c1 = min(max(int(np.floor((u + r) / cell_w)), 0), n_cols - 1)
         r0 = min(max(int(np.floor((v - r) / cell_h)), 0), n_rows - 1)
         r1 = min(max(int(np.floor((v + r) / cell_h)), 0), n_rows - 1)
         for row in range(r0, r1 + 1):
-            for col in range(c0, c1 + 1):
-                cell = row * n_cols + col
-                for s in range(start[cell], start[cell + 1]):
-                    t = order[s]
-                    if not free[t] or octave[t] < level_lo[q] or octave[t] > level_hi[q]:
-                        continue
-                    dx, dy = xy[t, 0] - u, xy[t, 1] - v
-                    if dx * dx + dy * dy > r2:
-                        continue
-                    if n == cap:
-                        cap *= 2
-                        cq2 = np.empty(cap, np.intp)
-                        ct2 = np.empty(cap, np.intp)
-                        cq2[:n], ct2[:n] = cq[:n], ct[:n]
-                        cq, ct = cq2, ct2
-                    cq[n], ct[n] = q, t
-                    n += 1
+            for s in range(start[row * n_cols + c0], start[row * n_cols + c1 + 1]):
+                if not free[s] or octave[s] < lo or octave[s] > hi:
+                    continue
+                dx, dy = xy[s, 0] - u, xy[s, 1] - v
+                if dx * dx + dy * dy > r2:
+                    continue
+                if n == cap:
+                    cap *= 2
+                    cq2 = np.empty(cap, np.intp)
+                    ct2 = np.empty(cap, np.intp)
+                    cq2[:n], ct2[:n] = cq[:n], ct[:n]
+                    cq, ct = cq2, ct2
+                cq[n], ct[n] = q, order[s]
+                n += 1
     return cq[:n], ct[:n]
 
 
@@ -80,6 +80,9 @@ class KeypointGrid:
         counts = np.bincount(cells, minlength=GRID_COLS * GRID_ROWS)
         self.start = np.zeros(GRID_COLS * GRID_ROWS + 1, np.intp)
         np.cumsum(counts, out=self.start[1:])
+        # The keypoints in cell order: a query reads each grid row's cells as one run.
+        self._xy_by_cell = np.ascontiguousarray(self.xy[self.order])
+        self._octave_by_cell = np.ascontiguousarray(self.octave[self.order])
 
     def pairs_in_radius(self, uv: NDArray[np.floating], radius: NDArray[np.floating], level_lo: NDArray[np.integer],
                         level_hi: NDArray[np.integer], free: NDArray[np.bool_]
@@ -93,7 +96,8 @@ class KeypointGrid:
                                 np.broadcast_to(np.asarray(radius, np.float64), (n,)).copy(),
                                 np.broadcast_to(np.asarray(level_lo, np.intp), (n,)).copy(),
                                 np.broadcast_to(np.asarray(level_hi, np.intp), (n,)).copy(),
-                                self.xy, self.octave, np.ascontiguousarray(free, np.bool_), self.order,
+                                self._xy_by_cell, self._octave_by_cell,
+                                np.ascontiguousarray(np.asarray(free, np.bool_)[self.order]), self.order,
                                 self.start, self.cell_w, self.cell_h, GRID_COLS, GRID_ROWS)
 
 
