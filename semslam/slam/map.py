@@ -8,7 +8,6 @@ stage needs vectorised work (projection of the local map, bundle adjustment).
 from __future__ import annotations
 
 import threading
-import weakref
 from collections import Counter
 from dataclasses import dataclass, field
 from itertools import chain
@@ -61,8 +60,9 @@ class PointStore:
         # Why: tracking counts the observers of ~500 points every frame; a Counter over the
         # dicts hashes every KeyFrame in Python (~0.6 ms a frame), this is one gather.
         self.observers = np.zeros((0, 8), np.int64)
-        # Weak: a keyframe no point observes any more is not kept alive by this index.
-        self.keyframes_by_id: weakref.WeakValueDictionary[int, KeyFrame] = weakref.WeakValueDictionary()
+        # Every keyframe that ever observed a point (culled ones too: the trajectory keeps
+        # them alive anyway, as reference keyframes of the frames).
+        self.keyframes_by_id: dict[int, KeyFrame] = {}
         self._grow(capacity)
 
     _FIELDS = ("pos", "normal", "descriptor", "min_dist", "max_dist", "n_visible", "n_found", "n_kf_obs", "n_obs",
