@@ -11,33 +11,14 @@ from itertools import chain
 
 import numpy as np
 
-from semslam.core.types import Keypoints, orb_spec
-from semslam.geometry.se3 import invert
+from semslam.core.types import orb_spec
 from semslam.slam.map import KeyFrame, Map, MapPoint
+from tests.map_world import random_map
 
 
-def _world(rng: np.random.Generator, n_kf: int = 30, n_kp: int = 80, n_pts: int = 300
-           ) -> tuple[Map, list[KeyFrame], list[MapPoint]]:
-    m = Map(orb_spec(1.2, 8))
-    kfs = []
-    for k in range(n_kf):
-        T = np.eye(4)
-        T[:3, 3] = rng.normal(0, 1.0, 3)
-        kps = Keypoints(rng.uniform(0, 640, (n_kp, 2)).astype(np.float32), rng.integers(0, 8, n_kp).astype(np.int32),
-                        np.ones(n_kp, np.float32), np.zeros(n_kp, np.float32),
-                        rng.integers(0, 256, (n_kp, 32), dtype=np.uint8))
-        kf = KeyFrame(m.new_kf_id(), k, float(k), invert(T), kps, kps.xy.astype(np.float64),
-                      np.ones(n_kp, np.float32), -np.ones(n_kp), [None] * n_kp)
-        m.add_keyframe(kf)
-        kfs.append(kf)
-    points = []
-    for _ in range(n_pts):
-        ref = kfs[int(rng.integers(n_kf))]
-        p = m.new_point(rng.normal(0, 3.0, 3), ref.keypoints.descriptors[0].copy(), ref)
-        for kf in rng.choice(kfs, int(rng.integers(0, 20)), replace=False):  # up to 19: rows widen past 8
-            p.add_observation(kf, int(rng.integers(n_kp)))
-        points.append(p)
-    return m, kfs, points
+def _world(rng: np.random.Generator) -> tuple[Map, list[KeyFrame], list[MapPoint]]:
+    # up to 19 observers a point: rows widen past their first width of 8
+    return random_map(rng, orb_spec(1.2, 8), n_kf=30, n_kp=80, n_pts=300, max_obs=19)
 
 
 def _assert_mirrors(m: Map, points: list[MapPoint]) -> None:
