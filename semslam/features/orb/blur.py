@@ -29,7 +29,8 @@ ORB_BLUR_SIGMA = 2.0
 def gaussian_kernel_q8(ksize: int, sigma: float) -> NDArray[np.int32]:
     """The 1-D Gaussian kernel in 8 fractional bits as OpenCV builds it for 8-bit images
     (``getGaussianKernelBitExact`` then error diffusion from the outer taps inwards,
-    ``cvRound`` = half to even, the centre tap takes what makes the sum exactly 256)."""
+    ``cvRound`` = half to even, the centre tap takes what makes the sum exactly 256).
+    Checked against OpenCV's output for ORB's (7, 2.0) only (tests/test_orb_blur.py)."""
     if ksize % 2 != 1 or ksize < 3 or sigma <= 0:
         raise ValueError(f"need an odd ksize >= 3 and sigma > 0, got {ksize}, {sigma}")
     half = ksize // 2
