@@ -62,11 +62,10 @@ def blur_levels(pyr: StackedPyramid, out: NDArray[np.uint8], ring: NDArray[np.in
         raise ValueError(f"out must be uint8 of shape {pyr.buffer.shape}, got {out.dtype} {out.shape}")
     if not pyr.levels:
         return ring if ring is not None else np.zeros((7, 1), np.int32)
-    widths = np.array([lv.shape[1] for lv in pyr.levels], np.int64)
-    heights = np.array([lv.shape[0] for lv in pyr.levels], np.int64)
-    if ring is None or ring.shape[0] < 7 or ring.shape[1] < widths.max():
-        ring = np.zeros((7, int(widths.max())), np.int32)
-    gaussian7_levels(pyr.buffer, out, np.ascontiguousarray(pyr.rows, np.int64), widths, heights, pyr.pad,
+    widest = int(pyr.widths.max())
+    if ring is None or ring.shape[0] < 7 or ring.shape[1] < widest:
+        ring = np.zeros((7, widest), np.int32)
+    gaussian7_levels(pyr.buffer, out, np.ascontiguousarray(pyr.rows, np.int64), pyr.widths, pyr.heights, pyr.pad,
                      _ORB_COEFFS, ring)
     return ring
 

@@ -312,9 +312,7 @@ def _check_inside_levels(pyr: StackedPyramid, sx: NDArray[np.integer], sy: NDArr
         return
     sx, sy = np.asarray(sx), np.asarray(sy)
     level = np.searchsorted(pyr.rows, sy, side="right") - 1
-    widths = np.array([lv.shape[1] for lv in pyr.levels])
-    heights = np.array([lv.shape[0] for lv in pyr.levels])
     x, y = sx - pyr.pad, sy - pyr.rows[np.maximum(level, 0)]
-    if (level.min() < 0 or x.min() < reach or y.min() < reach or (x >= widths[level] - reach).any()
-            or (y >= heights[level] - reach).any()):
+    if (level.min() < 0 or x.min() < reach or y.min() < reach or (x >= pyr.widths[level] - reach).any()
+            or (y >= pyr.heights[level] - reach).any()):
         raise ValueError(f"keypoints must be >= {reach} px inside their pyramid level")

@@ -89,11 +89,13 @@ class StackedPyramid:
     kernel radius is <= ``pad`` (``orb.blur``); and the
     buffer is reused from frame to frame (fresh multi-MB arrays cost page faults).
     Level ``l``'s pixel (x, y) is ``buffer[rows[l] + y, pad + x]``; ``levels[l]`` is a
-    view of it."""
+    view of it, ``widths[l]`` x ``heights[l]`` pixels."""
 
     def __init__(self, buffer: NDArray[np.uint8], rows: NDArray[np.int64], pad: int,
                  levels: list[NDArray[np.uint8]]) -> None:
         self.buffer, self.rows, self.pad, self.levels = buffer, rows, pad, levels
+        self.widths = np.array([lv.shape[1] for lv in levels], np.int64)
+        self.heights = np.array([lv.shape[0] for lv in levels], np.int64)
 
 
 def build_pyramid(gray: NDArray[np.uint8], n_levels: int, scale_factor: float, pad: int = 3,
@@ -122,11 +124,11 @@ def build_pyramid(gray: NDArray[np.uint8], n_levels: int, scale_factor: float, p
         else:
             cv2.resize(levels[-1], (w, h), dst=view, interpolation=cv2.INTER_LINEAR)
         levels.append(view)
+    pyr = StackedPyramid(buffer, rows, pad, levels)
     if pad and sizes:
         # BORDER_REFLECT_101 around every level, rows first then columns (corners too).
-        reflect_pad_levels(buffer, rows, np.array([w for w, _ in sizes], np.int64),
-                           np.array([h for _, h in sizes], np.int64), pad)
-    return StackedPyramid(buffer, rows, pad, levels)
+        reflect_pad_levels(buffer, rows, pyr.widths, pyr.heights, pad)
+    return pyr
 
 
 def pyramid_buffer_shape(sizes: list[tuple[int, int]], pad: int) -> tuple[int, int]:
