@@ -161,9 +161,11 @@ def test_too_many_unreadable_frames(tmp_path: Path) -> None:
 
 def test_missing_listed_images(tmp_path: Path) -> None:
     root = write_tum_folder(tmp_path / "seq", n=12)
-    sorted((root / "rgb").iterdir())[3].unlink()
+    gone = sorted((root / "rgb").iterdir())[3]
+    gone.unlink()
     seq = open_sequence(root)
-    assert len(seq) == 11 and len(seq.skipped) == 1
+    assert len(seq) == 12  # the listed frames; the missing one is skipped when reached, by its name
+    assert len(list(seq)) == 11 and seq.skipped == [(3, f"{gone}: file not found")]
     for p in sorted((root / "rgb").iterdir())[:6]:
         p.unlink()
     with pytest.raises(DataError, match="file not found, and 6 more listed images are missing"):

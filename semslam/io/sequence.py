@@ -1,11 +1,11 @@
 """Sequence readers: TUM RGB-D (and the datasets that share its layout) and image folders.
 
 A sequence is a list of frames with timestamps, a camera and, where it exists, a ground
-truth file. Frames are decoded on demand. Iterating skips a few unreadable frames (and
-frames of another size than the first) with a warning and counts them in ``skipped``; too
-many, or an unreadable first frame, is an error. List files may name only files inside the
-sequence folder, each at its own, increasing timestamp; a broken ground truth file is a
-warning (no evaluation), not an error.
+truth file. Frames are decoded on demand. Iterating skips a few unreadable or missing frames
+(and frames of another size than the first) with a warning naming the file and counts them
+in ``skipped``; too many, or an unreadable first frame, is an error. List files may name
+only files inside the sequence folder, each at its own, increasing timestamp; a broken
+ground truth file is a warning (no evaluation), not an error.
 """
 
 from __future__ import annotations
@@ -183,14 +183,18 @@ class Sequence:
         raise NotImplementedError
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
-        """Yield readable frames, skipping a few unreadable ones with a warning."""
+        """Yield readable frames, skipping a few unreadable or missing ones with a warning
+        naming each one's file (and counting them in ``skipped``). An unreadable first frame
+        is an error (a wrong format or a broken folder, most likely); a missing one is not."""
         stop = len(self) if stop is None else min(stop, len(self))
         allowed = max(3, int(self.max_skip_fraction * max(stop - start, 1)))
+        first = True
         for i in range(start, stop):
             try:
                 frame = self._same_size(self.load(i))
             except FrameReadError as exc:
-                if i == start:
+                missing = exc.problem == "file not found"
+                if first and not missing:
                     raise DataError(exc.path, f"first frame unreadable: {exc.problem}") from None
                 self.skipped.append((i, str(exc)))
                 log.warning("skipping frame %d: %s", i, exc)
@@ -199,6 +203,7 @@ class Sequence:
                         self.root, f"{len(self.skipped)} unreadable frames (more than {allowed} allowed); last: {exc}"
                     ) from None
                 continue
+            first = False
             yield frame
 
     def __iter__(self) -> Iterator[Frame]:
@@ -271,26 +276,26 @@ class TumRgbdSequence(Sequence):
             if len(self._rgb) < 0.5 * len(rgb_all):
                 log.warning("%s: only %d of %d rgb images have a depth image within %.3f s",
                             self.root, len(self._rgb), len(rgb_all), max_diff)
-        self._drop_missing_files()
+        self._check_missing_files()
         self._timestamps = np.array([e.timestamp for e in self._rgb])
-        self.camera = with_image_size(resolve_camera(self.root, camera), self._rgb[0].path if self._rgb else None)
+        self.camera = with_image_size(resolve_camera(self.root, camera), self._first_present_rgb())
         self.groundtruth_path = usable_groundtruth(self.root)
 
-    def _drop_missing_files(self) -> None:
-        """Listed files that do not exist: a few are skipped, many mean a broken download."""
-        missing = [k for k, (r, d) in enumerate(zip(self._rgb, self._depth)) if not (r.path.is_file() and d.path.is_file())]
+    def _check_missing_files(self) -> None:
+        """Listed files that do not exist: many mean a broken download (an error now); a few
+        are skipped when iteration reaches them, each warned about by its own name and
+        counted in ``skipped``, so a run's frame counts still add up to the list's length."""
+        missing = [r.path if not r.path.is_file() else d.path
+                   for r, d in zip(self._rgb, self._depth) if not (r.path.is_file() and d.path.is_file())]
         if not missing:
             return
         allowed = max(3, int(self.max_skip_fraction * len(self._rgb)))
-        first = self._rgb[missing[0]].path if not self._rgb[missing[0]].path.is_file() else self._depth[missing[0]].path
         if len(missing) > allowed or len(missing) == len(self._rgb):
-            raise DataError(first, f"file not found, and {len(missing) - 1} more listed images are missing")
-        for k in missing:
-            log.warning("skipping frame at t=%.6f: listed image missing", self._rgb[k].timestamp)
-            self.skipped.append((k, f"{first}: file not found"))
-        keep = [k for k in range(len(self._rgb)) if k not in set(missing)]
-        self._rgb = [self._rgb[k] for k in keep]
-        self._depth = [self._depth[k] for k in keep]
+            raise DataError(missing[0], f"file not found, and {len(missing) - 1} more listed images are missing")
+
+    def _first_present_rgb(self) -> Path | None:
+        """The first listed colour image that exists: the camera's image size comes from it."""
+        return next((e.path for e in self._rgb if e.path.is_file()), None)
 
     @property
     def timestamps(self) -> NDArray[np.float64]:
