@@ -83,6 +83,26 @@ def synth_command(
         None, "--layout", help="Room layout: 0 the office (every preset), 1 the lounge, held out "
         "of the shipped networks' training (default: 0)."
     ),
+    blackout_start_s: float | None = typer.Option(
+        None, "--blackout-start-s", help="When the lens goes black (seconds; default: 0)."
+    ),
+    blackout_s: float | None = typer.Option(
+        None, "--blackout-s", help="Seconds of black frames with no depth while the camera moves (default: 0)."
+    ),
+    occluder_s: float | None = typer.Option(
+        None, "--occluder-s", help="Seconds of a hand or card over the lens (no depth where it covers), "
+        "from the end of the blackout, or from --occluder-start-s without one (default: 0)."
+    ),
+    occluder_start_s: float | None = typer.Option(
+        None, "--occluder-start-s", help="When the occluder comes if there is no blackout (default: 0)."
+    ),
+    occluder_kind: str | None = typer.Option(
+        None, "--occluder-kind", help="hand|object (a flat printed card) (default: hand)."
+    ),
+    white_balance_swing: float | None = typer.Option(
+        None, "--white-balance-swing", help="Per-channel white-balance swings of up to +- this share "
+        "(default: 0)."
+    ),
     workers: int = typer.Option(2, "--workers", help="Frames rendered in parallel (threads)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -115,6 +135,12 @@ def synth_command(
         gain_swing=gain_swing,
         depth_delay_ms=depth_delay_ms,
         layout=layout,
+        blackout_start_s=blackout_start_s,
+        blackout_s=blackout_s,
+        occluder_s=occluder_s,
+        occluder_start_s=occluder_start_s,
+        occluder_kind=occluder_kind,
+        white_balance_swing=white_balance_swing,
     ).validate()
     start = time.perf_counter()
     path = render_sequence(cfg, out, progress=not quiet, workers=workers)

@@ -48,10 +48,16 @@ def base_pose() -> NDArray[np.float64]:
 
 
 def camera_trajectory(
-    motion: str, times: NDArray[np.float64], duration: float
+    motion: str, times: NDArray[np.float64], duration: float, seed: int = 0
 ) -> NDArray[np.float64]:
-    """Poses ``(N, 4, 4)`` (T_wc) at ``times`` (seconds from the first frame)."""
+    """Poses ``(N, 4, 4)`` (T_wc) at ``times`` (seconds from the first frame).
+
+    ``seed`` picks the path of the seeded motions (:data:`SEEDED_MOTIONS`); the others
+    ignore it, so their renders stay what they were.
+    """
     t = np.asarray(times, dtype=np.float64)
+    if motion in SEEDED_MOTIONS:
+        return SEEDED_MOTIONS[motion](t, duration, seed)
     fn = {
         "static": _static,
         "xyz": _xyz,
@@ -282,3 +288,123 @@ def _jump_back(t: NDArray[np.float64], duration: float) -> NDArray[np.float64]:
     for i in range(len(out)):
         out[i, :3, :3] = so3_exp(np.array([0.0, 0.0, yaw[i]])) @ base[i, :3, :3]
     return out
+
+
+# Issue 38's held-out family: seeded motions, a different path for every seed (each draws
+# its parameters from ``default_rng([seed, 41 + k])``, so one motion's draws never shift
+# another's). All start at rest through _warp.
+
+
+def _rotate_cam(poses: NDArray[np.float64], rotvec_cam: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``poses`` turned by camera-frame rotation vectors (one per pose)."""
+    out = poses.copy()
+    for i in range(len(out)):
+        out[i, :3, :3] = poses[i, :3, :3] @ so3_exp(rotvec_cam[i])
+    return out
+
+
+def _sines(w: NDArray[np.float64], rng: np.random.Generator, amps: NDArray[np.float64],
+           periods: tuple[float, float]) -> NDArray[np.float64]:
+    """``(N, len(amps))``: per column a sinusoid of warped time ``w`` with a seeded period
+    in ``periods`` and seeded phase, shifted to be 0 at ``w = 0`` (every path starts at
+    its base)."""
+    p = rng.uniform(*periods, len(amps))
+    ph = rng.uniform(0, 2 * np.pi, len(amps))
+    return amps * (np.sin(2 * np.pi * w[:, None] / p + ph) - np.sin(ph))
+
+
+#: ``room_path``: a walk round the room like TUM fr1_room, turning to look at every wall.
+#: The eye wanders within ROOM_PATH_BOX (inside the camera zone of every layout); the
+#: heading turns at a seeded steady ~ROOM_PATH_TURN_DEG_S (+-40 %) plus a sway.
+ROOM_PATH_CENTRE = np.array([3.0, 1.7, 1.45])
+ROOM_PATH_HALF = np.array([0.95, 0.32, 0.12])
+ROOM_PATH_TURN_DEG_S = 22.0
+
+
+def _room_path(t: NDArray[np.float64], duration: float, seed: int) -> NDArray[np.float64]:
+    """Walking round the room (~1-2 m) while turning to look at every wall, 15-30 deg/s."""
+    rng = np.random.default_rng([seed, 41])
+    w = _warp(t, duration)
+    eye = ROOM_PATH_CENTRE + _sines(w, rng, ROOM_PATH_HALF * rng.uniform(0.7, 1.0, 3), (9.0, 14.0))
+    base_dir = BASE_TARGET - BASE_EYE
+    yaw0 = np.arctan2(base_dir[1], base_dir[0])
+    turn = np.deg2rad(ROOM_PATH_TURN_DEG_S * rng.uniform(0.75, 1.3)) * rng.choice([-1.0, 1.0])
+    sway = _sines(w, rng, np.deg2rad(np.array([12.0, 8.0, 3.0])), (5.0, 8.0))
+    yaw = yaw0 + turn * w + sway[:, 0]
+    pitch = np.deg2rad(-8.0) + sway[:, 1]
+    poses = np.empty((len(t), 4, 4))
+    for i in range(len(t)):
+        d = np.array([np.cos(yaw[i]) * np.cos(pitch[i]), np.sin(yaw[i]) * np.cos(pitch[i]),
+                      np.sin(pitch[i])])
+        poses[i] = look_at(eye[i], eye[i] + d)
+    return _rotate_cam(poses, np.stack([np.zeros_like(t), np.zeros_like(t), sway[:, 2]], axis=1))
+
+
+#: ``shake``: hand-held tremor on a slow path: a physiological band (SHAKE_LOW_HZ, a few mm
+#: and a few tenths of a degree) and a fine one (SHAKE_HIGH_HZ, ~1 mm, ~0.1 deg).
+SHAKE_LOW_HZ = (1.0, 3.0)
+SHAKE_HIGH_HZ = (8.0, 12.0)
+
+
+def _shake(t: NDArray[np.float64], duration: float, seed: int) -> NDArray[np.float64]:
+    """A slow seeded drift (~0.15 m, a few degrees) plus hand tremor in two bands."""
+    rng = np.random.default_rng([seed, 42])
+    w = _warp(t, duration)
+    tr = _sines(w, rng, np.array([0.15, 0.06, 0.10]), (6.0, 10.0))
+    rv = _sines(w, rng, np.deg2rad(np.array([3.0, 5.0, 2.0])), (5.0, 9.0))
+    for band, mm, deg in ((SHAKE_LOW_HZ, 3.0, 0.3), (SHAKE_HIGH_HZ, 0.8, 0.08)):
+        periods = (1.0 / band[1], 1.0 / band[0])
+        tr = tr + _sines(w, rng, np.full(3, mm * 1e-3) * rng.uniform(0.6, 1.4, 3), periods)
+        rv = rv + _sines(w, rng, np.deg2rad(np.full(3, deg)) * rng.uniform(0.6, 1.4, 3), periods)
+    return _offset_poses(t, tr, rv)
+
+
+#: ``fast_rotations``: swings on all three axes at once (median ~40 deg/s) plus seeded
+#: flicks, out and back, about random axes, every FLICK_EVERY_S; the fastest peak near
+#: FLICK_PEAK_DEG_S (a raised-cosine step of ``a`` degrees in ``s`` seconds peaks at
+#: ``a * pi / (2 s)``).
+FAST_ROT_AMPS_DEG = (10.0, 17.0, 9.0)  # pitch, yaw, roll
+FAST_ROT_PERIODS_S = (2.2, 4.0)
+FLICK_EVERY_S = (1.6, 3.2)
+FLICK_PEAK_DEG_S = (80.0, 175.0)
+FLICK_DEG = (18.0, 32.0)
+
+
+def _raised_cosine(t: NDArray[np.float64], start: float, span: float) -> NDArray[np.float64]:
+    """0 before ``start``, 1 after ``start + span``, a half cosine between."""
+    x = np.clip((t - start) / span, 0.0, 1.0)
+    return 0.5 - 0.5 * np.cos(np.pi * x)
+
+
+def _flicks(t: NDArray[np.float64], duration: float, rng: np.random.Generator) -> NDArray[np.float64]:
+    """``(N, 3)`` rotation vectors of the flicks: each a raised-cosine step out to a random
+    axis and angle, held for 0.3-0.8 s, then back at the same speed."""
+    rv = np.zeros((len(t), 3))
+    start = 1.5 + rng.uniform(0.0, 1.0)
+    first = True
+    while start < duration:
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        deg = rng.uniform(*FLICK_DEG)
+        peak = FLICK_PEAK_DEG_S[1] if first else rng.uniform(*FLICK_PEAK_DEG_S)
+        first = False  # the first flick is the fastest, so every sequence has one
+        s = deg * np.pi / (2 * peak)
+        back = start + s + rng.uniform(0.3, 0.8)
+        out = _raised_cosine(t, start, s) - _raised_cosine(t, back, s)
+        rv += np.deg2rad(deg) * out[:, None] * axis
+        start = back + s + rng.uniform(*FLICK_EVERY_S)
+    return rv
+
+
+def _fast_rotations(t: NDArray[np.float64], duration: float, seed: int) -> NDArray[np.float64]:
+    """A walking sway with rotations on all axes at once and fast seeded flicks."""
+    rng = np.random.default_rng([seed, 43])
+    w = _warp(t, duration)
+    tr = _sines(w, rng, np.array([0.20, 0.08, 0.15]), (5.0, 8.0))
+    rv = _sines(w, rng, np.deg2rad(np.array(FAST_ROT_AMPS_DEG)), FAST_ROT_PERIODS_S)
+    rv = rv + _sines(w, rng, np.deg2rad(np.array(FAST_ROT_AMPS_DEG)) / 3, (1.1, 1.7))
+    poses = _offset_poses(t, tr, rv)
+    return _rotate_cam(poses, _flicks(t, duration, rng))
+
+
+SEEDED_MOTIONS = {"room_path": _room_path, "shake": _shake, "fast_rotations": _fast_rotations}

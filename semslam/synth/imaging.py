@@ -66,6 +66,18 @@ def exposure_gain(seed: int, t: float, swing: float) -> float:
     return float(1.0 + swing * s)
 
 
+def white_balance_gains(seed: int, t: float, swing: float) -> NDArray[np.float32]:
+    """Per-channel (R, G, B) gains at time ``t``: auto white balance hunting, each channel
+    ``1 + swing * s_c(t)`` with its own smooth seeded mix of slow sinusoids (periods 2-7 s)."""
+    if swing <= 0:
+        return np.ones(3, np.float32)
+    rng = np.random.default_rng([seed, 31])
+    p1, p2 = rng.uniform(2.0, 4.0, 3), rng.uniform(4.0, 7.0, 3)
+    f1, f2 = rng.uniform(0, 2 * np.pi, 3), rng.uniform(0, 2 * np.pi, 3)
+    s = 0.6 * np.sin(2 * np.pi * t / p1 + f1) + 0.4 * np.sin(2 * np.pi * t / p2 + f2)
+    return (1.0 + swing * s).astype(np.float32)
+
+
 def depth_delay_s(seed: int, frame: int, max_delay_s: float) -> float:
     """How long after the RGB image frame ``frame``'s depth is captured."""
     if max_delay_s <= 0:

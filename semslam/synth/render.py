@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import semslam
-from semslam.synth import imaging, writer
+from semslam.synth import imaging, occluder, writer
 from semslam.synth.atlas import Atlas, build_atlas
 from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
@@ -49,7 +49,8 @@ from semslam.synth.static_geometry import MOVERS_FILE, SCENE_FILE, movers_json, 
 IN_PROGRESS = ".rendering.json"
 #: SynthConfig fields added after renders were first cached (absent there = default).
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
-                 "blackout_start_s", "blackout_s", "layout")
+                 "blackout_start_s", "blackout_s", "layout", "occluder_s", "occluder_start_s",
+                 "occluder_kind", "white_balance_swing")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -86,7 +87,7 @@ class Renderer:
         self.cam = Camera(fx, fy, cx, cy, cfg.width, cfg.height)
         self.boxes, self.atlas = scene_for_seed(cfg.seed, cfg.box_carrier, cfg.layout)
         self.times = np.arange(cfg.frames) / cfg.fps
-        self.poses = camera_trajectory(cfg.motion, self.times, cfg.duration)
+        self.poses = camera_trajectory(cfg.motion, self.times, cfg.duration, cfg.seed)
         self.people = People(
             cfg.people, cfg.people_mode, cfg.seed, cfg.people_dir, carrier=cfg.box_carrier
         )
@@ -124,9 +125,15 @@ class Renderer:
                 later = self._pose_at(t + delay)
                 depth_buf, _, _ = self._scene(t + delay, later, False)
                 buf.z, buf.cos = depth_buf.z, depth_buf.cos
+        cover = self._occluder(t)
+        if cover is not None:
+            rgb8 = occluder.cover_rgb(rgb8, *cover)
         gain = imaging.exposure_gain(cfg.seed, t, cfg.gain_swing)
+        gain = gain * imaging.white_balance_gains(cfg.seed, t, cfg.white_balance_swing)
         img, rng, depth_noise = self._sensor_rgb(rgb8, i, gain)
         depth = kinect_depth(buf.z, buf.cos, rng, depth_noise)
+        if cover is not None:
+            depth = occluder.cover_depth(depth, cover[0])
         frame = Frame(img, depth, buf.label, buf.z)
         if cfg.blackout_start_s <= t < cfg.blackout_start_s + cfg.blackout_s:  # lens covered
             frame = Frame(np.zeros_like(img), np.zeros_like(depth), buf.label, buf.z)
@@ -136,13 +143,21 @@ class Renderer:
         bg_depth = kinect_depth(static.z, static.cos, None)
         return frame, Frame(bg_img, bg_depth, static.label, static.z)
 
+    def _occluder(self, t: float) -> tuple[NDArray[np.float32], NDArray[np.float32]] | None:
+        """(alpha, colour) of what is over the lens at ``t``, or None."""
+        start, end = self.cfg.occluder_window()
+        if not start <= t < end:
+            return None
+        return occluder.occluder_layer(self.cfg.occluder_kind, self.cfg.seed, t - start,
+                                       self.cfg.height, self.cfg.width)
+
     @property
     def _hard(self) -> bool:
         cfg = self.cfg
         return cfg.exposure_ms > 0 or cfg.rolling_shutter_ms > 0 or cfg.depth_delay_ms > 0
 
     def _pose_at(self, t: float) -> NDArray[np.float64]:
-        return camera_trajectory(self.cfg.motion, np.array([t]), self.cfg.duration)[0]
+        return camera_trajectory(self.cfg.motion, np.array([t]), self.cfg.duration, self.cfg.seed)[0]
 
     def _scene(self, t: float, pose: NDArray[np.float64], background: bool
                ) -> tuple[Buffers, NDArray[np.uint8], Buffers | None]:
@@ -167,7 +182,8 @@ class Renderer:
         """How fast the image moves around ``t`` (pixels per second, an upper estimate): the
         camera's rotation and its translation against a surface 1 m away over the window,
         and people walking (~1.4 m/s, 2 m away) when there are any."""
-        a, b = camera_trajectory(self.cfg.motion, np.array([t - span / 2, t + span / 2]), self.cfg.duration)
+        a, b = camera_trajectory(self.cfg.motion, np.array([t - span / 2, t + span / 2]), self.cfg.duration,
+                                 self.cfg.seed)
         rel = np.linalg.inv(a) @ b
         angle = float(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1) / 2, -1.0, 1.0)))
         f = max(self.cam.fx, self.cam.fy)
@@ -181,20 +197,20 @@ class Renderer:
         offsets = imaging.sub_frame_offsets(exposure, readout, self._image_speed(t, exposure + readout))
         if len(offsets) == 1:
             return centre_rgb
-        poses = camera_trajectory(cfg.motion, t + offsets, cfg.duration)
+        poses = camera_trajectory(cfg.motion, t + offsets, cfg.duration, cfg.seed)
         images = [self._scene(t + o, p, False)[1] for o, p in zip(offsets, poses)]
         return imaging.blend_rows(images, imaging.row_weights(offsets, cfg.height, exposure, readout))
 
     def _sensor_rgb(
-        self, rgb8: NDArray[np.uint8], i: int, gain: float = 1.0
+        self, rgb8: NDArray[np.uint8], i: int, gain: float | NDArray[np.float32] = 1.0
     ) -> tuple[NDArray[np.uint8], np.random.Generator | None, NDArray[np.float32] | None]:
         """Optics, exposure ``gain`` and sensor noise of frame ``i``: (RGB, the frame's random
         stream after the noise windows were drawn, the depth noise window); the same for any
         content."""
         rgb = cv2.GaussianBlur(rgb8, (0, 0), BLUR_SIGMA).astype(np.float32)
         rgb *= self.vignette
-        if gain != 1.0:
-            rgb *= np.float32(gain)
+        if np.any(np.asarray(gain) != 1.0):  # a scalar, or per-channel gains (white balance)
+            rgb *= np.asarray(gain, np.float32)
         rng = np.random.default_rng([self.cfg.seed, i, 5]) if self.cfg.noise else None
         depth_noise = None
         if rng is not None:  # read noise + shot noise

@@ -13,9 +13,10 @@ from typing import Any
 
 from semslam.errors import ConfigError
 from semslam.synth.layouts import get_layout
+from semslam.synth.occluder import OCCLUDER_KINDS
 
 MOTIONS = ("static", "xyz", "rpy", "halfsphere", "loop", "room_loop", "room_revisit", "fast_turns",
-           "jump_back")
+           "jump_back", "room_path", "shake", "fast_rotations")
 PEOPLE_MODES = ("walking", "idle")
 
 #: TUM freiburg3 RGB intrinsics at 640x480 (fx, fy, cx, cy); fr3 images are undistorted.
@@ -68,6 +69,14 @@ class SynthConfig:
     # Room layout (synth/layouts.py): 0 the office every preset uses, 1 the lounge that no
     # shipped network was trained in (held out for evaluation).
     layout: int = 0
+    # Issue 38: something over the lens (synth/occluder.py: a hand or a card, no depth where
+    # it covers) for occluder_s seconds, from the end of the blackout, or from
+    # occluder_start_s when there is none; the camera keeps moving.
+    occluder_s: float = 0.0
+    occluder_start_s: float = 0.0
+    occluder_kind: str = "hand"
+    # Auto white balance hunting: per-channel gains swing by up to +- this share.
+    white_balance_swing: float = 0.0
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""
@@ -98,6 +107,15 @@ class SynthConfig:
             raise ConfigError(f"synth: blackout_start_s and blackout_s must be >= 0, got "
                               f"{self.blackout_start_s} and {self.blackout_s}")
         get_layout(self.layout)  # raises ConfigError naming the layouts
+        if self.occluder_s < 0 or self.occluder_start_s < 0:
+            raise ConfigError(f"synth: occluder_s and occluder_start_s must be >= 0, got "
+                              f"{self.occluder_s} and {self.occluder_start_s}")
+        if self.occluder_kind not in OCCLUDER_KINDS:
+            raise ConfigError(f"synth: unknown occluder_kind {self.occluder_kind!r} "
+                              f"(choose from {', '.join(OCCLUDER_KINDS)})")
+        if not 0.0 <= self.white_balance_swing < 1.0:
+            raise ConfigError(f"synth: white_balance_swing must be in [0, 1), got "
+                              f"{self.white_balance_swing}")
         if not 0.0 <= self.gain_swing < 1.0:
             raise ConfigError(f"synth: gain_swing must be in [0, 1), got {self.gain_swing}")
         return self
@@ -107,6 +125,11 @@ class SynthConfig:
         sx, sy = self.width / 640.0, self.height / 480.0
         fx, fy, cx, cy = FR3_INTRINSICS
         return (fx * sx, fy * sy, cx * sx, cy * sy)
+
+    def occluder_window(self) -> tuple[float, float]:
+        """(start, end) seconds of the occluder; empty when there is none."""
+        start = self.blackout_start_s + self.blackout_s if self.blackout_s > 0 else self.occluder_start_s
+        return start, start + self.occluder_s
 
     @property
     def duration(self) -> float:
