@@ -13,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from semslam.config.checks import check_values
 from semslam.config.schema import SENSORS, SystemConfig
 from semslam.errors import ConfigError
 
@@ -114,12 +115,16 @@ def _apply_overrides(cfg: SystemConfig, overrides: list[str] | None) -> None:
 
 
 def _check(cfg: SystemConfig) -> None:
-    """Values no component can use, refused once at load time with the key that holds them."""
+    """Values no component can use, refused once at load time with the key that holds them:
+    the sections' own checks (their messages say more), then every field against its rule
+    (config/checks.py)."""
     if cfg.sensor not in SENSORS:
         raise ConfigError(f"sensor: unknown sensor {cfg.sensor!r} (known: {', '.join(SENSORS)})")
     cfg.features.check()
     cfg.semantics.check()
     cfg.slam.check()
+    cfg.sdf_slam.check()
+    check_values(cfg)
 
 
 def config_to_dict(cfg: SystemConfig) -> dict[str, Any]:
