@@ -11,7 +11,6 @@ system is threaded.  A problem is a handful of numpy arrays, cheap to send there
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import threading
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
@@ -23,7 +22,8 @@ from numpy.typing import NDArray
 
 from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
 from semslam.backend.pose_graph import optimize_pose_graph
-from semslam.runtime import exit_with_parent, lower_thread_priority
+from semslam.runtime import lower_thread_priority
+from semslam.worker_processes import worker_pool
 
 log = logging.getLogger(__name__)
 R = TypeVar("R")
@@ -59,9 +59,9 @@ class BundleAdjustmentRunner:
 
     @staticmethod
     def _new_pool() -> ProcessPoolExecutor:
-        # exit_with_parent: a worker blocked waiting for its next job would outlive a
-        # SIGKILLed run (one stayed 25 min); it now ends within PARENT_POLL_S.
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"), initializer=exit_with_parent)
+        # Ends with a SIGKILLed run (one stayed 25 min before exit_with_parent) and does not
+        # re-run a user's script that lacks a __main__ guard (semslam/worker_processes.py).
+        pool = worker_pool()
         pool.submit(_warm)
         return pool
 

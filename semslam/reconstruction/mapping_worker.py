@@ -15,7 +15,6 @@ and the maps config, so nothing but plain data crosses the process boundary.
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -30,7 +29,7 @@ from semslam.config import MapsConfig, SemanticsConfig
 from semslam.core import registry
 from semslam.core.protocols import KeyframeSnapshot, MapBuilder
 from semslam.errors import WorkerFailed
-from semslam.runtime import exit_with_parent
+from semslam.worker_processes import worker_pool
 
 log = logging.getLogger(__name__)
 
@@ -228,8 +227,7 @@ class MappingWorker:
         self.wants_frames = inpainted_dir is not None and cfg.inpainting.enabled
         self.stats_: dict[str, float] = {}
         if threaded:
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
-                                             initializer=exit_with_parent)  # no orphan if the run is killed
+            self._pool = worker_pool()  # no orphan if the run is killed, no re-run of the user's script
             self._pending.append(self._pool.submit(_create_state, self.names, cfg, inpainted_dir, True, semantics))
         else:
             _create_state(self.names, cfg, inpainted_dir, False, semantics)
