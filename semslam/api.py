@@ -15,6 +15,9 @@ truth). ``pipeline.run_slam`` is a loop over this class: one code path for both.
             if result.pose_wc is not None:        # 4x4 camera-to-world, None while lost
                 ...
     # leaving the block stops every thread and process and writes run1/
+
+A script needs no ``if __name__ == "__main__":`` guard: the worker processes are spawned
+without re-running it (``semslam/worker_processes.py``).
 """
 
 from __future__ import annotations
