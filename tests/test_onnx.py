@@ -215,7 +215,7 @@ NO_TORCH = textwrap.dedent('''
     import importlib.abc, json, sys, time
 
     class NoTorch(importlib.abc.MetaPathFinder):
-        """As if torch were not installed (spawned workers run this too)."""
+        """As if torch were not installed (in this process: worker processes do not re-run this script)."""
         def find_spec(self, name, path, target=None):
             if name == "torch" or name.startswith("torch."):
                 raise ModuleNotFoundError(f"No module named {name!r}", name=name)
