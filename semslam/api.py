@@ -26,7 +26,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Union
@@ -43,7 +43,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.io.images import depth_to_metres
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
 from semslam.io.trajectory import Trajectory, write_tum
-from semslam.run_record import RunTiming, evaluate, timing_stats
+from semslam.run_record import Evaluation, RunTiming, evaluate, timing_stats, write_run_report
 from semslam.thread_clock import thread_times
 from semslam.slam.system import System as SlamSystem
 
@@ -237,7 +237,7 @@ class System:
     # ------------------------------------------------------------------ the end
     def save(self, out_dir: str | Path | None = None, *, groundtruth: str | Path | None = None, report: bool = True,
              save_map: str | Path | None = None, error: BaseException | None = None, interrupted: bool = False,
-             skipped: Sequence[str] = ()) -> RunResult:
+             skipped: Sequence[str] = (), total: int | None = None) -> RunResult:
         """End the run and write what ``semslam run`` writes to ``out_dir`` (default ``out``):
         ``trajectory.txt`` (poses after the final optimisation), ``keyframes.txt``,
         ``stats.json``, ``config.json``, the maps of ``maps.builders`` under ``map/``; with
@@ -245,10 +245,15 @@ class System:
         ``save_map`` writes the sparse map (.npz) for ``load_map``. Every thread and process
         is stopped first. Returns the ``RunResult`` (``stats.json`` as a value).
 
+        The trajectory, keyframes and ``stats.json`` are written first: a failure in what
+        follows (the map file, the maps, the report) is recorded in ``stats.json`` and raised
+        (an ``OSError`` as a ``DataError`` naming the path), the run's record stays on disk.
+
         For drivers such as ``pipeline.run_slam``: ``error`` (what ended the feeding) goes into
         ``stats.json`` and is raised once the outputs are written; ``interrupted`` (Ctrl-C)
         marks the run so and skips the maps (``semslam map OUT`` builds them later);
-        ``skipped`` lists frames the reader could not decode."""
+        ``skipped`` lists frames the reader could not use; ``total``: the frames the run was
+        given (``frames_total`` in ``stats.json``; default: those tracked and skipped)."""
         target = out_dir if out_dir is not None else self.out
         if target is None:
             raise ConfigError("System.save: no output folder (give out_dir, or out= to System)")
@@ -261,14 +266,7 @@ class System:
             slam.shutdown()  # the final optimisation; worker threads and the BA process stop
         except BaseException as exc:  # a worker that failed on the last keyframes
             error = error or exc
-        if save_map and error is None:
-            try:
-                slam.save_map(Path(save_map))
-            except BaseException:
-                self._closed = True  # nothing else written: the map was asked for
-                slam.close()
-                raise
-        failure = self._write_outputs(slam, out, groundtruth, report, error, interrupted, skipped)
+        failure = self._write_outputs(slam, out, groundtruth, report, save_map, error, interrupted, skipped, total)
         error = error or failure
         if error is not None:
             raise error
@@ -279,8 +277,11 @@ class System:
         return f"saved to {self.result.out_dir}" if self.result is not None else "closed"
 
     def _write_outputs(self, slam: SlamSystem, out: Path, groundtruth: str | Path | None, report: bool,
-                       error: BaseException | None, interrupted: bool, skipped: Sequence[str]) -> BaseException | None:
-        """Every output; returns the maps' failure, if they failed (``stats.json`` says so too)."""
+                       save_map: str | Path | None, error: BaseException | None, interrupted: bool,
+                       skipped: Sequence[str], total: int | None) -> BaseException | None:
+        """The run's record first (trajectory, keyframes, ``stats.json``, ``config.json``), then
+        what may fail or take long (the map file, the maps, the report), then ``stats.json``
+        again with their paths and counters; returns the first failure of those."""
         traj = slam.trajectory()
         write_tum(out / "trajectory.txt", traj)
         paths = {"trajectory": str(out / "trajectory.txt"), "stats": str(out / "stats.json"),
@@ -289,33 +290,55 @@ class System:
         if len(kf_traj):
             write_tum(out / "keyframes.txt", kf_traj)
             paths["keyframes"] = str(out / "keyframes.txt")
-        map_error: BaseException | None = None
-        if interrupted:  # stop fast: finishing the maps takes seconds; `semslam map OUT` rebuilds them
-            slam.close()
-        else:
-            try:  # a failed map still leaves the trajectory and stats.json (with the error) behind
-                paths.update({name: str(p) for name, p in slam.write_maps(out / "map").items()})
-            except Exception as exc:  # noqa: BLE001 - reported in stats.json, then raised by save
-                map_error = exc
-                error = error or exc
         self._timing.interrupted = interrupted
-        result = self._run_result(out, paths, skipped, error)
-        if groundtruth is not None and len(traj) >= 3:
-            # Interrupted: ATE into stats.json, but no report (its plots take a second or more).
-            evaluate(Path(groundtruth), traj, self.config, out, result, report and not interrupted)
-        (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
+        result = self._run_result(out, paths, skipped, error, total)
+        evaluation = evaluate(Path(groundtruth), traj, self.config, result) if groundtruth is not None and \
+            len(traj) >= 3 else None
         (out / "config.json").write_text(json.dumps(config_to_dict(self.config), indent=2))
+        (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
         self.result = result
-        return map_error
+        # Interrupted: no report (its plots take a second or more) and no maps (`semslam map OUT`).
+        failure = self._write_extras(slam, out, result, save_map if error is None else None,
+                                     evaluation if report and not interrupted else None, interrupted)
+        result.tracker = slam.stats()  # now with the maps' counters
+        if failure is not None:
+            result.error = result.error or f"{type(failure).__name__}: {failure}"
+        (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
+        return failure
+
+    def _write_extras(self, slam: SlamSystem, out: Path, result: RunResult, save_map: str | Path | None,
+                      evaluation: Evaluation | None, interrupted: bool) -> BaseException | None:
+        """The map file, the maps of ``maps.builders``, the report: each tried even when one
+        before failed; the first failure is returned, not raised."""
+        failures: list[BaseException] = []
+        closed = False
+        try:
+            if save_map:
+                _attempt(failures, Path(save_map), lambda: slam.save_map(Path(save_map)))
+            if interrupted:  # stop fast: finishing the maps takes seconds
+                slam.close()
+            else:  # write_maps closes the system, also when a builder fails
+                _attempt(failures, out / "map",
+                         lambda: result.paths.update({n: str(p) for n, p in slam.write_maps(out / "map").items()}))
+            closed = True
+            if evaluation is not None:
+                _attempt(failures, out / "report.html",
+                         lambda: write_run_report(out, evaluation, self.config, result))
+        finally:
+            if not closed:  # a KeyboardInterrupt while the map file was written
+                slam.close()
+        return failures[0] if failures else None
 
     def _run_result(self, out: Path, paths: dict[str, str], skipped: Sequence[str],
-                    error: BaseException | None) -> RunResult:
+                    error: BaseException | None, total: int | None = None) -> RunResult:
         timing, cam = self._timing, self.camera
         n = len(timing.frame_ms)
         counts = self._slam.counts() if self._slam is not None else {}
+        given = counts.get("frames", 0) + len(skipped)
         return RunResult(
             sequence=self.name, preset=self.config.preset, out_dir=out, **counts,
             skipped_frames=len(skipped), skipped=list(skipped),
+            frames_total=max(given, total or 0), frames_not_reached=max(0, (total or 0) - given),
             ms_per_frame=timing_stats(timing.frame_ms),
             stages_ms_median={k: float(np.median(v)) for k, v in timing.stage_ms.items()},
             stages_ms_p95={k: float(np.percentile(v, 95)) for k, v in timing.stage_ms.items()},
@@ -332,6 +355,18 @@ class System:
             interrupted=timing.interrupted or isinstance(error, KeyboardInterrupt),
             error=None if error is None else f"{type(error).__name__}: {error}",
         )
+
+
+def _attempt(failures: list[BaseException], path: Path, write: Callable[[], object]) -> None:
+    """``write()``; an exception goes into ``failures`` (an ``OSError`` as a ``DataError``
+    naming ``path``: a full disk or a missing permission is the user's to fix)."""
+    try:
+        write()
+    except OSError as exc:
+        failures.append(DataError(exc.filename or path, f"cannot write ({exc.strerror or exc}); trajectory.txt "
+                                                        "and stats.json were written"))
+    except Exception as exc:  # noqa: BLE001 - recorded in stats.json, then raised by save
+        failures.append(exc)
 
 
 # ---------------------------------------------------------------------------- building it

@@ -37,6 +37,12 @@ class ConfigError(SemslamError):
     """A preset, a --set override or a command-line option is invalid."""
 
 
+class OutputError(DataError):
+    """An output path (``--out``, ``--save-map``, ``--rerun``, ``--save-inpainted``) cannot be
+    written, or the output folder holds another run's files; found before the first frame,
+    so no run is lost to it."""
+
+
 class WorkerFailed(SemslamError):
     """A background worker (local mapping, loop closing, the maps' worker) raised; the run
     stops after writing what it has."""
@@ -44,4 +50,9 @@ class WorkerFailed(SemslamError):
 
 class RunInterrupted(KeyboardInterrupt):
     """The run was asked to stop (Ctrl-C, SIGTERM) and has written what it had; the CLI
-    exits with 130, as a shell does for an interrupted command."""
+    exits with ``exit_code``: 128 + the signal's number, as a shell reports a command the
+    signal ended (130 for SIGINT, 143 for SIGTERM)."""
+
+    def __init__(self, message: str, exit_code: int = 130) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code

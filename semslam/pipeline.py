@@ -8,8 +8,10 @@ when ground truth exists), ``config.json`` and ``report.html``.
 
 from __future__ import annotations
 
+import os
+import shutil
 import time
-from collections.abc import Generator, Iterator
+from collections.abc import Generator, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -20,8 +22,8 @@ from semslam.api import System
 from semslam.config import SystemConfig
 from semslam.core.protocols import FramePacket, SequenceSource as Sequence
 from semslam.core.types import Frame, RunResult, TrackResult
-from semslam.errors import ConfigError, DataError, RunInterrupted
-from semslam.runtime import lower_thread_priority, stop_requested, tracking_core
+from semslam.errors import ConfigError, DataError, OutputError, RunInterrupted
+from semslam.runtime import lower_thread_priority, stop_exit_code, stop_requested, tracking_core
 
 if TYPE_CHECKING:
     from semslam.viz.rerun_log import RerunRecorder
@@ -84,12 +86,16 @@ def run_slam(
     tracking after the current frame; the outputs are written as usual (``"interrupted":
     true``, and ``--save-map``'s map) except the maps of ``maps.builders``, whose final
     integration takes seconds (``semslam map OUT`` builds them from the keyframes); then
-    ``RunInterrupted`` is raised.
+    ``RunInterrupted`` is raised (its ``exit_code``: 128 + the signal's number).
+
+    Every output path is checked first (``check_output_paths``): one that cannot be written
+    is an ``OutputError`` before the first frame, not a lost run at the end.
 
     ``rerun`` (an ``.rrd`` path) / ``rerun_spawn`` record the run for the Rerun viewer
     (``viz.rerun_log``); the recording is closed, complete, on every path too.
     """
     out = Path(out_dir)
+    check_output_paths(out, save_map=save_map, rerun=rerun, save_inpainted=config.maps.save_inpainted or None)
     if config.sensor == "rgbd" and not sequence.has_depth:
         raise DataError(sequence.root, "no depth images: this is a monocular sequence; run it with sensor: mono "
                                        "(--preset sdf)")
@@ -125,7 +131,7 @@ def _run(system: System, sequence: Sequence, config: SystemConfig, out: Path, ma
         try:  # raises the run's error once the outputs are written
             result = system.save(out, groundtruth=sequence.groundtruth_path, report=report, save_map=save_map,
                                  error=error, interrupted=interrupted,
-                                 skipped=[msg for _, msg in sequence.skipped])
+                                 skipped=[msg for _, msg in sequence.skipped], total=n_total)
         finally:
             if recorder is not None and system.result is not None:
                 _log_run_end(recorder, system, out / "map")
@@ -134,8 +140,76 @@ def _run(system: System, sequence: Sequence, config: SystemConfig, out: Path, ma
             recorder.close()
     if interrupted:
         maps = " (maps not written: `semslam map OUT` builds them)" if config.maps.builders else ""
-        raise RunInterrupted(f"stopped after {system.n_frames} of {n_total} frames; outputs in {out}{maps}")
+        raise RunInterrupted(f"stopped after {system.n_frames} of {n_total} frames; outputs in {out}{maps}",
+                             exit_code=stop_exit_code())
     return result
+
+
+# ---------------------------------------------------------------------------- output paths
+#: What a run writes into its output folder (``semslam run -o``), and what ``--overwrite``
+#: removes from one: these names, and Rerun recordings (``*.rrd``). Nothing else is touched.
+RUN_OUTPUTS = ("trajectory.txt", "keyframes.txt", "stats.json", "config.json", "report.html", "map")
+RUN_OUTPUT_PATTERNS = ("*.rrd",)
+
+
+def check_output_paths(out: Path, save_map: str | Path | None = None, rerun: str | Path | None = None,
+                       save_inpainted: str | Path | None = None) -> None:
+    """``OutputError`` naming the first output path that cannot be written: a folder (``--out``,
+    ``--save-inpainted``) or a file (``--save-map``, ``--rerun``) that exists as the other kind,
+    sits under a regular file, or whose nearest existing folder is not writable."""
+    _check_path(Path(out), "--out", folder=True)
+    if save_inpainted:
+        _check_path(Path(save_inpainted), "--save-inpainted", folder=True)
+    if save_map:
+        _check_path(Path(save_map), "--save-map", folder=False)
+    if rerun:
+        _check_path(Path(rerun), "--rerun", folder=False)
+
+
+def _check_path(path: Path, option: str, folder: bool) -> None:
+    if path.exists():
+        if folder and not path.is_dir():
+            raise OutputError(path, f"{option}: exists and is not a folder")
+        if not folder and path.is_dir():
+            raise OutputError(path, f"{option}: is a folder; give a file name")
+        if not os.access(path, os.W_OK):
+            raise OutputError(path, f"{option}: not writable (permission denied)")
+        return
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:  # under a regular file, exists() is False
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(path, f"{option}: cannot be created: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputError(path, f"{option}: cannot be created: no permission to write in {parent}")
+
+
+def previous_run_outputs(out: Path) -> list[Path]:
+    """The files and folders of an earlier run in ``out`` (``RUN_OUTPUTS``, ``*.rrd``)."""
+    if not out.is_dir():
+        return []
+    found = [out / name for name in RUN_OUTPUTS if (out / name).exists() or (out / name).is_symlink()]
+    for pattern in RUN_OUTPUT_PATTERNS:
+        found += sorted(p for p in out.glob(pattern) if p not in found)
+    return found
+
+
+def remove_previous_run(out: Path, keep: Iterable[str | Path | None] = ()) -> list[Path]:
+    """Remove an earlier run's outputs from ``out`` (``previous_run_outputs``; other files
+    stay); ``OutputError`` first if one of them holds a path in ``keep`` (an input of the
+    new run, e.g. ``--load-map``). Returns what was removed."""
+    found = previous_run_outputs(out)
+    for path in (Path(k).absolute() for k in keep if k):
+        for old in found:
+            if path == old.absolute() or old.absolute() in path.parents:
+                raise OutputError(old, f"--overwrite would delete {path}, which this run reads; "
+                                       "move it out of the output folder first")
+    for old in found:
+        if old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old)
+        else:
+            old.unlink()
+    return found
 
 
 def _open_recorder(path: str | Path | None, spawn: bool, system: System) -> "RerunRecorder | None":
@@ -186,9 +260,11 @@ def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total
             result = system.track_frame(packet, t_arrived if realtime else None)
             if recorder is not None:
                 _log_frame(recorder, packet, result, system)
-            if bar is not None:
-                bar.update(1)
+            if bar is not None:  # skipped frames count too: the bar ends at the sequence's total
+                bar.update(max(1, packet.frame.index + 1 - bar.n))
                 bar.set_postfix(state=result.state.value, inl=result.n_inliers, kf=system.n_keyframes, refresh=False)
+        if bar is not None:
+            bar.update(max(0, n_total - bar.n))  # the last frames skipped
     finally:
         packets.close()
         if bar is not None:

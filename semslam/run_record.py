@@ -6,7 +6,9 @@ from __future__ import annotations
 import logging
 from array import array
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +16,9 @@ from semslam.config import SystemConfig
 from semslam.core.types import RunResult, TrackResult
 from semslam.errors import EvalError
 from semslam.io.trajectory import Trajectory, read_trajectory
+
+if TYPE_CHECKING:
+    from semslam.eval.metrics import AteResult, RpeResult
 
 log = logging.getLogger(__name__)
 
@@ -83,9 +88,20 @@ def timing_stats(values: Sequence[float]) -> dict[str, float]:
     return {"median": float(np.median(a)), "mean": float(a.mean()), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
 
 
-def evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, result: RunResult,
-              report: bool) -> None:
-    """ATE (SE(3) for RGB-D, Sim(3) for monocular) and RPE over 1 s, into ``result``; the HTML report."""
+@dataclass
+class Evaluation:
+    """What ``evaluate`` measured, kept for the report (written later, after the maps it shows)."""
+
+    gt: Trajectory
+    traj: Trajectory
+    ate: AteResult
+    rpe: RpeResult
+    ate_se3: AteResult | None
+
+
+def evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, result: RunResult) -> Evaluation | None:
+    """ATE (SE(3) for RGB-D, Sim(3) for monocular) and RPE over 1 s, into ``result``; the
+    evaluation for ``write_run_report`` (None when the trajectory cannot be evaluated)."""
     from semslam.eval.metrics import ate, rpe
 
     gt = read_trajectory(gt_path)
@@ -96,7 +112,7 @@ def evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, r
     except EvalError as exc:
         log.warning("evaluation skipped: %s", exc)
         result.eval_error = str(exc)
-        return
+        return None
     result.ate, result.ate_alignment = ate_res.stats, align
     if ate_se3 is not None:
         result.ate_se3, result.ate_sim3_scale = ate_se3.stats, float(ate_res.scale)
@@ -105,15 +121,19 @@ def evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, out: Path, r
     except EvalError as exc:
         log.warning("RPE skipped: %s", exc)
         result.eval_error = str(exc)
-        return
+        return None
     result.rpe_trans_1s, result.rpe_rot_deg_1s = rpe_res.trans_stats, rpe_res.rot_stats
-    if report:
-        from semslam.eval.report import write_report
+    return Evaluation(gt, traj, ate_res, rpe_res, ate_se3)
 
-        extra = {"preset": config.preset, "frames": result.frames, "tracked": result.tracked_frames,
-                 "lost": result.lost_frames, "keyframes": result.keyframes,
-                 "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
-        write_report(out / "report.html", gt, traj, ate_res, rpe_res,
-                     title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra,
-                     map_dir=out / "map", ate_se3=ate_se3)
-        result.paths["report"] = str(out / "report.html")
+
+def write_run_report(out: Path, evaluation: Evaluation, config: SystemConfig, result: RunResult) -> None:
+    """``report.html`` (plots of the evaluation, views of ``out/map``), into ``result.paths``."""
+    from semslam.eval.report import write_report
+
+    extra = {"preset": config.preset, "frames": result.frames, "tracked": result.tracked_frames,
+             "lost": result.lost_frames, "keyframes": result.keyframes,
+             "median ms/frame": round(result.ms_per_frame["median"], 2), "fps (wall)": round(result.fps, 1)}
+    write_report(out / "report.html", evaluation.gt, evaluation.traj, evaluation.ate, evaluation.rpe,
+                 title=f"semslam {config.preset}: {Path(result.sequence).name}", extra=extra,
+                 map_dir=out / "map", ate_se3=evaluation.ate_se3)
+    result.paths["report"] = str(out / "report.html")

@@ -178,12 +178,17 @@ def lower_thread_priority(increment: int | None = None) -> bool:
 PARENT_POLL_S = 0.5
 
 _stop_requested = False
+#: The signal that asked for the stop (None: asked for in code, counted as SIGINT).
+_stop_signal: int | None = None
+_SIGINT = 2  # signal.SIGINT on every platform Python runs on
 
 
-def request_stop() -> None:
-    """Ask the run in progress to stop after the current frame (what Ctrl-C / SIGTERM do)."""
-    global _stop_requested
+def request_stop(signum: int | None = None) -> None:
+    """Ask the run in progress to stop after the current frame (what Ctrl-C / SIGTERM do);
+    ``signum``: the signal that asked, for the exit code (``stop_exit_code``)."""
+    global _stop_requested, _stop_signal
     _stop_requested = True
+    _stop_signal = signum
 
 
 def stop_requested() -> bool:
@@ -191,16 +196,24 @@ def stop_requested() -> bool:
     return _stop_requested
 
 
+def stop_exit_code() -> int:
+    """128 + the number of the signal that asked for the stop, as shells report a command a
+    signal ended: 130 for SIGINT (and a stop asked for in code), 143 for SIGTERM."""
+    return 128 + (_stop_signal if _stop_signal is not None else _SIGINT)
+
+
 def clear_stop() -> None:
-    global _stop_requested
+    global _stop_requested, _stop_signal
     _stop_requested = False
+    _stop_signal = None
 
 
 class StopOnSignals:
     """While active (``with StopOnSignals():`` in the main thread), the first SIGINT or
     SIGTERM asks the run to stop after the current frame, so it shuts its threads and
-    processes down and writes what it has; a second one exits at once (code 130), for a
-    user who will not wait. The previous handlers come back on exit."""
+    processes down and writes what it has; a second one exits at once (128 + its number:
+    130 for SIGINT, 143 for SIGTERM), for a user who will not wait. The previous handlers
+    come back on exit."""
 
     SIGNALS = ("SIGINT", "SIGTERM")
 
@@ -232,8 +245,8 @@ class StopOnSignals:
         # raises "reentrant call" out of the handler into whatever the main thread was doing.
         if stop_requested():
             _say("\nsemslam: stopped at once (second interrupt); outputs not written\n")
-            os._exit(130)
-        request_stop()
+            os._exit(128 + int(signum))
+        request_stop(int(signum))
         _say("\nsemslam: stopping after this frame and writing what exists (interrupt again to abort)\n")
 
 

@@ -130,13 +130,14 @@ def test_run_takes_the_readout_from_the_sequence(tmp_path: Path, capsys: pytest.
     seq = write_tum_folder(tmp_path / "seq", n=3)
     (seq / "sequence.json").write_text(json.dumps({"config": {"rolling_shutter_ms": 25.0}}))
     out = tmp_path / "run"
-    main(["run", str(seq), "-o", str(out), "-p", "orb", "--sequential", "--no-report", "-q", "--map", "none"])
+    main(["run", str(seq), "-o", str(out), "-p", "orb", "--sequential", "--no-report", "--map", "none"])
     assert json.loads((out / "config.json").read_text())["slam"]["rolling_shutter_ms"] == 25.0
     assert "25 ms readout from" in capsys.readouterr().out
     out2 = tmp_path / "run2"
     main(["run", str(seq), "-o", str(out2), "-p", "orb", "--sequential", "--no-report", "-q", "--map", "none",
           "--set", "slam.rolling_shutter_ms=5"])
     assert json.loads((out2 / "config.json").read_text())["slam"]["rolling_shutter_ms"] == 5.0
+    assert capsys.readouterr().out == ""  # -q: nothing but errors, the note neither
 
 
 @pytest.mark.slow

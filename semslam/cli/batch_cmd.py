@@ -38,7 +38,7 @@ def register(app: typer.Typer) -> None:
         if no_ray:
             from semslam.cli.run_cmd import stop_on_signals
 
-            with stop_on_signals():  # Ctrl-C: the current run writes what it has, the batch stops (exit 130)
+            with stop_on_signals():  # Ctrl-C / SIGTERM: this run writes what it has, the batch stops (130 / 143)
                 summary = run_batch(plan, out_dir, executor, resume=not rerun, progress=not quiet)
         else:
             summary = run_batch(plan, out_dir, executor, resume=not rerun, progress=not quiet)

