@@ -34,6 +34,9 @@ KNOWN_CAMERAS: dict[str, tuple[float, ...]] = {
     "icl": (481.20, 480.00, 319.50, 239.50),
 }
 DEFAULT_CAMERA = (525.0, 525.0, 319.5, 239.5)
+#: Sources of intrinsics semslam guessed (not given by the user): a folder name, the defaults.
+FROM_FOLDER_NAME = "calibration (from folder name)"
+DEFAULT_SOURCE = "default Kinect intrinsics"
 
 _NAME_PATTERNS: list[tuple[str, str]] = [
     (r"freiburg1|fr1", "freiburg1"),
@@ -88,7 +91,7 @@ def camera_from_folder_name(folder: Path) -> PinholeCamera | None:
     name = folder.resolve().name.lower()
     for pattern, key in _NAME_PATTERNS:
         if re.search(pattern, name):
-            return camera_from_values(KNOWN_CAMERAS[key], f"{key} calibration (from folder name)")
+            return camera_from_values(KNOWN_CAMERAS[key], f"{key} {FROM_FOLDER_NAME}")
     return None
 
 
@@ -108,7 +111,26 @@ def resolve_camera(folder: Path, camera_option: str | PinholeCamera | None = Non
         "%s: no --camera, no calib.txt and no known dataset name; using Kinect defaults 525 525 319.5 239.5",
         folder,
     )
-    return camera_from_values(DEFAULT_CAMERA, "default Kinect intrinsics")
+    return camera_from_values(DEFAULT_CAMERA, DEFAULT_SOURCE)
+
+
+def check_principal_point(camera: PinholeCamera) -> None:
+    """ConfigError when intrinsics the user gave (``--camera``, a calib.txt) put the principal
+    point outside the image they are used with (size known: ``camera.width > 0``); a guessed
+    calibration is left alone (a resized TUM copy still runs, with the published values)."""
+    w, h = camera.width, camera.height
+    if w <= 0 or camera.source.endswith(FROM_FOLDER_NAME) or camera.source == DEFAULT_SOURCE:
+        return
+    if not (0.0 <= camera.cx <= w and 0.0 <= camera.cy <= h):
+        raise ConfigError(f"{camera.source}: principal point cx={camera.cx:g} cy={camera.cy:g} lies outside the "
+                          f"{w}x{h} image (expected 0 <= cx <= {w}, 0 <= cy <= {h})")
+
+
+def check_depth_scale(value: float | None) -> float | None:
+    """``--depth-scale``: depth units per metre, a finite number > 0 (None: the config's)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"--depth-scale: expected depth units per metre, a number > 0 (TUM 5000), got {value:g}")
+    return value
 
 
 def rolling_shutter_ms_from_folder(folder: Path) -> float | None:
