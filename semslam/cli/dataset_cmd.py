@@ -30,12 +30,18 @@ def register(app: typer.Typer) -> None:
         if family is not None and family not in FAMILIES:
             raise typer.BadParameter(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
         root = data_dir or default_dir()
+        rows = [(entry.name, "yes" if is_downloaded(entry, root) else "", entry.folder, entry.url)
+                for entry in CATALOGUE.values() if family is None or entry.family == family]
+        if not console.is_terminal:  # piped: whole names, one per line, for grep / cut / xargs
+            for row in rows:
+                typer.echo("\t".join(value or "-" for value in row))
+            return
         table = Table(title=f"datasets (data folder {root})")
-        for col in ("name", "downloaded", "folder", "archive"):
-            table.add_column(col)
-        for entry in CATALOGUE.values():
-            if family is None or entry.family == family:
-                table.add_row(entry.name, "yes" if is_downloaded(entry, root) else "", entry.folder, entry.url)
+        table.add_column("name", no_wrap=True)  # names are what users copy: never cut
+        for col in ("downloaded", "folder", "archive"):
+            table.add_column(col, overflow="fold")
+        for row in rows:
+            table.add_row(*row)
         console.print(table)
 
     @dataset_app.command("get")
