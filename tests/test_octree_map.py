@@ -106,7 +106,8 @@ def test_files_reopen_with_octomap_open3d_and_plyfile(tmp_path: Path) -> None:
     np.testing.assert_allclose(v["occupancy"], vx.occupancy, atol=1e-6)
 
     legend = json.loads(paths["octree_classes"].read_text())
-    assert legend["2"] == {"name": "floor", "colour": [152, 223, 138], "occupied_voxels": int((vx.labels == 2).sum())}
+    assert legend["2"] == {"name": "floor", "colour": [152, 223, 138], "occupied_voxels": int((vx.labels == 2).sum()),
+                           "possible": True}
     assert read_class_table(paths["octree_classes"])[31] == "person"  # what eval-map reads
 
 

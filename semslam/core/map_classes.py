@@ -153,22 +153,41 @@ def _resample_nearest(img: NDArray[Any], shape: tuple[int, int]) -> NDArray[Any]
     return img[rows[:, None], cols[None, :]]
 
 
-def classes_table(counts: dict[int, int] | None = None, count_key: str = "count") -> dict[str, dict[str, Any]]:
+def possible_classes(names: dict[int, str] | None) -> set[int]:
+    """The map classes a segmenter with label set ``names`` can give (unknown always: the
+    pixels it labels background, and every pixel without labels)."""
+    return {UNKNOWN} | {class_index(n) for n in (names or {}).values()}
+
+
+def possible_class_names(names: dict[int, str]) -> list[str]:
+    """The real classes (not background / unknown) of a segmenter's label set, by map index."""
+    return [CLASS_NAMES[i] for i in sorted(possible_classes(names) - {UNKNOWN})]
+
+
+def classes_table(counts: dict[int, int] | None = None, count_key: str = "count",
+                  possible: set[int] | None = None) -> dict[str, dict[str, Any]]:
     """The legend as JSON: ``{"index": {"name": ..., "colour": [r, g, b]}}`` for every class
     (the layout ``semslam.eval.map_eval.read_class_table`` reads), with ``count_key`` where
-    ``counts`` gives how many voxels or points a map has of a class."""
+    ``counts`` gives how many voxels or points a map has of a class, and ``"possible"``
+    (whether the run's segmenter could give the class at all) where ``possible`` is known:
+    a class at 0 that was never possible says nothing about the scene."""
     table: dict[str, dict[str, Any]] = {}
     for i, name in enumerate(CLASS_NAMES):
         row: dict[str, Any] = {"name": name, "colour": [int(c) for c in CLASS_COLOURS[i]]}
         if counts is not None:
             row[count_key] = int(counts.get(i, 0))
+        if possible is not None:
+            row["possible"] = i in possible
         table[str(i)] = row
     return table
 
 
-def write_classes_json(path: Path, labels: NDArray[np.integer], count_key: str) -> Path:
-    """A map's legend next to it, with how many of its elements each class has."""
+def write_classes_json(path: Path, labels: NDArray[np.integer], count_key: str,
+                       possible: set[int] | None = None) -> Path:
+    """A map's legend next to it, with how many of its elements each class has and, given
+    ``possible``, which classes the segmenters of its keyframes could give."""
     present, n = np.unique(np.asarray(labels, np.int64), return_counts=True)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(classes_table(dict(zip(present.tolist(), n.tolist())), count_key), indent=1))
+    table = classes_table(dict(zip(present.tolist(), n.tolist())), count_key, possible)
+    path.write_text(json.dumps(table, indent=1))
     return path

@@ -41,7 +41,7 @@ from semslam.core.protocols import KeyframeSnapshot
 from semslam.io.ply import write_vertex_ply
 from semslam.reconstruction import voxels
 from semslam.reconstruction.backproject import pose_moved, static_points, stride_for_voxel
-from semslam.core.map_classes import CLASS_COLOURS, UNKNOWN, write_classes_json
+from semslam.core.map_classes import CLASS_COLOURS, UNKNOWN, possible_classes, write_classes_json
 
 # Samples per voxel edge at the keyframe's median depth. With discretize=True OctoMap casts
 # one ray per end voxel, so two samples cost little more than one but cover grazing floors
@@ -96,12 +96,15 @@ class SemanticOctree:
         self._tree = self._new_tree()
         self._keyframes: dict[int, _Keyframe] = {}
         self._lock = threading.Lock()
+        self._possible = possible_classes(None)  # what the keyframes' segmenters could label
         self.insert_seconds: list[float] = []  # per keyframe, for the run's stats
 
     # ------------------------------------------------------------------ MapBuilder contract
     def add_keyframe(self, snapshot: KeyframeSnapshot) -> None:
         stride = self.stride or stride_for_voxel(snapshot, self.resolution / SAMPLES_PER_VOXEL, self.max_depth_m)
         sp = static_points(snapshot, stride, self.max_depth_m)
+        if snapshot.labels is not None:
+            self._possible |= possible_classes(snapshot.labels.names)
         kf = _Keyframe(sp.points_c, sp.class_ids, sp.confidence, np.array(snapshot.T_wc, np.float64))
         with self._lock:
             self._keyframes[snapshot.keyframe_id] = kf
@@ -128,7 +131,8 @@ class SemanticOctree:
                                "z": found.centres[:, 2].astype(np.float32), "red": colours[:, 0],
                                "green": colours[:, 1], "blue": colours[:, 2],
                                "label": found.labels.astype(np.int32), "occupancy": found.occupancy.astype(np.float32)})
-        legend = write_classes_json(out_dir / "octree_classes.json", found.labels, "occupied_voxels")
+        legend = write_classes_json(out_dir / "octree_classes.json", found.labels, "occupied_voxels",
+                                    self._possible)
         return {"octree": bt, "octree_semantic": ply, "octree_classes": legend}
 
     def close(self) -> None:

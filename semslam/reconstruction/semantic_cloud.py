@@ -28,7 +28,7 @@ from semslam.core.protocols import KeyframeSnapshot
 from semslam.io.ply import write_vertex_ply
 from semslam.reconstruction import voxels
 from semslam.reconstruction.backproject import StaticPoints, static_points, stride_for_voxel
-from semslam.core.map_classes import CLASS_COLOURS, UNKNOWN, write_classes_json
+from semslam.core.map_classes import CLASS_COLOURS, UNKNOWN, possible_classes, write_classes_json
 
 
 @dataclass
@@ -55,10 +55,13 @@ class SemanticCloud:
         self._points: dict[int, StaticPoints] = {}
         self._poses: dict[int, NDArray[np.float64]] = {}
         self._lock = threading.Lock()
+        self._possible = possible_classes(None)  # what the keyframes' segmenters could label
 
     def add_keyframe(self, snapshot: KeyframeSnapshot) -> None:
         stride = self.stride or stride_for_voxel(snapshot, self.voxel_m, self.max_depth_m)
         sp = static_points(snapshot, stride, self.max_depth_m)
+        if snapshot.labels is not None:
+            self._possible |= possible_classes(snapshot.labels.names)
         with self._lock:
             self._points[snapshot.keyframe_id] = sp
             self._poses[snapshot.keyframe_id] = np.array(snapshot.T_wc, np.float64)
@@ -90,7 +93,8 @@ class SemanticCloud:
                                 "blue": c.rgb[:, 2], "label": c.labels.astype(np.int32),
                                 "class_red": cc[:, 0], "class_green": cc[:, 1], "class_blue": cc[:, 2],
                                 "count": c.counts.astype(np.int32)})
-        legend = write_classes_json(out_dir / "semantic_cloud_classes.json", c.labels, "points")
+        legend = write_classes_json(out_dir / "semantic_cloud_classes.json", c.labels, "points",
+                                    self._possible)
         return {"semantic_cloud": path, "semantic_cloud_classes": legend}
 
     def close(self) -> None:

@@ -8,6 +8,7 @@ absence is a ConfigError that says what to install instead of an ImportError at 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable
 
 import cv2
@@ -20,6 +21,13 @@ from semslam.core.types import LabelMap
 from semslam.errors import ConfigError
 from semslam.config import SemanticsConfig
 from semslam.core.labels import KNOWN_CLASS_NAMES
+from semslam.core.map_classes import possible_class_names
+
+log = logging.getLogger(__name__)
+
+#: A segmenter with this many classes or fewer (besides background) is named at start-up.
+FEW_CLASSES = 3
+_TOLD_FEW_CLASSES: set[str] = set()
 
 # Optional package (import name) -> what to install, for the error message.
 _INSTALL_HINTS: dict[str, str] = {
@@ -62,7 +70,19 @@ def create_segmenter(cfg: SemanticsConfig) -> Segmenter:
     segmenter: Segmenter = factory(cfg)
     if segmenter.names is not None:
         dynamic_ids(segmenter.names, cfg.dynamic_classes)  # report a bad class list now, not on frame 1
+        _say_if_few_classes(name, segmenter.names)
     return segmenter
+
+
+def _say_if_few_classes(backend: str, names: dict[int, str]) -> None:
+    """Warn once per backend and process when a segmenter knows only a few classes (the bundled
+    person segmenters): a user reading the maps should know the rest is 'unknown' by design."""
+    known = possible_class_names(names)
+    if len(known) > FEW_CLASSES or backend in _TOLD_FEW_CLASSES:
+        return
+    _TOLD_FEW_CLASSES.add(backend)
+    log.warning("segmenter %s knows only: %s; the maps will label everything else 'unknown'", backend,
+                ", ".join(known) or "no class")
 
 
 def dynamic_ids(names: dict[int, str], dynamic_classes: Iterable[str]) -> NDArray[np.uint8]:
