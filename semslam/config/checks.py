@@ -223,18 +223,19 @@ RULES: dict[type, dict[str, Rule]] = {
 }
 
 
-def _ordered(lo_key: str, hi_key: str, strict: bool = True) -> Callable[[Any], str | None]:
+def _ordered(lo_key: str, hi_key: str, strict: bool = True) -> Callable[[Any, str], str | None]:
     """A check that field ``lo_key`` is below (or, not strict, at most) ``hi_key``."""
-    def check(section: Any) -> str | None:
+    def check(section: Any, prefix: str) -> str | None:
         lo, hi = getattr(section, lo_key), getattr(section, hi_key)
         if lo < hi or (not strict and lo == hi):
             return None
-        return f"{lo_key} / {hi_key}: expected {lo_key} {'<' if strict else '<='} {hi_key}, got {lo} / {hi}"
+        return (f"{prefix}{lo_key} / {prefix}{hi_key}: expected {lo_key} {'<' if strict else '<='} {hi_key}, "
+                f"got {lo} / {hi}")
     return check
 
 
-#: Checks between two fields of one section (a message without the section, or None).
-CROSS_CHECKS: dict[type, tuple[Callable[[Any], str | None], ...]] = {
+#: Checks between two fields of one section: (section, "section.") -> a message, or None.
+CROSS_CHECKS: dict[type, tuple[Callable[[Any, str], str | None], ...]] = {
     s.FeatureConfig: (_ordered("fast_min_threshold", "fast_threshold", strict=False),),
     s.FrameToKeyframeConfig: (_ordered("min_depth_m", "max_depth_m"),),
     s.SdfSlamConfig: (_ordered("min_depth_m", "max_depth_m"),),
@@ -280,6 +281,6 @@ def check_values(section: Any, where: str = "") -> None:
             raise ConfigError(f"{key}: {problem}")
     prefix = f"{where}." if where else ""
     for cross in CROSS_CHECKS.get(type(section), ()):
-        problem = cross(section)
+        problem = cross(section, prefix)
         if problem is not None:
-            raise ConfigError(prefix + problem)
+            raise ConfigError(problem)

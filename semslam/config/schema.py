@@ -140,7 +140,7 @@ class SdfSlamConfig:
         if self.min_inliers < 6:
             raise ConfigError(f"sdf_slam.min_inliers: PnP needs at least 6, got {self.min_inliers}")
         if not 0.0 < self.min_depth_m < self.max_depth_m:
-            raise ConfigError(f"sdf_slam.min_depth_m / max_depth_m: expected 0 < min < max, "
+            raise ConfigError(f"sdf_slam.min_depth_m / sdf_slam.max_depth_m: expected 0 < min < max, "
                               f"got {self.min_depth_m} / {self.max_depth_m}")
         if self.depth_alignment not in ("none", "scale", "power"):
             raise ConfigError(f"sdf_slam.depth_alignment: expected none, scale or power, got {self.depth_alignment!r}")
@@ -148,9 +148,9 @@ class SdfSlamConfig:
             raise ConfigError(f"sdf_slam.min_parallax_deg: expected >= 0 (0 = off), got {self.min_parallax_deg}")
         if self.alignment_min_points < 3:
             raise ConfigError(f"sdf_slam.alignment_min_points: expected >= 3, got {self.alignment_min_points}")
-        if self.global_every < 1 or self.global_pairs < 0:
-            raise ConfigError(f"sdf_slam.global_every / global_pairs: expected >= 1 / >= 0, "
-                              f"got {self.global_every} / {self.global_pairs}")
+        from semslam.config.checks import check_values  # the table imports this module
+
+        check_values(self, "sdf_slam")  # every field's range (global_every, global_pairs, ...)
 
 
 @dataclass
