@@ -183,7 +183,7 @@ def tiny(seq: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[int, Path]
 
 
 @pytest.mark.parametrize("side", [1, 8])
-@pytest.mark.parametrize("preset,extractor,minimum", [("orb", "orb_slam2", 138), ("f2kf", "orb_opencv", 31)])
+@pytest.mark.parametrize("preset,extractor,minimum", [("orb", "orb_slam2", 39), ("f2kf", "orb_opencv", 31)])
 def test_tiny_images_are_refused_naming_file_size_and_minimum(side: int, preset: str, extractor: str, minimum: int,
                                                               tiny: dict[int, Path], tmp_path: Path,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
@@ -193,11 +193,19 @@ def test_tiny_images_are_refused_naming_file_size_and_minimum(side: int, preset:
     assert f"features.extractor {extractor} needs at least {minimum}x{minimum}" in line
 
 
-def test_minimum_follows_the_pyramid(seq: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """12 levels of 1.2 need a 287 px image: the 320x240 render is refused, and says why."""
-    line = run(capsys, seq, tmp_path / "out", "--set", "features.n_levels=12").error_line
-    assert "image is 320x240 px" in line and "needs at least 287x287" in line and "n_levels=12" in line
-    assert run(capsys, seq, tmp_path / "ok", "--set", "features.n_levels=4", "--max-frames", "2").rc == 0
+def test_pyramid_levels_without_room_are_named(seq: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                               caplog: pytest.LogCaptureFixture) -> None:
+    """12 levels of 1.2 on 240 px: level 11 is 240 / 1.2^11 = 32 px, under 39 (2 x EDGE_THRESHOLD + 1);
+    14 levels: 11-13 (level 10 rounds to 39)."""
+    with caplog.at_level(logging.WARNING):
+        r = run(capsys, seq, tmp_path / "out", "--set", "features.n_levels=12", "--max-frames", "2")
+        r14 = run(capsys, seq, tmp_path / "out14", "--set", "features.n_levels=14", "--max-frames", "2")
+    assert r.rc == 0 and r14.rc == 0, r.err + r14.err
+    said = [rec.getMessage() for rec in caplog.records if "pyramid level" in rec.getMessage()]
+    assert said == ["320x240 px images: pyramid level 11 of features.n_levels=12 (scale_factor 1.2) under 39 px "
+                    "find no keypoints; features.n_levels=11 fits",
+                    "320x240 px images: pyramid levels 11-13 of features.n_levels=14 (scale_factor 1.2) under 39 px "
+                    "find no keypoints; features.n_levels=11 fits"]
 
 
 # --- 4. semslam eval: evo's flags, evo's numbers ----------------------------------------

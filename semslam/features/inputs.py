@@ -3,7 +3,7 @@ smallest image the configured extractor can find keypoints in."""
 
 from __future__ import annotations
 
-import math
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,13 +20,15 @@ if TYPE_CHECKING:
     from semslam.config import FeatureConfig
     from semslam.io.sequence import Sequence
 
+log = logging.getLogger(__name__)
+
 #: ORB-SLAM keeps keypoints EDGE_THRESHOLD px from every border of a level, so a level
 #: holds one only if it is at least this wide and high.
 MIN_LEVEL_SIDE = 2 * EDGE_THRESHOLD + 1
-#: Extractors on ORB-SLAM's fixed pyramid (features.n_levels levels, each must hold a
-#: keypoint); qtree_orb picks its level count from the image size, so only level 0 must.
+#: Extractors on ORB-SLAM's pyramid and border: level 0 must hold a keypoint. orb_slam2's
+#: levels are fixed (features.n_levels); qtree_orb picks its level count from the image size.
+ORB_PYRAMIDS = ("orb_slam2", "qtree_orb")
 FIXED_PYRAMID = ("orb_slam2",)
-ADAPTIVE_PYRAMID = ("qtree_orb",)
 
 
 def check_extractor_inputs(gray: NDArray[np.uint8], mask: NDArray[np.uint8] | None
@@ -45,23 +47,26 @@ def check_extractor_inputs(gray: NDArray[np.uint8], mask: NDArray[np.uint8] | No
     return gray, mask
 
 
+def _canonical(extractor: str) -> str:
+    return ALIASES["extractor"].get(extractor, extractor)
+
+
 def min_image_side(cfg: FeatureConfig) -> tuple[int, str]:
-    """The smallest image width/height the configured extractor can use, and why: on ORB-SLAM's
-    pyramid the top level (side / scale_factor^(n_levels - 1), rounded as the pyramid does)
-    must hold a keypoint, i.e. be 2 x EDGE_THRESHOLD + 1 px; other extractors need one
-    descriptor patch (PATCH_SIZE px)."""
-    name = ALIASES["extractor"].get(cfg.extractor, cfg.extractor)
-    if name in ADAPTIVE_PYRAMID:
-        return MIN_LEVEL_SIDE, f"keypoints are kept {EDGE_THRESHOLD} px from each border"
-    if name not in FIXED_PYRAMID:
-        return PATCH_SIZE, f"one {PATCH_SIZE} px descriptor patch"
-    top = cfg.n_levels - 1
-    side = max(MIN_LEVEL_SIDE, math.floor((MIN_LEVEL_SIDE - 0.5) * cfg.scale_factor ** top))
-    while level_sizes(side, side, cfg.n_levels, cfg.scale_factor)[-1][0] < MIN_LEVEL_SIDE:
-        side += 1
-    return side, (f"its top pyramid level (features.n_levels={cfg.n_levels}, scale_factor={cfg.scale_factor:g}) "
-                  f"must be {MIN_LEVEL_SIDE} px to hold a keypoint {EDGE_THRESHOLD} px from each border; "
-                  "fewer features.n_levels need less")
+    """The smallest image width/height the configured extractor can use, and why: on
+    ORB-SLAM's pyramid, level 0 must hold a keypoint EDGE_THRESHOLD px from each border
+    (2 x EDGE_THRESHOLD + 1 px); other extractors need one descriptor patch (PATCH_SIZE px)."""
+    if _canonical(cfg.extractor) in ORB_PYRAMIDS:
+        return MIN_LEVEL_SIDE, f"ORB keeps keypoints {EDGE_THRESHOLD} px from each border"
+    return PATCH_SIZE, f"one {PATCH_SIZE} px descriptor patch"
+
+
+def levels_without_room(cfg: FeatureConfig, width: int, height: int) -> list[int]:
+    """Levels of orb_slam2's pyramid (features.n_levels, scale_factor) too small at this
+    image size to hold a keypoint: they find nothing, and their share of n_features is lost."""
+    if _canonical(cfg.extractor) not in FIXED_PYRAMID:
+        return []
+    sizes = level_sizes(width, height, cfg.n_levels, cfg.scale_factor)
+    return [level for level, (w, h) in enumerate(sizes) if min(w, h) < MIN_LEVEL_SIDE]
 
 
 def check_image_size(cfg: FeatureConfig, width: int, height: int, source: str | Path) -> None:
@@ -85,3 +90,9 @@ def check_sequence_images(seq: Sequence, cfg: FeatureConfig) -> None:
         source = first.rgb_path if first is not None and first.rgb_path is not None else seq.root
         check_image_size(cfg, cam.width, cam.height, source)
     check_principal_point(cam)
+    empty = levels_without_room(cfg, cam.width, cam.height)
+    if empty:
+        which = f"level {empty[0]}" if len(empty) == 1 else f"levels {empty[0]}-{empty[-1]}"
+        log.warning("%dx%d px images: pyramid %s of features.n_levels=%d (scale_factor %g) under %d px "
+                    "find no keypoints; features.n_levels=%d fits", cam.width, cam.height, which,
+                    cfg.n_levels, cfg.scale_factor, MIN_LEVEL_SIDE, empty[0])
