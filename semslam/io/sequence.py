@@ -354,7 +354,8 @@ class ImageFolderSequence(Sequence):
             if not self._paths:
                 raise DataError(folder, f"no images ({', '.join(IMAGE_SUFFIXES)}) in folder")
             self._timestamps = self._folder_timestamps(fps)
-        self.camera = with_image_size(resolve_camera(self.root, camera), self._paths[0] if self._paths else None)
+        first = next((p for p in self._paths if p.is_file()), None)  # a missing one is skipped when reached
+        self.camera = with_image_size(resolve_camera(self.root, camera), first)
         self.groundtruth_path = usable_groundtruth(self.root)
 
     def _folder_timestamps(self, fps: float) -> NDArray[np.float64]:
