@@ -139,6 +139,8 @@ def test_every_preset_passes_its_checks() -> None:
     ("maps.octree_resolution_m=0", "maps.octree_resolution_m: expected a number in [0.001, 10], got 0.0"),
     ("features.fast_min_threshold=30", "features.fast_min_threshold / features.fast_threshold: expected"),
     ("tracking.method=nope", "tracking.method: unknown tracker 'nope'"),
+    ("semantics.input_width=16", "semantics.input_width: expected 0 or >= 32"),
+    ("depth_scale=-5000", "depth_scale: expected a number > 0, got -5000"),
 ])
 def test_reported_cases_refused_before_the_first_frame(override: str, expected: str, seq: Path, tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]) -> None:

@@ -234,12 +234,22 @@ def _ordered(lo_key: str, hi_key: str, strict: bool = True) -> Callable[[Any, st
     return check
 
 
+def _off_or_at_least(key: str, least: int, why: str) -> Callable[[Any, str], str | None]:
+    """A check that field ``key`` is 0 (off) or at least ``least``."""
+    def check(section: Any, prefix: str) -> str | None:
+        value = getattr(section, key)
+        return None if value == 0 or value >= least else f"{prefix}{key}: expected 0 or >= {least} ({why}), got {value}"
+    return check
+
+
 #: Checks between two fields of one section: (section, "section.") -> a message, or None.
 CROSS_CHECKS: dict[type, tuple[Callable[[Any, str], str | None], ...]] = {
     s.FeatureConfig: (_ordered("fast_min_threshold", "fast_threshold", strict=False),),
     s.FrameToKeyframeConfig: (_ordered("min_depth_m", "max_depth_m"),),
     s.SdfSlamConfig: (_ordered("min_depth_m", "max_depth_m"),),
     s.SlamConfig: (_ordered("min_frames", "max_frames", strict=False),),
+    # The segmentation networks downsample by up to 32 (STDC's last stage).
+    s.SemanticsConfig: (_off_or_at_least("input_width", 32, "0 = native width; networks downsample by 32"),),
 }
 
 
