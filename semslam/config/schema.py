@@ -148,9 +148,10 @@ class SdfSlamConfig:
             raise ConfigError(f"sdf_slam.min_parallax_deg: expected >= 0 (0 = off), got {self.min_parallax_deg}")
         if self.alignment_min_points < 3:
             raise ConfigError(f"sdf_slam.alignment_min_points: expected >= 3, got {self.alignment_min_points}")
-        from semslam.config.checks import check_values  # the table imports this module
-
-        check_values(self, "sdf_slam")  # every field's range (global_every, global_pairs, ...)
+        if self.global_every < 1:
+            raise ConfigError(f"sdf_slam.global_every: expected >= 1, got {self.global_every}")
+        if self.global_pairs < 0:
+            raise ConfigError(f"sdf_slam.global_pairs: expected >= 0, got {self.global_pairs}")
 
 
 @dataclass
