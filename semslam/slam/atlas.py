@@ -52,6 +52,9 @@ class Atlas:
         self._world_change: NDArray[np.float64] | None = None
         # Tracking left a map by relocalising in another: see ``activate``.
         self._merge_hints: list[MergeHint] = []
+        # Every merge check (slam/merge_check.py), for stats.json: rejected ones by reason.
+        self.merge_checks: list[dict[str, Any]] = []
+        self.merges_rejected: Counter[str] = Counter()
 
     @property
     def enabled(self) -> bool:
@@ -123,11 +126,27 @@ class Atlas:
             prev = self._world_change
             self._world_change = S if prev is None else S @ prev
 
+    def merge_checked(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], result: str,
+                      coincidences: int = 0) -> None:
+        """Record one merge check: ``result`` is "merged", "pending" (passed, waiting for more
+        keyframes to agree) or why it was refused. ``T12``: kf camera <- cand camera, the
+        transform checked, so a run's merges can be compared with ground truth afterwards."""
+        if result not in ("merged", "pending"):
+            self.merges_rejected[result] += 1
+        self.merge_checks.append({
+            "kf": kf.id, "kf_time": kf.timestamp, "kf_map": kf.map_id,
+            "cand": cand.id, "cand_time": cand.timestamp, "cand_map": cand.map_id,
+            "result": result, "coincidences": coincidences,
+            "T12": [round(float(v), 6) for v in np.asarray(T12).reshape(-1)],
+        })
+
     # ------------------------------------------------------------------ output
     def stats(self, frame_maps: Iterable[int]) -> dict[str, Any]:
         """``maps``, ``merges`` and how many trajectory frames lie in each final map's frame
-        (``frame_maps``: the map id of each tracked frame's reference keyframe)."""
-        per_map = Counter(self.resolve(m) for m in frame_maps)
+        (``frame_maps``: the map id of each tracked frame's reference keyframe, in
+        trajectory order)."""
+        final = [self.resolve(m) for m in frame_maps]
+        per_map = Counter(final)
         first = self.resolve(0)
         return {
             "maps": self.n_maps,
@@ -137,4 +156,19 @@ class Atlas:
             # first one are in that map's own frame (its first keyframe's camera).
             "trajectory_frames_by_map": {str(k): v for k, v in sorted(per_map.items())},
             "frames_outside_first_map": sum(v for k, v in per_map.items() if k != first),
+            # Which rows of trajectory.txt are in which map's frame: [first row, rows, map].
+            "trajectory_map_runs": map_runs(final),
+            "merges_rejected": dict(sorted(self.merges_rejected.items())),
+            "merge_checks": self.merge_checks,
         }
+
+
+def map_runs(frame_maps: list[int]) -> list[list[int]]:
+    """Runs of consecutive equal map ids: [first index, length, map id] each."""
+    runs: list[list[int]] = []
+    for i, m in enumerate(frame_maps):
+        if runs and runs[-1][2] == m:
+            runs[-1][1] += 1
+        else:
+            runs.append([i, 1, m])
+    return runs

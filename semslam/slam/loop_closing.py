@@ -26,6 +26,7 @@ from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.atlas import MergeHint
+from semslam.slam.merge_check import COINCIDENCES, COVISIBLES, PENDING_MISSES, MergeVerifier, PendingMerge
 from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.map_batch import normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
@@ -119,13 +120,13 @@ class LoopClosing(KeyframeWorker):
         self.rng = np.random.default_rng(config.seed)
         self.last_loop_kf_id = 0
         self.consistency = LoopConsistency(config.slam.loop_consistency)
-        # Atlas (ORB-SLAM3): the same place recognition across maps finds merges. A candidate
-        # is checked at first sight (no run of consistent keyframes): a new map may make one
-        # keyframe in seconds when the camera stays in a place it has mapped, and the merge's
-        # own check (MapMerger.refine: 50 pose inliers, relocalisation's bar) stands in for
-        # ORB-SLAM3's check of the candidate against the current keyframe's covisibles.
+        # Atlas (ORB-SLAM3): the same place recognition across maps finds merges, and each
+        # candidate must pass slam/merge_check.py (spread, depth, agreement of COINCIDENCES
+        # keyframes) before maps are welded: a wrong merge offsets a whole map for good.
         self.merger = merger
+        self.verifier = MergeVerifier(camera, config.slam.bf, self.pyr.inv_sigma2, self._match_at)
         self._hints: list[tuple[MergeHint, int]] = []  # (hint, keyframes it is still tried on)
+        self._pending: list[PendingMerge] = []  # transforms waiting for more keyframes to agree
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "loops_dropped": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
                       "global_ba_ms": [], "pose_graph_ms": [], "merges": 0}
@@ -142,18 +143,13 @@ class LoopClosing(KeyframeWorker):
     def process(self, kf: KeyFrame) -> None:
         if kf.bad:
             return
-        if self._merge_on_hints(kf):
+        if self._confirm_pending(kf) or self._merge_on_hints(kf):
             self.db.add(kf.id, kf.bow)
             return
         found = self._detect_loop(kf)
-        merge = None
-        if found is None and self.merger is not None and self.merger.mergeable():
-            merge = self._detect_merge(kf)
+        merged = found is None and self.merger is not None and self.merger.mergeable() and self._detect_merge(kf)
         self.db.add(kf.id, kf.bow)
-        if merge is not None:
-            self._merge_maps(kf, *merge)
-            return
-        if found is None:
+        if merged or found is None:
             return
         cand, T12, matched = found
         self._correct_loop(kf, cand, T12, matched)
@@ -186,10 +182,10 @@ class LoopClosing(KeyframeWorker):
             kfs = self.map.keyframes
             return [i for i in kf_ids if i in kfs and (kfs[i].map_id == map_id) == same]
 
-    def _detect_merge(self, kf: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+    def _detect_merge(self, kf: KeyFrame) -> bool:
         """ORB-SLAM3 DetectCommonRegionsFromBoW for merges: the loop query, keeping the
         candidates of other maps (the 3 best groups, as its DetectNBestCandidates), the same
-        SE(3) RANSAC and verification as a loop, then the merger's pose refit."""
+        SE(3) RANSAC and verification as a loop, then ``_check_merge``; True if merged."""
         from semslam.place.database import detect_loop_candidates
 
         covis_ids, min_score = self._query_bounds(kf)
@@ -201,10 +197,10 @@ class LoopClosing(KeyframeWorker):
             candidates = [self.map.keyframes[i] for i in cand_ids[:3] if i in self.map.keyframes]
         for cand in candidates:
             res = self._compute_se3(kf, cand)
-            refined = self.merger.refine(kf, *res) if res is not None else None
-            if refined is not None:
-                return res[0], *refined
-        return None
+            outcome = self._check_merge(kf, *res) if res is not None else None
+            if outcome is not None:
+                return outcome == "merged"
+        return False
 
     def _merge_on_hints(self, kf: KeyFrame) -> bool:
         """Tracking left a map for another by relocalising (``Atlas.activate``): try to merge
@@ -213,7 +209,10 @@ class LoopClosing(KeyframeWorker):
         ``HINT_KEYFRAMES`` (the camera usually keeps moving back towards the left map's last
         view). Each pair gets the same SE(3) RANSAC and verification as a merge found by BoW,
         or, where BoW finds too little, the motion model's bridge across the gap verified by
-        projection; then the merger's pose refit (50 inliers).
+        projection; then the same checks as any merge (``_check_merge``). The bridge is only
+        a place to look: a constant-velocity guess across a gap can be far off, and matching
+        by projection near a wrong pose on a repeated texture can agree with it, so it is
+        welded only if it passes them all.
 
         Why: the left map gets no new keyframe, so nothing of it would query the database
         again; in threaded runs tracking often loses a young map (its local mapping still
@@ -250,12 +249,85 @@ class LoopClosing(KeyframeWorker):
                         with self.map.lock:
                             T12 = left_kf.T_cw @ invert(bridge) @ invert(cand.T_cw)
                         res = self._verify_by_projection(left_kf, cand, T12)
-                    refined = self.merger.refine(left_kf, *res) if res is not None else None
-                    if refined is not None:
-                        log.debug("merge hint: kf %d (left map) vs %d", left_kf.id, cand.id)
-                        self._merge_maps(left_kf, res[0], *refined)
+                    outcome = self._check_merge(left_kf, *res) if res is not None else None
+                    if outcome is not None:  # merged, or pending for later keyframes to confirm
+                        log.debug("merge hint: kf %d (left map) vs %d: %s", left_kf.id, cand.id, outcome)
                         self._hints = []
-                        return True
+                        return outcome == "merged"
+        return False
+
+    # ---------------------------------------------------------------- merge checks
+    def _match_at(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64]) -> dict[int, MapPoint] | None:
+        """cand's neighbourhood projected into kf at ``T12`` (kf <- cand): the matches, or
+        None if too few (the merge checker's matcher)."""
+        res = self._verify_by_projection(kf, cand, T12)
+        return None if res is None else res[2]
+
+    def _check_merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]
+                     ) -> str | None:
+        """Check a candidate merge (``T12``: kf <- cand) and merge the maps if it passes and
+        ``COINCIDENCES`` keyframes agree: "merged"; one that passes with fewer waits in
+        ``_pending`` for later keyframes: "pending"; None if it failed."""
+        assert self.merger is not None
+        with self.map.lock:
+            covis = [k for k in kf.best_covisibles(COVISIBLES) if not k.bad and k.map_id == kf.map_id]
+        v = self.verifier.verify(kf, cand, T12, matched, covis)
+        atlas = self.merger.atlas
+        if not v.ok:
+            atlas.merge_checked(kf, cand, T12, str(v.reason))
+            return None
+        assert v.S is not None and v.T12 is not None and v.points is not None
+        same = [p for p in self._pending if {p.kf.map_id, p.cand.map_id} == {kf.map_id, cand.map_id}]
+        p = next((p for p in same if p.kf.map_id == kf.map_id and p.agrees(v.S)), None)
+        agree = v.confirmers | (p.confirmers if p is not None else set())  # a transform found again
+        if len(agree) < COINCIDENCES:
+            atlas.merge_checked(kf, cand, v.T12, "pending", len(agree))
+            self._pending = [q for q in self._pending if q not in same]
+            self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree))
+            return "pending"
+        atlas.merge_checked(kf, cand, v.T12, "merged", len(agree))
+        self._pending = [q for q in self._pending if q not in same]
+        self._merge_maps(kf, cand, v.T12, v.matched)
+        return "merged"
+
+    def _confirm_pending(self, kf: KeyFrame) -> bool:
+        """A new keyframe of either map of a pending transform tries to confirm it (ORB-SLAM3
+        DetectAndReffineSim3FromLastKF); enough confirmations merge the maps, ``PENDING_MISSES``
+        failures in a row drop it. True if the maps were merged."""
+        if self.merger is None or not self._pending:
+            return False
+        atlas = self.merger.atlas
+        keep: list[PendingMerge] = []
+        for n, p in enumerate(self._pending):
+            with self.map.lock:
+                a, b, here = (atlas.resolve(p.kf.map_id), atlas.resolve(p.cand.map_id), atlas.resolve(kf.map_id))
+                gone = p.kf.bad or p.cand.bad
+            if a == b or gone:
+                continue
+            if here not in (a, b):
+                keep.append(p)
+                continue
+            other, S = (p.cand, p.S) if here == a else (p.kf, invert(p.S))
+            fit = self.verifier.confirm(kf, other, S)
+            if fit is None:
+                p.misses += 1
+                if p.misses < PENDING_MISSES:
+                    keep.append(p)
+                else:
+                    atlas.merge_checked(p.kf, p.cand, p.kf.T_cw @ p.S @ p.cand.T_wc, "not_confirmed", p.coincidences)
+                continue
+            p.confirmers.add(kf.id)
+            p.misses = 0
+            T12 = fit.T_cw @ other.T_wc
+            if p.coincidences < COINCIDENCES:
+                atlas.merge_checked(kf, other, T12, "pending", p.coincidences)
+                keep.append(p)
+                continue
+            atlas.merge_checked(kf, other, T12, "merged", p.coincidences)
+            self._pending = keep + self._pending[n + 1:]  # those of these two maps are dropped later
+            self._merge_maps(kf, other, T12, fit.matched)
+            return True
+        self._pending = keep
         return False
 
     def _culled_meanwhile(self, kf: KeyFrame, cand: KeyFrame, what: str) -> bool:

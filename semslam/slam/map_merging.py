@@ -1,8 +1,8 @@
 """Merging two atlas maps that saw the same place (ORB-SLAM3 LoopClosing::MergeLocal, RGB-D).
 
-Loop closing finds the place (bag-of-words candidates in another map, covisibility
-consistency, SE(3) RANSAC and verification by projection: the same checks as a loop) and
-hands the result here; afterwards it runs the essential graph and global BA over the
+Loop closing finds the place (bag-of-words candidates in another map, SE(3) RANSAC and
+verification by projection, as for a loop), slam/merge_check.py verifies it (spread,
+depths, several keyframes agreeing) and loop closing hands the result here; afterwards it runs the essential graph and global BA over the
 merged map, as after a loop.
 
 RGB-D observes scale, so the merge is one rigid SE(3) (ORB-SLAM3 solves a Sim3 for
@@ -22,9 +22,8 @@ from functools import partial
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_only import optimize_pose
 from semslam.geometry.camera import PinholeCamera
-from semslam.geometry.se3 import invert, orthonormalize
+from semslam.geometry.se3 import invert
 from semslam.slam.atlas import Atlas
 from semslam.slam.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.local_mapping import apply_in_slices
@@ -82,57 +81,22 @@ def _window(kf: KeyFrame, n: int = 15) -> list[KeyFrame]:
 class MapMerger:
     """Moves one atlas map into another's frame and welds them; counts merges."""
 
-    def __init__(self, slam_map: Map, atlas: Atlas, fusion: PointFusion, camera: PinholeCamera, bf: float,
-                 min_inliers: int = 50) -> None:
+    def __init__(self, slam_map: Map, atlas: Atlas, fusion: PointFusion, camera: PinholeCamera, bf: float) -> None:
         self.map = slam_map
         self.atlas = atlas
         self.fusion = fusion
         self.camera = camera
         self.bf = bf
-        # Relocalisation's bar: a merge moves a whole map, so it must be as sure as a relocalisation.
-        self.min_inliers = min_inliers
 
     def mergeable(self) -> bool:
         """More than one map to merge (place recognition across maps is worth a query)."""
         return self.atlas.enabled and len(self.atlas.live_maps()) > 1
 
-    def refine(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]
-               ) -> tuple[NDArray[np.float64], dict[int, MapPoint]] | None:
-        """Optimise kf's pose in cand's world on all verified matches (pose-only, outliers
-        rejected, as relocalisation does) and keep the merge only with >= ``min_inliers``.
-
-        Why: loop closing's check (SE(3) RANSAC on ~20+ BoW matches, then >= 40 matches by
-        projection counted together with the RANSAC inliers) let a wrong transform through on
-        a repeated texture here; a loop corrects a few centimetres of drift, a merge moves a
-        map by metres, and random projection matches are not consistent with one pose (ORB-SLAM3
-        likewise optimises the merge transform and counts its inliers before merging)."""
-        idx = np.fromiter(matched, np.intp, len(matched))
-        if len(idx) < self.min_inliers:
-            return None
-        with self.map.lock:
-            pts = [matched[i] for i in idx.tolist()]
-            if any(p.bad for p in pts):
-                keep = np.array([not p.bad for p in pts])
-                idx, pts = idx[keep], [p for p, k in zip(pts, keep) if k]
-            pos = np.array([p.pos for p in pts]).reshape(-1, 3)
-            T_cand = cand.T_cw.copy()
-        if len(idx) < self.min_inliers:
-            return None
-        pyr = self.map.spec.pyramid
-        cam = self.camera
-        res = optimize_pose(T12 @ T_cand, pos, kf.xy[idx], kf.ur[idx], pyr.inv_sigma2[kf.keypoints.octave[idx]],
-                            cam.fx, cam.fy, cam.cx, cam.cy, self.bf)
-        n_in = int(res.inliers.sum())
-        log.debug("merge check kf %d vs %d: %d of %d matches inliers", kf.id, cand.id, n_in, len(idx))
-        if n_in < self.min_inliers:
-            return None
-        T12 = orthonormalize(res.T_cw) @ invert(T_cand)
-        return T12, {int(i): p for i, p, ok in zip(idx, pts, res.inliers) if ok}
-
     def merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64],
               matched: dict[int, MapPoint]) -> MergeResult:
-        """Merge kf's map and cand's map (verified by loop closing: ``T12`` kf <- cand, and
-        ``matched`` kf keypoint -> cand-side point). Local mapping is paused by the caller."""
+        """Merge kf's map and cand's map (verified by loop closing and slam/merge_check.py:
+        ``T12`` kf <- cand, and ``matched`` kf keypoint -> cand-side point). Local mapping is
+        paused by the caller."""
         move_kf_map = kf.map_id > cand.map_id  # the newer map moves into the older one's frame
         kept, moved = (cand.map_id, kf.map_id) if move_kf_map else (kf.map_id, cand.map_id)
         S = merge_transform(kf, cand, T12, move_kf_map)

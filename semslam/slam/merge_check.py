@@ -1,0 +1,238 @@
+"""Verifying a map merge before it is made (ORB-SLAM3 DetectCommonRegionsFromBoW's checks, RGB-D).
+
+A merge moves a whole map by one transform; a wrong one leaves every frame of that map
+off by as much as it is wrong, and nothing downstream (essential graph, global BA) can
+undo a rigid offset that both maps agree on afterwards. So a candidate transform found by
+place recognition (or by tracking's relocalisation hint) must pass, on the keyframe that
+found it:
+
+* a pose-only refit with at least ``MIN_INLIERS`` inliers (relocalisation's bar);
+* inliers spread over the image (``MIN_CELLS`` of a ``GRID`` of cells) and in depth
+  (``MIN_DEPTH_SPREAD``): a patch of repeated texture or one wall can fit a wrong pose;
+* the depths the keyframe measured at the inliers agree with the transformed map points'
+  depths (median relative error <= ``MAX_DEPTH_ERROR``): RGB-D sees the distance, so a
+  transform that slides along the view is caught;
+
+and then be confirmed by ``COINCIDENCES`` keyframes of the same map in all (ORB-SLAM3's
+mnMergeNumCoincidences = 3): each of the keyframe's covisibles, placed with the transform,
+must find the other map's points (``MIN_PROJECTED``), pass the depth check, and refit to a
+pose that sees the scene within ``AGREE_M`` / ``AGREE_DEG`` of where the transform put it. Keyframes made later
+in the same map confirm a pending transform the same way (``PendingMerge``), as
+ORB-SLAM3's DetectAndReffineSim3FromLastKF does; ``PENDING_MISSES`` failures in a row
+drop it.
+
+Pure numpy here; the map-side matching is passed in by loop closing.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.pose_only import optimize_pose
+from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.se3 import invert, orthonormalize
+from semslam.slam.map import KeyFrame, MapPoint
+
+#: Pose-only inliers the keyframe that found the place needs (relocalisation's bar).
+MIN_INLIERS = 50
+#: Inliers a confirming keyframe needs (ORB-SLAM3's nProjMatches for the covisibles).
+MIN_PROJECTED = 30
+#: The image is cut into GRID x GRID cells; inliers must fall in MIN_CELLS of them.
+GRID = 4
+MIN_CELLS = 5
+#: (90th - 10th percentile) / median of the inliers' depths, at least.
+MIN_DEPTH_SPREAD = 0.10
+#: Median |measured - predicted| / measured depth of the inliers, at most.
+MAX_DEPTH_ERROR = 0.04
+#: Keyframes that must agree on the transform (the finder included).
+COINCIDENCES = 3
+#: A confirming keyframe's refit may move the scene it sees (``scene_shift``) and turn
+#: from its predicted pose by this much.
+AGREE_M = 0.05
+AGREE_DEG = 2.0
+#: Best covisibles of the finder tried as confirmations.
+COVISIBLES = 5
+#: Later keyframes failing in a row before a pending transform is dropped (ORB-SLAM3 gives
+#: up after 2 of its keyframes; here a keyframe of either map may try, hence one more).
+PENDING_MISSES = 3
+
+log = logging.getLogger(__name__)
+
+Matcher = Callable[[KeyFrame, KeyFrame, NDArray[np.float64]], dict[int, MapPoint] | None]
+
+
+def grid_cells(uv: NDArray[np.float64], size: tuple[float, float], grid: int = GRID) -> int:
+    """How many cells of a grid x grid cut of the image hold at least one of ``uv``."""
+    if len(uv) == 0:
+        return 0
+    w, h = size
+    cx = np.clip((uv[:, 0] * grid / w).astype(int), 0, grid - 1)
+    cy = np.clip((uv[:, 1] * grid / h).astype(int), 0, grid - 1)
+    return len(np.unique(cy * grid + cx))
+
+
+def depth_spread(z: NDArray[np.float64]) -> float:
+    """(90th - 10th percentile) / median of the depths: 0 for points at one distance."""
+    z = z[z > 0]
+    if len(z) < 3:
+        return 0.0
+    p10, p50, p90 = np.percentile(z, [10, 50, 90])
+    return float((p90 - p10) / p50)
+
+
+def depth_error(z_measured: NDArray[np.float64], z_predicted: NDArray[np.float64]) -> float:
+    """Median relative error of the predicted depths where a depth was measured (inf if none)."""
+    ok = z_measured > 0
+    if not ok.any():
+        return float("inf")
+    return float(np.median(np.abs(z_predicted[ok] - z_measured[ok]) / z_measured[ok]))
+
+
+def scene_shift(A: NDArray[np.float64], B: NDArray[np.float64], pts_w: NDArray[np.float64]) -> float:
+    """Median distance between where camera poses A and B (T_cw) put the points ``pts_w``
+    in the camera: how far apart the two poses' views of that scene are. A small turn about
+    the scene (what a map's own drift between neighbouring keyframes looks like) moves the
+    centre by centimetres but the viewed points hardly; a transform off by a period of a
+    repeated texture moves them all by that period."""
+    if len(pts_w) == 0:
+        return float("inf")
+    D = A - B
+    return float(np.median(np.linalg.norm(pts_w @ D[:3, :3].T + D[:3, 3], axis=1)))
+
+
+def pose_difference(A: NDArray[np.float64], B: NDArray[np.float64]) -> tuple[float, float]:
+    """(metres, degrees) between two camera poses T_cw: the centres' distance and the angle
+    of the relative rotation."""
+    c_a, c_b = invert(A)[:3, 3], invert(B)[:3, 3]
+    R = A[:3, :3] @ B[:3, :3].T
+    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+    return float(np.linalg.norm(c_a - c_b)), float(angle)
+
+
+@dataclass
+class Fit:
+    """A keyframe refitted on the other map's points: its pose in the other map's world
+    (``T_cw``), the inlier matches, and the checks' measurements."""
+
+    T_cw: NDArray[np.float64]
+    matched: dict[int, MapPoint]
+    points: NDArray[np.float64]  # the inliers' positions (the other map's world)
+    cells: int
+    spread: float
+    depth_err: float
+
+
+@dataclass
+class Verdict:
+    """A checked candidate: ``reason`` is None when it passed, else why not."""
+
+    reason: str | None
+    S: NDArray[np.float64] | None = None  # kf's world <- cand's world, from the finder's refit
+    points: NDArray[np.float64] | None = None  # the finder's inliers (cand's world)
+    T12: NDArray[np.float64] | None = None  # kf camera <- cand camera
+    matched: dict[int, MapPoint] = field(default_factory=dict)
+    confirmers: set[int] = field(default_factory=set)  # ids of the keyframes that agree, kf's own included
+
+    @property
+    def ok(self) -> bool:
+        return self.reason is None
+
+
+@dataclass
+class PendingMerge:
+    """A transform between two maps confirmed by fewer than ``COINCIDENCES`` keyframes,
+    waiting for later keyframes of either map to confirm it."""
+
+    kf: KeyFrame  # the finder (map a)
+    cand: KeyFrame  # its match in the other map (map b)
+    S: NDArray[np.float64]  # a's world <- b's world
+    points: NDArray[np.float64]  # the finder's inliers (b's world)
+    confirmers: set[int]  # ids of the keyframes that agreed so far (each counts once)
+    misses: int = 0
+
+    @property
+    def coincidences(self) -> int:
+        return len(self.confirmers)
+
+    def agrees(self, S: NDArray[np.float64]) -> bool:
+        """Does ``S`` (a's world <- b's world) show the finder the scene where this one does?"""
+        A, B = self.kf.T_cw @ S, self.kf.T_cw @ self.S
+        return scene_shift(A, B, self.points) <= AGREE_M and pose_difference(A, B)[1] <= AGREE_DEG
+
+
+class MergeVerifier:
+    """Checks candidate merge transforms; ``match`` projects cand's neighbourhood into a
+    keyframe placed at a pose (loop closing's verification by projection)."""
+
+    def __init__(self, camera: PinholeCamera, bf: float, inv_sigma2: NDArray[np.float64], match: Matcher) -> None:
+        self.camera = camera
+        self.bf = bf
+        self.inv_sigma2 = inv_sigma2
+        self.match = match
+
+    def fit(self, kf: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint]) -> Fit | None:
+        """Pose-only refit of kf from ``T_cw0`` (kf in the other map's world) on ``matched``
+        (kf keypoint -> point of the other map); None without enough valid matches."""
+        pairs = [(i, p) for i, p in matched.items() if not p.bad]
+        if len(pairs) < MIN_PROJECTED:
+            return None
+        idx = np.fromiter((i for i, _ in pairs), np.intp, len(pairs))
+        pos = np.array([p.pos for _, p in pairs]).reshape(-1, 3)
+        cam = self.camera
+        res = optimize_pose(T_cw0, pos, kf.xy[idx], kf.ur[idx], self.inv_sigma2[kf.keypoints.octave[idx]],
+                            cam.fx, cam.fy, cam.cx, cam.cy, self.bf)
+        T = orthonormalize(res.T_cw)
+        inl = np.asarray(res.inliers, bool)
+        z_pred = pos[inl] @ T[2, :3] + T[2, 3]
+        return Fit(T, {int(i): p for (i, p), ok in zip(pairs, inl) if ok}, pos[inl],
+                   grid_cells(kf.xy[idx[inl]], cam.image_size), depth_spread(z_pred),
+                   depth_error(kf.depth[idx[inl]].astype(np.float64), z_pred))
+
+    def check_finder(self, fit: Fit | None) -> str | None:
+        """Why the finding keyframe's refit fails, or None."""
+        if fit is None or len(fit.matched) < MIN_INLIERS:
+            return "inliers"
+        if fit.cells < MIN_CELLS:
+            return "image_spread"
+        if fit.spread < MIN_DEPTH_SPREAD:
+            return "depth_spread"
+        if fit.depth_err > MAX_DEPTH_ERROR:
+            return "depth_agreement"
+        return None
+
+    def confirm(self, k: KeyFrame, cand: KeyFrame, S: NDArray[np.float64]) -> Fit | None:
+        """Keyframe ``k``, placed in cand's world by ``S`` (k's world <- cand's world): its
+        refit on cand's neighbourhood if it finds it, passes the depth check and lands within
+        ``AGREE_M`` / ``AGREE_DEG`` of where ``S`` put it; else None."""
+        T_pred = k.T_cw @ S
+        matched = self.match(k, cand, T_pred @ cand.T_wc)
+        fit = self.fit(k, T_pred, matched) if matched else None
+        if fit is None or len(fit.matched) < MIN_PROJECTED or fit.depth_err > MAX_DEPTH_ERROR:
+            log.debug("kf %d does not confirm vs %d: %s", k.id, cand.id,
+                      "no matches" if fit is None else f"{len(fit.matched)} inliers, depth error {fit.depth_err:.3f}")
+            return None
+        shift = scene_shift(fit.T_cw, T_pred, fit.points)
+        _, angle = pose_difference(fit.T_cw, T_pred)
+        log.debug("kf %d vs %d: refit moves the scene %.3f m, %.2f deg from the transform, %d inliers", k.id,
+                  cand.id, shift, angle, len(fit.matched))
+        return fit if shift <= AGREE_M and angle <= AGREE_DEG else None
+
+    def verify(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint],
+               covisibles: list[KeyFrame]) -> Verdict:
+        """Check a candidate (``T12``: kf camera <- cand camera, ``matched``: kf keypoint ->
+        cand-side point) on kf, then count the covisibles that confirm it."""
+        fit = self.fit(kf, T12 @ cand.T_cw, matched)
+        reason = self.check_finder(fit)
+        if fit is not None:
+            log.debug("merge check kf %d vs %d: %d inliers, %d cells, depth spread %.2f, depth error %.3f: %s",
+                      kf.id, cand.id, len(fit.matched), fit.cells, fit.spread, fit.depth_err, reason or "passed")
+        if reason is not None or fit is None:
+            return Verdict(reason)
+        S = kf.T_wc @ fit.T_cw  # kf's world <- cand's world
+        agree = {kf.id} | {k.id for k in covisibles[:COVISIBLES] if self.confirm(k, cand, S) is not None}
+        return Verdict(None, S, fit.points, fit.T_cw @ cand.T_wc, fit.matched, agree)
