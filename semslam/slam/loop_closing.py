@@ -271,7 +271,8 @@ class LoopClosing(KeyframeWorker):
         assert self.merger is not None
         with self.map.lock:
             covis = [k for k in kf.best_covisibles(COVISIBLES) if not k.bad and k.map_id == kf.map_id]
-        v = self.verifier.verify(kf, cand, T12, matched, covis)
+            cand_covis = [k for k in cand.best_covisibles(COVISIBLES) if not k.bad and k.map_id == cand.map_id]
+        v = self.verifier.verify(kf, cand, T12, matched, covis, cand_covis)
         atlas = self.merger.atlas
         if not v.ok:
             atlas.merge_checked(kf, cand, T12, str(v.reason))

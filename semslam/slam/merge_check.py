@@ -6,15 +6,17 @@ undo a rigid offset that both maps agree on afterwards. So a candidate transform
 place recognition (or by tracking's relocalisation hint) must pass, on the keyframe that
 found it:
 
-* a pose-only refit with at least ``MIN_INLIERS`` inliers (relocalisation's bar);
+* a pose-only refit, matched again by projection at the refitted pose until it stops
+  moving, with at least ``MIN_INLIERS`` inliers (relocalisation's bar);
 * inliers spread over the image (``MIN_CELLS`` of a ``GRID`` of cells) and in depth
   (``MIN_DEPTH_SPREAD``): a patch of repeated texture or one wall can fit a wrong pose;
 * the depths the keyframe measured at the inliers agree with the transformed map points'
   depths (median relative error <= ``MAX_DEPTH_ERROR``): RGB-D sees the distance, so a
   transform that slides along the view is caught;
 
-and then be confirmed by ``COINCIDENCES`` keyframes of the same map in all (ORB-SLAM3's
-mnMergeNumCoincidences = 3): each of the keyframe's covisibles, placed with the transform,
+and then be confirmed by ``COINCIDENCES`` keyframes in all (ORB-SLAM3's
+mnMergeNumCoincidences = 3): each of the keyframe's covisibles (ORB-SLAM3's check) or,
+where a young map has too few, of the candidate's covisibles, placed with the transform,
 must find the other map's points (``MIN_PROJECTED``), pass the depth check, and refit to a
 pose that sees the scene within ``AGREE_M`` / ``AGREE_DEG`` of where the transform put it. Keyframes made later
 in the same map confirm a pending transform the same way (``PendingMerge``), as
@@ -40,6 +42,10 @@ from semslam.slam.map import KeyFrame, MapPoint
 
 #: Pose-only inliers the keyframe that found the place needs (relocalisation's bar).
 MIN_INLIERS = 50
+#: The finder's refit is repeated (matching again at the refitted pose) up to REFITS times
+#: until it moves the scene by at most CONVERGED_M.
+REFITS = 3
+CONVERGED_M = 0.01
 #: Inliers a confirming keyframe needs (ORB-SLAM3's nProjMatches for the covisibles).
 MIN_PROJECTED = 30
 #: The image is cut into GRID x GRID cells; inliers must fall in MIN_CELLS of them.
@@ -54,7 +60,7 @@ COINCIDENCES = 3
 #: A confirming keyframe's refit may move the scene it sees (``scene_shift``) and turn
 #: from its predicted pose by this much.
 AGREE_M = 0.05
-AGREE_DEG = 2.0
+AGREE_DEG = 3.0
 #: Best covisibles of the finder tried as confirmations.
 COVISIBLES = 5
 #: Later keyframes failing in a row before a pending transform is dropped (ORB-SLAM3 gives
@@ -193,6 +199,25 @@ class MergeVerifier:
                    grid_cells(kf.xy[idx[inl]], cam.image_size), depth_spread(z_pred),
                    depth_error(kf.depth[idx[inl]].astype(np.float64), z_pred))
 
+    def converge(self, kf: KeyFrame, cand: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint]
+                 ) -> Fit | None:
+        """Refit kf on cand's neighbourhood until the pose stops moving (ORB-SLAM3 matches
+        again by projection at the optimised Sim3 and optimises once more): a pose-only fit
+        from a transform 10-20 cm off stops short of the truth on the matches found near the
+        wrong pose. None if it still moves the scene by over ``CONVERGED_M`` after
+        ``REFITS`` rounds (or finds nothing); a fit too small to pass is returned as is."""
+        fit = self.fit(kf, T_cw0, matched)
+        for _ in range(REFITS):
+            if fit is None or len(fit.matched) < MIN_INLIERS:
+                return fit
+            moved = scene_shift(fit.T_cw, T_cw0, fit.points)
+            if moved <= CONVERGED_M:
+                return fit
+            T_cw0 = fit.T_cw
+            again = self.match(kf, cand, T_cw0 @ cand.T_wc)
+            fit = self.fit(kf, T_cw0, again) if again else None
+        return None
+
     def check_finder(self, fit: Fit | None) -> str | None:
         """Why the finding keyframe's refit fails, or None."""
         if fit is None or len(fit.matched) < MIN_INLIERS:
@@ -223,11 +248,13 @@ class MergeVerifier:
         return fit if shift <= AGREE_M and angle <= AGREE_DEG else None
 
     def verify(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint],
-               covisibles: list[KeyFrame]) -> Verdict:
+               covisibles: list[KeyFrame], cand_covisibles: list[KeyFrame] = ()) -> Verdict:
         """Check a candidate (``T12``: kf camera <- cand camera, ``matched``: kf keypoint ->
-        cand-side point) on kf, then count the covisibles that confirm it."""
-        fit = self.fit(kf, T12 @ cand.T_cw, matched)
-        reason = self.check_finder(fit)
+        cand-side point) on kf, then count the keyframes that confirm it: kf's covisibles
+        placed in cand's world, and cand's covisibles placed in kf's world (a young map may
+        have no covisibles yet; the old map's views of the place are as independent)."""
+        fit = self.converge(kf, cand, T12 @ cand.T_cw, matched)
+        reason = self.check_finder(fit) if fit is not None else "not_converged"
         if fit is not None:
             log.debug("merge check kf %d vs %d: %d inliers, %d cells, depth spread %.2f, depth error %.3f: %s",
                       kf.id, cand.id, len(fit.matched), fit.cells, fit.spread, fit.depth_err, reason or "passed")
@@ -235,4 +262,7 @@ class MergeVerifier:
             return Verdict(reason)
         S = kf.T_wc @ fit.T_cw  # kf's world <- cand's world
         agree = {kf.id} | {k.id for k in covisibles[:COVISIBLES] if self.confirm(k, cand, S) is not None}
+        if len(agree) < COINCIDENCES:
+            S_inv = invert(S)
+            agree |= {k.id for k in cand_covisibles[:COVISIBLES] if self.confirm(k, kf, S_inv) is not None}
         return Verdict(None, S, fit.points, fit.T_cw @ cand.T_wc, fit.matched, agree)
