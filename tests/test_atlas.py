@@ -58,23 +58,28 @@ def test_jump_into_unmapped_part_starts_a_map_that_merges_back(renders: dict[str
     assert stats["ate"]["rmse"] < 0.07
 
 
-def test_threaded_jump_back_merges_through_the_relocalisation_hint(renders: dict[str, Path], tmp_path: Path) -> None:
+def test_threaded_jump_back_merges_right_or_not_at_all(renders: dict[str, Path], tmp_path: Path) -> None:
     """Threaded, tracking runs ahead of local mapping and loses the young second map on the
     turn back, then relocalises in the first map; loop closing's merge hint (the left map's
     last keyframes against the keyframes where tracking went on, bridged by the motion
-    model) merges them anyway. Not deterministic: merged in 24 of 24 quiet runs and in CI
-    (before the hint, 0 of 3 merged and 80 frames stayed in the second map).
+    model) tries the merge, through the same checks as any (slam/merge_check.py). Not
+    deterministic: merged in 3 of 6 runs on 2026-12-04, each within 1 cm at the weld; the
+    others kept the maps apart, their only candidates 15-24 cm / 6-8 deg off the truth (the
+    left map's last keyframes, placed before local mapping caught up on the fast turn back,
+    agree with each other but with no keyframe of the first map). Before the checks the hint
+    merged in 24 of 24 runs, some ~50 cm off (global BA pulled them back to ~10 cm).
 
-    The ATE bound is loose on purpose: over those runs 5.0-18.5 cm, and 24.1 cm in a CI
-    run on a loaded machine (against 3.6 cm sequential). Traced: the young second map drifts
-    7-11 cm over its last half second while local mapping lags on the fast turn back, and
-    some hint merges lock onto a transform ~50 cm off (the bridge verified on a repeating
-    texture) that global BA pulls back to ~10 cm. The bound catches a merge that leaves the
-    second map's frames far from the first (metres), not the threaded accuracy."""
+    So: a merge made puts every frame in the first map's frame with a small ATE; none made
+    leaves the second map's frames in their own frame, and stats.json says which."""
     stats = _run(renders["jump_back"], tmp_path / "run", sequential=False)
-    assert stats["maps"] >= 2 and stats["merges"] >= 1
-    assert stats["frames_outside_first_map"] == 0
-    assert stats["ate"]["rmse"] < 0.40
+    assert stats["maps"] >= 2
+    runs = stats["trajectory_map_runs"]
+    assert sum(n for _, n, _ in runs) == stats["tracked_frames"]
+    if stats["merges"] >= 1:
+        assert stats["frames_outside_first_map"] == 0
+        assert stats["ate"]["rmse"] < 0.15
+    else:
+        assert stats["frames_outside_first_map"] == sum(n for _, n, m in runs if m != 0) > 0
 
 
 def test_bridge_is_the_map_change_the_motion_model_implies() -> None:

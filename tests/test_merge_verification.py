@@ -26,7 +26,7 @@ import pytest
 from semslam.geometry.se3 import invert, make_pose, so3_exp
 from semslam.io.sequence import read_file_list
 from semslam.slam.merge_check import (
-    MAX_DEPTH_ERROR, depth_error, depth_spread, grid_cells, pose_difference, scene_shift,
+    MAX_DEPTH_ERROR, depth_error, enough, depth_spread, grid_cells, pose_difference, scene_shift,
 )
 from semslam.synth import SEQUENCES, SynthConfig, render_sequence
 
@@ -183,7 +183,7 @@ def test_verifier_accepts_only_transforms_close_to_the_truth(two_maps: tuple[obj
             T12 = delta @ true
             matched = closer._match_at(k1, k0, T12) or {}
             v = closer.verifier.verify(k1, k0, T12, matched, covis)
-            if not v.ok or len(v.confirmers) < 3:
+            if not v.ok or not enough(v.confirmers):
                 continue
             d, a = _weld_error(seq, k1.timestamp, v.T12, true)
             assert d <= TOL_M and a <= TOL_DEG, f"kf {k1.id} vs {k0.id}, offset #{i}: accepted {d:.3f} m {a:.2f} deg off"

@@ -26,7 +26,7 @@ from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.atlas import MergeHint
-from semslam.slam.merge_check import COINCIDENCES, COVISIBLES, PENDING_MISSES, MergeVerifier, PendingMerge
+from semslam.slam.merge_check import COVISIBLES, PENDING_MISSES, MergeVerifier, PendingMerge, enough
 from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.map_batch import normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
@@ -266,7 +266,7 @@ class LoopClosing(KeyframeWorker):
     def _check_merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]
                      ) -> str | None:
         """Check a candidate merge (``T12``: kf <- cand) and merge the maps if it passes and
-        ``COINCIDENCES`` keyframes agree: "merged"; one that passes with fewer waits in
+        enough keyframes of both maps agree (``merge_check.enough``): "merged"; one that passes with fewer waits in
         ``_pending`` for later keyframes: "pending"; None if it failed."""
         assert self.merger is not None
         with self.map.lock:
@@ -281,7 +281,7 @@ class LoopClosing(KeyframeWorker):
         same = [p for p in self._pending if {p.kf.map_id, p.cand.map_id} == {kf.map_id, cand.map_id}]
         p = next((p for p in same if p.kf.map_id == kf.map_id and p.agrees(v.S)), None)
         agree = v.confirmers | (p.confirmers if p is not None else set())  # a transform found again
-        if len(agree) < COINCIDENCES:
+        if not enough(agree):
             atlas.merge_checked(kf, cand, v.T12, "pending", len(agree))
             self._pending = [q for q in self._pending if q not in same]
             self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree))
@@ -317,10 +317,10 @@ class LoopClosing(KeyframeWorker):
                 else:
                     atlas.merge_checked(p.kf, p.cand, p.kf.T_cw @ p.S @ p.cand.T_wc, "not_confirmed", p.coincidences)
                 continue
-            p.confirmers.add(kf.id)
+            p.confirmers.add((kf.map_id, kf.id))
             p.misses = 0
             T12 = fit.T_cw @ other.T_wc
-            if p.coincidences < COINCIDENCES:
+            if not p.enough:
                 atlas.merge_checked(kf, other, T12, "pending", p.coincidences)
                 keep.append(p)
                 continue

@@ -15,8 +15,8 @@ found it:
   transform that slides along the view is caught;
 
 and then be confirmed by ``COINCIDENCES`` keyframes in all (ORB-SLAM3's
-mnMergeNumCoincidences = 3): each of the keyframe's covisibles (ORB-SLAM3's check) or,
-where a young map has too few, of the candidate's covisibles, placed with the transform,
+mnMergeNumCoincidences = 3), of both maps: each of the keyframe's covisibles (ORB-SLAM3's
+check) and of the candidate's covisibles, placed with the transform,
 must find the other map's points (``MIN_PROJECTED``), pass the depth check, and refit to a
 pose that sees the scene within ``AGREE_M`` / ``AGREE_DEG`` of where the transform put it. Keyframes made later
 in the same map confirm a pending transform the same way (``PendingMerge``), as
@@ -60,7 +60,7 @@ COINCIDENCES = 3
 #: A confirming keyframe's refit may move the scene it sees (``scene_shift``) and turn
 #: from its predicted pose by this much.
 AGREE_M = 0.05
-AGREE_DEG = 3.0
+AGREE_DEG = 2.0
 #: Best covisibles of the finder tried as confirmations.
 COVISIBLES = 5
 #: Later keyframes failing in a row before a pending transform is dropped (ORB-SLAM3 gives
@@ -70,6 +70,13 @@ PENDING_MISSES = 3
 log = logging.getLogger(__name__)
 
 Matcher = Callable[[KeyFrame, KeyFrame, NDArray[np.float64]], dict[int, MapPoint] | None]
+
+
+def enough(confirmers: set[tuple[int, int]]) -> bool:
+    """``COINCIDENCES`` keyframes agree, from both maps: keyframes of one map alone agree
+    with each other when they share an error (a young map's last keyframes, placed before
+    local mapping caught up, seen to fit 17 cm / 6 deg off the truth together)."""
+    return len(confirmers) >= COINCIDENCES and len({m for m, _ in confirmers}) > 1
 
 
 def grid_cells(uv: NDArray[np.float64], size: tuple[float, float], grid: int = GRID) -> int:
@@ -142,7 +149,7 @@ class Verdict:
     points: NDArray[np.float64] | None = None  # the finder's inliers (cand's world)
     T12: NDArray[np.float64] | None = None  # kf camera <- cand camera
     matched: dict[int, MapPoint] = field(default_factory=dict)
-    confirmers: set[int] = field(default_factory=set)  # ids of the keyframes that agree, kf's own included
+    confirmers: set[tuple[int, int]] = field(default_factory=set)  # (map, keyframe id) of those that agree, kf included
 
     @property
     def ok(self) -> bool:
@@ -158,12 +165,16 @@ class PendingMerge:
     cand: KeyFrame  # its match in the other map (map b)
     S: NDArray[np.float64]  # a's world <- b's world
     points: NDArray[np.float64]  # the finder's inliers (b's world)
-    confirmers: set[int]  # ids of the keyframes that agreed so far (each counts once)
+    confirmers: set[tuple[int, int]]  # (map, keyframe id) of those that agreed so far (each counts once)
     misses: int = 0
 
     @property
     def coincidences(self) -> int:
         return len(self.confirmers)
+
+    @property
+    def enough(self) -> bool:
+        return enough(self.confirmers)
 
     def agrees(self, S: NDArray[np.float64]) -> bool:
         """Does ``S`` (a's world <- b's world) show the finder the scene where this one does?"""
@@ -251,8 +262,8 @@ class MergeVerifier:
                covisibles: list[KeyFrame], cand_covisibles: list[KeyFrame] = ()) -> Verdict:
         """Check a candidate (``T12``: kf camera <- cand camera, ``matched``: kf keypoint ->
         cand-side point) on kf, then count the keyframes that confirm it: kf's covisibles
-        placed in cand's world, and cand's covisibles placed in kf's world (a young map may
-        have no covisibles yet; the old map's views of the place are as independent)."""
+        placed in cand's world, and cand's covisibles placed in kf's world (``enough``: some
+        of each map; a young map may have no covisibles yet)."""
         fit = self.converge(kf, cand, T12 @ cand.T_cw, matched)
         reason = self.check_finder(fit) if fit is not None else "not_converged"
         if fit is not None:
@@ -261,8 +272,16 @@ class MergeVerifier:
         if reason is not None or fit is None:
             return Verdict(reason)
         S = kf.T_wc @ fit.T_cw  # kf's world <- cand's world
-        agree = {kf.id} | {k.id for k in covisibles[:COVISIBLES] if self.confirm(k, cand, S) is not None}
-        if len(agree) < COINCIDENCES:
-            S_inv = invert(S)
-            agree |= {k.id for k in cand_covisibles[:COVISIBLES] if self.confirm(k, kf, S_inv) is not None}
+        agree = {(kf.map_id, kf.id)}
+        for k in covisibles[:COVISIBLES]:
+            if enough(agree):
+                break
+            if self.confirm(k, cand, S) is not None:
+                agree.add((k.map_id, k.id))
+        S_inv = invert(S)
+        for k in cand_covisibles[:COVISIBLES]:
+            if enough(agree):
+                break
+            if self.confirm(k, kf, S_inv) is not None:
+                agree.add((k.map_id, k.id))
         return Verdict(None, S, fit.points, fit.T_cw @ cand.T_wc, fit.matched, agree)
