@@ -179,10 +179,11 @@ def test_verifier_accepts_only_transforms_close_to_the_truth(two_maps: tuple[obj
     for k1, k0 in pairs:
         true = _true_T12(gt, k1.timestamp, k0.timestamp)
         covis = [k for k in k1.best_covisibles(5) if not k.bad]
+        cand_covis = [k for k in k0.best_covisibles(5) if not k.bad]
         for i, delta in enumerate([np.eye(4), *WRONG]):
             T12 = delta @ true
             matched = closer._match_at(k1, k0, T12) or {}
-            v = closer.verifier.verify(k1, k0, T12, matched, covis)
+            v = closer.verifier.verify(k1, k0, T12, matched, covis, cand_covis)
             if not v.ok or not enough(v.confirmers):
                 continue
             d, a = _weld_error(seq, k1.timestamp, v.T12, true)
