@@ -230,5 +230,6 @@ def test_every_merge_made_is_right(renders: dict[str, Path], name: str, tmp_path
         assert d <= TOL_M and a <= TOL_DEG, f"{name}: merge {c['kf']} <-> {c['cand']} {d:.3f} m {a:.2f} deg off"
     made = sum(c["result"] == "merged" for c in stats["merge_checks"])
     assert made == stats["merges"]
+    assert stats["global_ba"] >= made  # each merge is followed by global BA over the merged map
     assert sum(r[1] for r in stats["trajectory_map_runs"]) == stats["tracked_frames"]
     assert stats["frames_outside_first_map"] == sum(r[1] for r in stats["trajectory_map_runs"] if r[2] != 0)
