@@ -130,14 +130,23 @@ class Atlas:
                       coincidences: int = 0) -> None:
         """Record one merge check: ``result`` is "merged", "pending" (passed, waiting for more
         keyframes to agree) or why it was refused. ``T12``: kf camera <- cand camera, the
-        transform checked, so a run's merges can be compared with ground truth afterwards."""
+        transform checked, and ``S`` (kf's map's world <- cand's map's world) with the maps'
+        first keyframes' times, so a run's merges can be compared with ground truth afterwards."""
         if result not in ("merged", "pending"):
             self.merges_rejected[result] += 1
+        S = kf.T_wc @ T12 @ cand.T_cw
+        origins = self.map.origins
+
+        def origin_time(map_id: int) -> float | None:
+            return origins[map_id].timestamp if map_id < len(origins) else None
+
         self.merge_checks.append({
-            "kf": kf.id, "kf_time": kf.timestamp, "kf_map": kf.map_id,
+            "kf": kf.id, "kf_time": kf.timestamp, "kf_map": kf.map_id, "kf_map_origin_time": origin_time(kf.map_id),
             "cand": cand.id, "cand_time": cand.timestamp, "cand_map": cand.map_id,
+            "cand_map_origin_time": origin_time(cand.map_id),
             "result": result, "coincidences": coincidences,
             "T12": [round(float(v), 6) for v in np.asarray(T12).reshape(-1)],
+            "S": [round(float(v), 6) for v in np.asarray(S).reshape(-1)],
         })
 
     # ------------------------------------------------------------------ output
