@@ -387,9 +387,7 @@ def make_config(preset: str | Path | SystemConfig, overrides: Mapping[str, Any] 
         texts.append(f"sensor={json.dumps(sensor)}")
     if depth_scale is not None:
         texts.append(f"depth_scale={float(depth_scale)}")
-    if isinstance(preset, SystemConfig):
-        if not texts:
-            return preset
+    if isinstance(preset, SystemConfig):  # a copy, checked as a preset is (a user may have set any field)
         return config_from_dict(config_to_dict(preset), "config", texts)
     return load_config(preset, texts)
 

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from semslam import System
+from semslam.config import load_config
 from semslam.errors import ConfigError, DataError, SemslamError
 from semslam.io.association import match_timestamps
 from semslam.io.sequence import read_file_list
@@ -219,6 +220,10 @@ def test_bad_construction_is_a_config_error(render: Path) -> None:
         System("orb", camera=render / "no_calib.txt")
     with pytest.raises(ConfigError, match="no output folder"):
         System("orb", camera=(525, 525, 319.5, 239.5)).save()
+    cfg = load_config("orb")
+    cfg.features.n_features = -3  # a SystemConfig set by hand is checked as a preset is
+    with pytest.raises(ConfigError, match=r"features.n_features: expected an integer in \[1, "):
+        System(cfg, camera=(525, 525, 319.5, 239.5))
 
 
 def test_rgb_and_bgr_and_metres_are_the_same_frame(render: Path, frames: list, tmp_path: Path) -> None:
