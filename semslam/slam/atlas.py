@@ -127,11 +127,13 @@ class Atlas:
             self._world_change = S if prev is None else S @ prev
 
     def merge_checked(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], result: str,
-                      coincidences: int = 0) -> None:
+                      coincidences: int = 0, source: str = "bow") -> None:
         """Record one merge check: ``result`` is "merged", "pending" (passed, waiting for more
-        keyframes to agree) or why it was refused. ``T12``: kf camera <- cand camera, the
-        transform checked, and ``S`` (kf's map's world <- cand's map's world) with the maps'
-        first keyframes' times, so a run's merges can be compared with ground truth afterwards."""
+        keyframes to agree) or why it was refused; ``source``: what found the candidate
+        (``LoopClosing._check_merge``; "pending": a later keyframe confirming one). ``T12``:
+        kf camera <- cand camera, the transform checked, and ``S`` (kf's map's world <-
+        cand's map's world) with the maps' first keyframes' times, so a run's merges can be
+        compared with ground truth afterwards."""
         if result not in ("merged", "pending"):
             self.merges_rejected[result] += 1
         S = kf.T_wc @ T12 @ cand.T_cw
@@ -144,7 +146,7 @@ class Atlas:
             "kf": kf.id, "kf_time": kf.timestamp, "kf_map": kf.map_id, "kf_map_origin_time": origin_time(kf.map_id),
             "cand": cand.id, "cand_time": cand.timestamp, "cand_map": cand.map_id,
             "cand_map_origin_time": origin_time(cand.map_id),
-            "result": result, "coincidences": coincidences,
+            "result": result, "coincidences": coincidences, "source": source,
             "T12": [round(float(v), 6) for v in np.asarray(T12).reshape(-1)],
             "S": [round(float(v), 6) for v in np.asarray(S).reshape(-1)],
         })

@@ -243,13 +243,13 @@ class LoopClosing(KeyframeWorker):
         for recent, near, bridge in attempts:
             for cand in near:
                 for left_kf in recent:
-                    res = self._compute_se3(left_kf, cand)
+                    res, source = self._compute_se3(left_kf, cand), "hint"
                     if res is None and bridge is not None:
                         # left_kf in cand's world by the motion model's bridge, checked as a loop is.
                         with self.map.lock:
                             T12 = left_kf.T_cw @ invert(bridge) @ invert(cand.T_cw)
-                        res = self._verify_by_projection(left_kf, cand, T12)
-                    outcome = self._check_merge(left_kf, *res) if res is not None else None
+                        res, source = self._verify_by_projection(left_kf, cand, T12), "bridge"
+                    outcome = self._check_merge(left_kf, *res, source=source) if res is not None else None
                     if outcome is not None:  # merged, or pending for later keyframes to confirm
                         log.debug("merge hint: kf %d (left map) vs %d: %s", left_kf.id, cand.id, outcome)
                         self._hints = []
@@ -263,11 +263,13 @@ class LoopClosing(KeyframeWorker):
         res = self._verify_by_projection(kf, cand, T12)
         return None if res is None else res[2]
 
-    def _check_merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]
-                     ) -> str | None:
+    def _check_merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint],
+                     source: str = "bow") -> str | None:
         """Check a candidate merge (``T12``: kf <- cand) and merge the maps if it passes and
         enough keyframes of both maps agree (``merge_check.enough``): "merged"; one that passes with fewer waits in
-        ``_pending`` for later keyframes: "pending"; None if it failed."""
+        ``_pending`` for later keyframes: "pending"; None if it failed. ``source``: what
+        found the candidate ("bow", "hint": the relocalisation hint's RANSAC, "bridge": its
+        motion-model bridge), recorded in stats.json's merge_checks."""
         assert self.merger is not None
         with self.map.lock:
             covis = [k for k in kf.best_covisibles(COVISIBLES) if not k.bad and k.map_id == kf.map_id]
@@ -275,18 +277,18 @@ class LoopClosing(KeyframeWorker):
         v = self.verifier.verify(kf, cand, T12, matched, covis, cand_covis)
         atlas = self.merger.atlas
         if not v.ok:
-            atlas.merge_checked(kf, cand, T12, str(v.reason))
+            atlas.merge_checked(kf, cand, T12, str(v.reason), source=source)
             return None
         assert v.S is not None and v.T12 is not None and v.points is not None
         same = [p for p in self._pending if {p.kf.map_id, p.cand.map_id} == {kf.map_id, cand.map_id}]
         p = next((p for p in same if p.kf.map_id == kf.map_id and p.agrees(v.S)), None)
         agree = v.confirmers | (p.confirmers if p is not None else set())  # a transform found again
         if not enough(agree):
-            atlas.merge_checked(kf, cand, v.T12, "pending", len(agree))
+            atlas.merge_checked(kf, cand, v.T12, "pending", len(agree), source)
             self._pending = [q for q in self._pending if q not in same]
             self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree))
             return "pending"
-        atlas.merge_checked(kf, cand, v.T12, "merged", len(agree))
+        atlas.merge_checked(kf, cand, v.T12, "merged", len(agree), source)
         self._pending = [q for q in self._pending if q not in same]
         self._merge_maps(kf, cand, v.T12, v.matched)
         return "merged"
@@ -315,16 +317,16 @@ class LoopClosing(KeyframeWorker):
                 if p.misses < PENDING_MISSES:
                     keep.append(p)
                 else:
-                    atlas.merge_checked(p.kf, p.cand, p.kf.T_cw @ p.S @ p.cand.T_wc, "not_confirmed", p.coincidences)
+                    atlas.merge_checked(p.kf, p.cand, p.kf.T_cw @ p.S @ p.cand.T_wc, "not_confirmed", p.coincidences, "pending")
                 continue
             p.confirmers.add((kf.map_id, kf.id))
             p.misses = 0
             T12 = fit.T_cw @ other.T_wc
             if not p.enough:
-                atlas.merge_checked(kf, other, T12, "pending", p.coincidences)
+                atlas.merge_checked(kf, other, T12, "pending", p.coincidences, "pending")
                 keep.append(p)
                 continue
-            atlas.merge_checked(kf, other, T12, "merged", p.coincidences)
+            atlas.merge_checked(kf, other, T12, "merged", p.coincidences, "pending")
             self._pending = keep + self._pending[n + 1:]  # those of these two maps are dropped later
             self._merge_maps(kf, other, T12, fit.matched)
             return True
