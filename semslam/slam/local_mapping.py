@@ -220,6 +220,11 @@ class LocalMapping(KeyframeWorker):
         for p in self.recent_points:
             if p.bad:
                 continue
+            if p.ref_kf is not None and p.ref_kf.map_id != kf.map_id:
+                # An atlas map tracking left (slam/atlas.py): its keyframes stopped coming, so
+                # its points cannot be seen again; ageing them by the new map's keyframes
+                # culled every point of a map that had one keyframe (nothing left to merge with).
+                continue
             age = kf.id - p.first_kf_id
             # Observations count twice where the keyframe has depth (ORB-SLAM's stereo rule),
             # so "<= 3" means: seen by fewer than two RGB-D keyframes.

@@ -26,7 +26,7 @@ from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.atlas import MergeHint
-from semslam.slam.merge_check import COVISIBLES, PENDING_MISSES, MergeVerifier, PendingMerge, enough
+from semslam.slam.merge_check import COVISIBLES, MIN_PROJECTED, PENDING_MISSES, MergeVerifier, PendingMerge, enough
 from semslam.slam.map import KeyFrame, Map, MapPoint
 from semslam.slam.map_batch import normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
@@ -259,15 +259,16 @@ class LoopClosing(KeyframeWorker):
     # ---------------------------------------------------------------- merge checks
     def _match_at(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64]) -> dict[int, MapPoint] | None:
         """cand's neighbourhood projected into kf at ``T12`` (kf <- cand): the matches, or
-        None if too few (the merge checker's matcher)."""
-        res = self._verify_by_projection(kf, cand, T12)
+        None if fewer than a confirming keyframe needs (the merge checker's matcher; the
+        checker counts the inliers of its refit against the bars again)."""
+        res = self._verify_by_projection(kf, cand, T12, min_matches=MIN_PROJECTED)
         return None if res is None else res[2]
 
     def _check_merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint],
                      source: str = "bow") -> str | None:
         """Check a candidate merge (``T12``: kf <- cand) and merge the maps if it passes and
-        enough keyframes of both maps agree (``merge_check.enough``): "merged"; one that passes with fewer waits in
-        ``_pending`` for later keyframes: "pending"; None if it failed. ``source``: what
+        enough keyframes agree (``merge_check.enough``): "merged"; one that passes with
+        fewer waits in ``_pending`` for later keyframes: "pending"; None if it failed. ``source``: what
         found the candidate ("bow", "hint": the relocalisation hint's RANSAC, "bridge": its
         motion-model bridge), recorded in stats.json's merge_checks."""
         assert self.merger is not None
@@ -283,10 +284,11 @@ class LoopClosing(KeyframeWorker):
         same = [p for p in self._pending if {p.kf.map_id, p.cand.map_id} == {kf.map_id, cand.map_id}]
         p = next((p for p in same if p.kf.map_id == kf.map_id and p.agrees(v.S)), None)
         agree = v.confirmers | (p.confirmers if p is not None else set())  # a transform found again
-        if not enough(agree):
+        later = p is not None and kf.id not in {i for _, i in p.confirmers}
+        if not enough(agree, later):
             atlas.merge_checked(kf, cand, v.T12, "pending", len(agree), source)
             self._pending = [q for q in self._pending if q not in same]
-            self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree))
+            self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree, later))
             return "pending"
         atlas.merge_checked(kf, cand, v.T12, "merged", len(agree), source)
         self._pending = [q for q in self._pending if q not in same]
@@ -320,6 +322,7 @@ class LoopClosing(KeyframeWorker):
                     atlas.merge_checked(p.kf, p.cand, p.kf.T_cw @ p.S @ p.cand.T_wc, "not_confirmed", p.coincidences, "pending")
                 continue
             p.confirmers.add((kf.map_id, kf.id))
+            p.later = True
             p.misses = 0
             T12 = fit.T_cw @ other.T_wc
             if not p.enough:
@@ -410,13 +413,17 @@ class LoopClosing(KeyframeWorker):
             return None
         return self._verify_by_projection(kf, cand, T12, int(inl.sum()))
 
-    def _verify_by_projection(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], n_inliers: int = 0
+    def _verify_by_projection(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], n_inliers: int = 0,
+                              min_matches: int | None = None
                               ) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
         """Project cand's neighbourhood into kf with ``T12`` (kf <- cand); enough matches
-        (with ``n_inliers`` already found) confirm it. Returns kf keypoint -> cand-side point."""
+        (with ``n_inliers`` already found; ``slam.loop_min_matches`` unless ``min_matches``)
+        confirm it. Returns kf keypoint -> cand-side point."""
         with self.map.lock:
             T_cw_corr = T12 @ cand.T_cw
             pts = _neighbourhood_points(cand)
+            if not pts:  # e.g. a keyframe whose points were all culled or fused away
+                return None
             pos = np.array([p.pos for p in pts])
             max_dist = np.array([p.max_dist for p in pts])
             descriptors = [p.descriptor for p in pts]
@@ -434,7 +441,8 @@ class LoopClosing(KeyframeWorker):
                                       kf.tree(), self.map.matcher, self.map.spec.th_high, 0.9)
         n_matched = n_inliers + len(qi)
         log.debug("kf %d vs %d: %d SE3 inliers, %d projected matches", kf.id, cand.id, n_inliers, len(qi))
-        if len(qi) < self.cfg.loop_min_matches and n_matched < self.cfg.loop_min_matches:
+        need = self.cfg.loop_min_matches if min_matches is None else min_matches
+        if len(qi) < need and n_matched < need:
             return None
         return cand, T12, {int(t): pts[sel[q]] for q, t in zip(qi, ti)}
 

@@ -72,11 +72,13 @@ log = logging.getLogger(__name__)
 Matcher = Callable[[KeyFrame, KeyFrame, NDArray[np.float64]], dict[int, MapPoint] | None]
 
 
-def enough(confirmers: set[tuple[int, int]]) -> bool:
-    """``COINCIDENCES`` keyframes agree, from both maps: keyframes of one map alone agree
-    with each other when they share an error (a young map's last keyframes, placed before
-    local mapping caught up, seen to fit 17 cm / 6 deg off the truth together)."""
-    return len(confirmers) >= COINCIDENCES and len({m for m, _ in confirmers}) > 1
+def enough(confirmers: set[tuple[int, int]], later: bool = False) -> bool:
+    """``COINCIDENCES`` keyframes agree, from both maps or including one made after the
+    transform was found (``later``): keyframes of one map placed together agree with each
+    other when they share an error (a young map's last keyframes, placed before local
+    mapping caught up, seen to fit 17 cm / 6 deg off the truth together); a keyframe
+    tracked afterwards is placed on its own."""
+    return len(confirmers) >= COINCIDENCES and (later or len({m for m, _ in confirmers}) > 1)
 
 
 def grid_cells(uv: NDArray[np.float64], size: tuple[float, float], grid: int = GRID) -> int:
@@ -166,6 +168,7 @@ class PendingMerge:
     S: NDArray[np.float64]  # a's world <- b's world
     points: NDArray[np.float64]  # the finder's inliers (b's world)
     confirmers: set[tuple[int, int]]  # (map, keyframe id) of those that agreed so far (each counts once)
+    later: bool = False  # a keyframe made after the finding agreed
     misses: int = 0
 
     @property
@@ -174,7 +177,7 @@ class PendingMerge:
 
     @property
     def enough(self) -> bool:
-        return enough(self.confirmers)
+        return enough(self.confirmers, self.later)
 
     def agrees(self, S: NDArray[np.float64]) -> bool:
         """Does ``S`` (a's world <- b's world) show the finder the scene where this one does?"""
