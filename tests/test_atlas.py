@@ -63,10 +63,11 @@ def test_threaded_jump_back_merges_right_or_not_at_all(renders: dict[str, Path],
     turn back, then relocalises in the first map; loop closing's merge hint (the left map's
     last keyframes against the keyframes where tracking went on, bridged by the motion
     model) tries the merge, through the same checks as any (slam/merge_check.py). Not
-    deterministic: merged in 6 of 16 runs on 2026-12-04, each within 1 cm at the weld; the
-    others kept the maps apart, their candidates up to 15-24 cm / 6-8 deg off the truth (the
-    left map's last keyframes, placed before local mapping caught up on the fast turn back,
-    agree with each other but with no keyframe of the first map). Before the checks the hint
+    deterministic: with the final checks merged in 1 of 6 runs on 2026-12-04 (within 2 cm
+    at the weld); the others kept the maps apart, some candidates 15-24 cm / 6-8 deg off the
+    truth (the left map's last keyframes, placed before local mapping caught up on the fast
+    turn back, agree with each other but with no keyframe of the first map), others right
+    but never confirmed by a keyframe of the first map (docs/results/merge_verification.md). Before the checks the hint
     merged in 24 of 24 runs, some ~50 cm off (global BA pulled them back to ~10 cm).
 
     So: a merge made puts every frame in the first map's frame with a small ATE; none made
