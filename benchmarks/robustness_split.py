@@ -17,8 +17,9 @@ Two kinds of sequence, each with its CLEAN TWIN (the same config without the tro
 Sequences are drawn from fixed seed lists (:data:`SEEDS`): the TUNE seeds are the only ones
 to look at while choosing thresholds; the REPORT seeds are for the numbers. Layouts cycle
 through 0 (office), 1 (lounge) and one furnished at random (2-99, from the seed); motions
-through room_path, halfsphere, shake and fast_rotations. Renders are 320x240 (a fifth of the
-cost of 640x480 with sub-frame blur) and 10-12 s long; they go to ``--cache`` once.
+through room_path, halfsphere, shake and fast_rotations. Blackout renders are 640x480 and
+12 s long, hard-imaging ones 320x240 (a third of the cost of 640x480 with sub-frame blur)
+and 10 s long; they go to ``--cache`` once.
 
 Each run is ``semslam run SEQ -o OUT -q --no-report --map none -p PRESET [--set ...]`` in a
 subprocess (cached under ``--cache/runs/TAG/...``; ``--tag`` names a code state, so runs of
@@ -62,7 +63,11 @@ BLACKOUT_MOTIONS = ("room_path", "halfsphere", "room_path", "shake", "fast_rotat
 HARD_MOTIONS = ("fast_rotations", "room_path", "fast_rotations", "halfsphere", "shake")
 #: Hard-imaging strengths: the share of each effect's range used (15-30 ms and so on).
 STRENGTHS = (0.0, 0.5, 1.0)
-SIZE = (320, 240)
+#: Image sizes: blackout runs at 640x480 (at 320x240 the clean room_path twins drifted
+#: 7-15 cm against 1.4 cm at 640x480, which made the twin ratio meaningless); hard imaging
+#: at 320x240, since its sub-frame renders cost ~0.8 s a frame at 640x480 (0.26 s here).
+BLACKOUT_SIZE = (640, 480)
+HARD_SIZE = (320, 240)
 TARGET_BLACKOUT_RATIO = 1.5
 TARGET_HARD_RATIO = 2.0
 
@@ -91,12 +96,12 @@ def blackout_case(k: int, seed: int, part: str) -> Case:
     """The k-th blackout sequence: a gap of 1.5-2.5 s from 3-4 s, then a hand or card."""
     rng = np.random.default_rng([seed, 38])
     cfg = SynthConfig(motion=BLACKOUT_MOTIONS[k % len(BLACKOUT_MOTIONS)], frames=360, people=0,
-                      seed=seed, layout=_layout(k, seed), width=SIZE[0], height=SIZE[1])
+                      seed=seed, layout=_layout(k, seed), width=BLACKOUT_SIZE[0], height=BLACKOUT_SIZE[1])
     gap = cfg.replace(blackout_start_s=round(float(rng.uniform(3.0, 4.0)), 2),
                       blackout_s=round(float(rng.uniform(1.5, 2.5)), 2),
                       occluder_s=round(float(rng.uniform(0.5, 1.5)), 2),
                       occluder_kind=("hand", "object")[k % 2])
-    return Case(f"blackout_{seed}_{cfg.motion}_l{cfg.layout}", "blackout", part, gap, cfg)
+    return Case(f"blackout_{seed}_{cfg.motion}_l{cfg.layout}_{cfg.width}", "blackout", part, gap, cfg)
 
 
 def hard_case(k: int, seed: int, part: str) -> Case:
@@ -107,7 +112,7 @@ def hard_case(k: int, seed: int, part: str) -> Case:
     jitter = float(rng.uniform(-0.1, 0.1))
     s = min(max(x + jitter, 0.0), 1.0)
     cfg = SynthConfig(motion=HARD_MOTIONS[k % len(HARD_MOTIONS)], frames=300, people=2, seed=seed,
-                      layout=_layout(k, seed), width=SIZE[0], height=SIZE[1])
+                      layout=_layout(k, seed), width=HARD_SIZE[0], height=HARD_SIZE[1])
     hard = cfg.replace(exposure_ms=_lerp(15, 30, s), rolling_shutter_ms=_lerp(15, 30, s),
                        gain_swing=_lerp(0.2, 0.4, s), white_balance_swing=_lerp(0.05, 0.2, s),
                        depth_delay_ms=_lerp(10, 20, s))
@@ -173,15 +178,18 @@ def metrics(seq: Path, out: Path) -> dict[str, Any]:
 
 
 def run_all(cases: list[Case], seqs: dict[str, Path], presets: list[str], sets: list[str],
-            runs_dir: Path, jobs: int) -> dict[str, dict[str, Any]]:
-    """Metrics of every case and twin under every preset: ``{preset: {name: metrics}}``."""
+            runs_dir: Path, jobs: int, twin_dir: Path | None = None) -> dict[str, dict[str, Any]]:
+    """Metrics of every case and twin under every preset: ``{preset: {name: metrics}}``.
+    With ``twin_dir`` the twins are run there without ``sets`` (or reused from there): a
+    threshold sweep compares each setting against one baseline twin."""
     todo = [(p, n) for p in presets for c in cases for n in (c.name, f"{c.name}_twin")]
 
     def job(item: tuple[str, str]) -> dict[str, Any]:
         preset, name = item
-        out = runs_dir / preset / name
+        twin = twin_dir is not None and name.endswith("_twin")
+        out = (twin_dir if twin else runs_dir) / preset / name  # type: ignore[operator]
         out.mkdir(parents=True, exist_ok=True)
-        return run_one(seqs[name], out, preset, sets)
+        return run_one(seqs[name], out, preset, [] if twin else sets)
 
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         results = list(pool.map(job, todo))
@@ -278,6 +286,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                     help="config override passed to every run (repeatable)")
     ap.add_argument("--tag", default="current", help="name of the code state the runs are cached under")
+    ap.add_argument("--twin-tag", default=None,
+                    help="take the clean twins from this tag's runs, without --set (for sweeps)")
     ap.add_argument("--json", type=Path, default=None, help="also write the JSON document here")
     ap.add_argument("--render-only", action="store_true")
     ap.add_argument("--per-run", action="store_true", help="also print every run's row")
@@ -302,10 +312,11 @@ def main(argv: list[str] | None = None) -> int:
     suffix = "_".join(s.replace("slam.", "").replace("=", "") for s in args.sets)
     runs_dir = args.cache / "runs" / (args.tag + (f"_{suffix}" if suffix else ""))
     start = time.perf_counter()
-    runs = run_all(cases, seqs, presets, args.sets, runs_dir, args.jobs)
+    twin_dir = args.cache / "runs" / args.twin_tag if args.twin_tag else None
+    runs = run_all(cases, seqs, presets, args.sets, runs_dir, args.jobs, twin_dir)
     rows = summarise(cases, runs)
     doc = {"benchmark": "robustness_split", "part": args.part, "kinds": list(kinds), "presets": presets,
-           "sets": args.sets, "tag": args.tag, "size": list(SIZE),
+           "sets": args.sets, "tag": args.tag, "twin_tag": args.twin_tag, "sizes": {"blackout": list(BLACKOUT_SIZE), "hard": list(HARD_SIZE)},
            "seeds": {f"{k}/{p}": list(v) for (k, p), v in SEEDS.items()},
            "render_s": round(render_s, 1), "run_s": round(time.perf_counter() - start, 1),
            "summary": rows, "runs": {p: runs[p] for p in presets},
