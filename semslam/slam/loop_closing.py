@@ -268,9 +268,9 @@ class LoopClosing(KeyframeWorker):
                      source: str = "bow") -> str | None:
         """Check a candidate merge (``T12``: kf <- cand) and merge the maps if it passes and
         enough keyframes agree (``merge_check.enough``): "merged"; one that passes with
-        fewer waits in ``_pending`` for later keyframes: "pending"; None if it failed. ``source``: what
-        found the candidate ("bow", "hint": the relocalisation hint's RANSAC, "bridge": its
-        motion-model bridge), recorded in stats.json's merge_checks."""
+        fewer waits in ``_pending`` for later keyframes: "pending"; None if it failed.
+        ``source``: what found the candidate ("bow", "hint": the relocalisation hint's
+        RANSAC, "bridge": its motion-model bridge), recorded in stats.json's merge_checks."""
         assert self.merger is not None
         with self.map.lock:
             covis = [k for k in kf.best_covisibles(COVISIBLES) if not k.bad and k.map_id == kf.map_id]
@@ -284,7 +284,7 @@ class LoopClosing(KeyframeWorker):
         same = [p for p in self._pending if {p.kf.map_id, p.cand.map_id} == {kf.map_id, cand.map_id}]
         p = next((p for p in same if p.kf.map_id == kf.map_id and p.agrees(v.S)), None)
         agree = v.confirmers | (p.confirmers if p is not None else set())  # a transform found again
-        later = p is not None and kf.id not in {i for _, i in p.confirmers}
+        later = p is not None and (p.later or kf.id not in {i for _, i in p.confirmers})
         if not enough(agree, later):
             atlas.merge_checked(kf, cand, v.T12, "pending", len(agree), source)
             self._pending = [q for q in self._pending if q not in same]
