@@ -53,24 +53,41 @@ def merge_transform(kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], move
     return invert(invert(T12) @ kf.T_cw) @ cand.T_cw
 
 
+def _path_to_root(kf: KeyFrame) -> list[KeyFrame]:
+    """kf and its ancestors up to its tree's root (stopping at a repeat, should the parent
+    links ever form a cycle)."""
+    path: list[KeyFrame] = []
+    seen: set[int] = set()
+    node: KeyFrame | None = kf
+    while node is not None and id(node) not in seen:
+        seen.add(id(node))
+        path.append(node)
+        node = node.parent
+    return path
+
+
 def _reroot(child_kf: KeyFrame, new_parent: KeyFrame) -> None:
     """Hang ``child_kf``'s spanning tree under ``new_parent``: the parent links from
     child_kf up to its map's root are reversed (ORB-SLAM3 MergeLocal), so the merged map
-    has one tree and the old root becomes an ordinary keyframe."""
+    has one tree and the old root becomes an ordinary keyframe. If the two are already in
+    one tree (a parent link across the maps), nothing changes: reversing the path would
+    close a cycle (a threaded default run on a held-out room_path render hung here)."""
+    path = _path_to_root(child_kf)
+    if not set(path).isdisjoint(_path_to_root(new_parent)):
+        log.warning("keyframes %d and %d already share a spanning tree; not re-rooted", child_kf.id, new_parent.id)
+        return
     old_parent = child_kf.parent
     if old_parent is not None:
         old_parent.children.discard(child_kf)
     child_kf.parent = new_parent
     new_parent.children.add(child_kf)
-    below, node = child_kf, old_parent
-    while node is not None:
+    for below, node in zip(path, path[1:]):
         up = node.parent
         if up is not None:
             up.children.discard(node)
         node.children.discard(below)
         node.parent = below
         below.children.add(node)
-        below, node = node, up
 
 
 def _window(kf: KeyFrame, n: int = 15) -> list[KeyFrame]:
