@@ -15,45 +15,26 @@ import json
 import logging
 import math
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from semslam.cli.main import main
 from semslam.config import SystemConfig, load_config
 from semslam.config.checks import RULES, Num
 from semslam.errors import ConfigError
 from semslam.eval import rpe
 from semslam.geometry.se3 import make_pose, so3_exp
 from semslam.io.trajectory import Trajectory, read_tum, write_tum
+from tests.cli_outcome import Outcome, cli
 
 FRAMES = 5
 W, H = 320, 240
 
 
-@dataclass
-class Outcome:
-    rc: int
-    out: str
-    err: str
-
-    @property
-    def error_line(self) -> str:
-        """The one ``error:`` line of a refused command (and that there is nothing else)."""
-        assert self.rc == 2 and "Traceback" not in self.err, self.err
-        lines = [line for line in self.err.splitlines() if line.strip()]
-        assert len(lines) == 1 and lines[0].startswith("error: "), self.err
-        return lines[0]
 
 
-def cli(capsys: pytest.CaptureFixture[str], *args: object) -> Outcome:
-    capsys.readouterr()
-    rc = main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return Outcome(rc, captured.out, captured.err)
 
 
 @pytest.fixture(scope="module")

@@ -17,45 +17,23 @@ import os
 import re
 import shutil
 import signal
-import subprocess
 import sys
-import threading
-import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from semslam.cli import run_cmd
-from semslam.cli.main import main
 from semslam.config.load import available_presets
+from tests.cli_outcome import cli
+from tests.test_interrupt import Run
 
 FRAMES = 40
 W, H = 320, 240
 FAST = ("--preset", "orb", "--sequential", "--map", "none", "--no-report")
 
 
-@dataclass
-class Outcome:
-    rc: int
-    out: str
-    err: str
-
-    @property
-    def error_line(self) -> str:
-        """The one ``error:`` line of a refused run (and that there is nothing else on stderr)."""
-        assert "Traceback" not in self.err
-        lines = [line for line in self.err.splitlines() if line.strip()]
-        assert len(lines) == 1 and lines[0].startswith("error: "), self.err
-        return lines[0]
 
 
-def cli(capsys: pytest.CaptureFixture[str], *args: str) -> Outcome:
-    """``semslam ARGS`` in this process."""
-    capsys.readouterr()
-    rc = main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return Outcome(rc, captured.out, captured.err)
 
 
 def stats_of(out: Path) -> dict:
@@ -263,34 +241,6 @@ def test_help_lists_every_preset_with_a_line(capsys: pytest.CaptureFixture[str])
     assert "--overwrite" in r.out
 
 
-class Child:
-    """``semslam run`` in a child process, its progress bar read from stderr."""
-
-    def __init__(self, seq: Path, out: Path) -> None:
-        cmd = [sys.executable, "-m", "semslam.cli.main", "run", str(seq), "-o", str(out), "--preset", "orb",
-               "--map", "none", "--no-report", "--realtime"]
-        self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                     cwd=Path(__file__).resolve().parents[1])
-        self.err = ""
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stderr is not None
-        while chunk := self.proc.stderr.read1(4096):  # type: ignore[attr-defined]
-            self.err += chunk.decode(errors="replace")
-
-    def wait_for_frames(self, n: int, timeout: float = 60.0) -> None:
-        end = time.monotonic() + timeout
-        while not any(int(k) >= n for k in re.findall(rf"(\d+)/{FRAMES}\b", self.err)):
-            assert self.proc.poll() is None, f"the run ended early: {self.err[-2000:]}"
-            assert time.monotonic() < end, f"no progress: {self.err[-2000:]}"
-            time.sleep(0.02)
-
-    def wait(self) -> int:
-        rc = self.proc.wait(timeout=60)
-        self._reader.join(timeout=5)
-        return rc
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
@@ -298,10 +248,10 @@ class Child:
 def test_signal_exit_codes_and_outputs(sig: int, base: Path, tmp_path: Path) -> None:
     """At the camera's rate (40 frames: 1.3 s), stopped once tracking has begun."""
     out = tmp_path / "run"
-    child = Child(base, out)
+    child = Run(base, out, "--map", "none", "--no-report", preset="orb", frames=FRAMES)
     child.wait_for_frames(4)
     os.kill(child.proc.pid, sig)
-    rc = child.wait()
+    rc, _ = child.wait()
     assert rc == {signal.SIGTERM: 143, signal.SIGINT: 130}[sig], child.err[-2000:]
     assert "Traceback" not in child.err and "interrupted: stopped after" in child.err
     stats = stats_of(out)

@@ -22,9 +22,10 @@ FRAMES = 90  # conftest.E2E_FRAMES
 class Run:
     """``semslam run`` in a child process, its progress bar read from stderr."""
 
-    def __init__(self, seq: Path, out: Path, *extra: str) -> None:
-        cmd = [sys.executable, "-m", "semslam.cli.main", "run", str(seq), "--out", str(out), "--preset", "default",
+    def __init__(self, seq: Path, out: Path, *extra: str, preset: str = "default", frames: int = FRAMES) -> None:
+        cmd = [sys.executable, "-m", "semslam.cli.main", "run", str(seq), "--out", str(out), "--preset", preset,
                "--realtime", *extra]
+        self.frames = frames  # the sequence's length, as the progress bar shows it
         self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
                                      cwd=Path(__file__).resolve().parents[1])
         self.err = ""
@@ -37,7 +38,7 @@ class Run:
             self.err += chunk.decode(errors="replace")
 
     def frames_done(self) -> int:
-        done = re.findall(rf"(\d+)/{FRAMES}\b", self.err)
+        done = re.findall(rf"(\d+)/{self.frames}\b", self.err)
         return int(done[-1]) if done else 0
 
     def wait_for_frames(self, n: int, timeout: float = 120.0) -> None:
