@@ -285,13 +285,12 @@ class LoopClosing(KeyframeWorker):
         p = next((p for p in same if p.kf.map_id == kf.map_id and p.agrees(v.S)), None)
         agree = v.confirmers | (p.confirmers if p is not None else set())  # a transform found again
         later = p is not None and (p.later or kf.id not in {i for _, i in p.confirmers})
+        self._pending = [q for q in self._pending if q not in same]  # this check supersedes them
         if not enough(agree, later):
             atlas.merge_checked(kf, cand, v.T12, "pending", len(agree), source)
-            self._pending = [q for q in self._pending if q not in same]
             self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree, later))
             return "pending"
         atlas.merge_checked(kf, cand, v.T12, "merged", len(agree), source)
-        self._pending = [q for q in self._pending if q not in same]
         self._merge_maps(kf, cand, v.T12, v.matched)
         return "merged"
 

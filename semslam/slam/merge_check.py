@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from semslam.backend.pose_only import optimize_pose
 from semslam.geometry.camera import PinholeCamera
-from semslam.geometry.se3 import invert, orthonormalize
+from semslam.geometry.se3 import invert, orthonormalize, rotation_angle
 from semslam.slam.map import KeyFrame, MapPoint
 
 #: Pose-only inliers the keyframe that found the place needs (relocalisation's bar).
@@ -124,8 +124,7 @@ def pose_difference(A: NDArray[np.float64], B: NDArray[np.float64]) -> tuple[flo
     """(metres, degrees) between two camera poses T_cw: the centres' distance and the angle
     of the relative rotation."""
     c_a, c_b = invert(A)[:3, 3], invert(B)[:3, 3]
-    R = A[:3, :3] @ B[:3, :3].T
-    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+    angle = np.degrees(rotation_angle(A[:3, :3] @ B[:3, :3].T))
     return float(np.linalg.norm(c_a - c_b)), float(angle)
 
 
