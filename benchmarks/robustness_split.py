@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from semslam.eval.metrics import ate
+from semslam.experiments.merge_error import is_wrong, merge_errors
 from semslam.experiments.bench import emit_json
 from semslam.io.trajectory import read_tum
 from semslam.runtime import limit_threads
@@ -159,7 +160,8 @@ def run_one(seq: Path, out: Path, preset: str, sets: list[str]) -> dict[str, Any
 
 
 def metrics(seq: Path, out: Path) -> dict[str, Any]:
-    """ATE RMSE (se3, all posed frames), lost frames, maps, merges, one piece or not."""
+    """ATE RMSE (se3, all posed frames), lost frames, maps, merges and how far each is off at
+    the weld against ground truth (``experiments.merge_error``), one piece or not."""
     stats = json.loads((out / "stats.json").read_text())
     frames = sum(1 for line in (seq / "rgb.txt").read_text().splitlines()
                  if line.strip() and not line.startswith("#"))
@@ -167,10 +169,13 @@ def metrics(seq: Path, out: Path) -> dict[str, Any]:
     est = read_tum(traj_file) if traj_file.is_file() else None
     posed = 0 if est is None else len(est)
     atlas = stats.get("atlas", stats)
+    welds = merge_errors(seq, atlas)
     res: dict[str, Any] = {
         "frames": frames, "posed": posed, "lost": frames - posed,
         "maps": atlas.get("maps"), "merges": atlas.get("merges"),
         "frames_outside_first_map": atlas.get("frames_outside_first_map"),
+        "merge_weld_cm": [round(100 * m, 2) for m, _ in welds],
+        "wrong_merges": sum(is_wrong(e) for e in welds),
     }
     if posed >= 3:
         res["ate_m"] = float(ate(read_tum(seq / "groundtruth.txt"), est, align="se3").stats["rmse"])
@@ -240,6 +245,7 @@ def summarise(cases: list[Case], runs: dict[str, dict[str, Any]]) -> list[dict[s
                     "runs_with_lost": sum(1 for r in run if r.get("lost", 0) > 0),
                     "not_one_piece": sum(1 for r in run if (r.get("frames_outside_first_map") or 0) > 0),
                     "merges_total": int(sum(r.get("merges") or 0 for r in run)),
+                    "wrong_merges_total": int(sum(r.get("wrong_merges") or 0 for r in run)),
                     "meets_target": sum(_meets(kind, r, q) for r, q in zip(run, ratios)),
                     "errors": sum(1 for r in run + twin if "error" in r),
                 })
@@ -249,14 +255,15 @@ def summarise(cases: list[Case], runs: dict[str, dict[str, Any]]) -> list[dict[s
 def table(rows: list[dict[str, Any]]) -> str:
     """The summary as a markdown table."""
     head = ("| preset | part | kind | n | ATE cm median / worst | twin cm median / worst | ratio median / worst "
-            "| lost total / worst (runs) | twin lost | not one piece | merges | meets target |")
+            "| lost total / worst (runs) | twin lost | not one piece | merges (wrong) | meets target |")
     lines = [head, "|" + "---|" * 12]
     for r in rows:
         lines.append(
             f"| {r['preset']} | {r['part']} | {r['kind']} | {r['n']} | {r['ate_cm_median']:.2f} / "
             f"{r['ate_cm_worst']:.2f} | {r['twin_ate_cm_median']:.2f} / {r['twin_ate_cm_worst']:.2f} | "
             f"{r['ratio_median']:.2f} / {r['ratio_worst']:.2f} | {r['lost_total']} / {r['lost_worst']} "
-            f"({r['runs_with_lost']}) | {r['twin_lost_total']} | {r['not_one_piece']} | {r['merges_total']} | "
+            f"({r['runs_with_lost']}) | {r['twin_lost_total']} | {r['not_one_piece']} | {r['merges_total']} "
+            f"({r['wrong_merges_total']}) | "
             f"{r['meets_target']}/{r['n']} |")
     return "\n".join(lines)
 

@@ -24,7 +24,9 @@ import numpy as np
 import pytest
 
 from semslam.geometry.se3 import invert, make_pose, so3_exp
+from semslam.experiments.merge_error import WRONG_DEG, WRONG_M, merge_errors, true_T12, weld_error
 from semslam.io.sequence import read_file_list
+from semslam.io.trajectory import Trajectory, read_tum
 from semslam.slam.merge_check import (
     MAX_DEPTH_ERROR, depth_error, enough, depth_spread, grid_cells, pose_difference, scene_shift,
 )
@@ -35,49 +37,11 @@ OVERRIDES = {"slam.sequential": True, "maps.builders": [], "features.n_features"
              "slam.min_init_keypoints": 300, "slam.bf": 20}
 CLI = ["--preset", "orb", "--sequential", "--quiet", "--no-report", "--overwrite", "--set", "features.n_features=600",
        "--set", "slam.min_init_keypoints=300", "--set", "slam.bf=20"]
-#: What a merge may be off by at the weld (``_weld_error``).
-TOL_M, TOL_DEG = 0.05, 2.0
-
-
-def _groundtruth(seq: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Timestamps and T_wc of the render's groundtruth.txt."""
-    from scipy.spatial.transform import Rotation
-
-    rows = [line.split() for line in (seq / "groundtruth.txt").read_text().splitlines()
-            if line.strip() and not line.startswith("#")]
-    ts = np.array([float(r[0]) for r in rows])
-    T = np.tile(np.eye(4), (len(rows), 1, 1))
-    for i, r in enumerate(rows):
-        v = np.array(r[1:], float)
-        T[i, :3, :3], T[i, :3, 3] = Rotation.from_quat(v[3:7]).as_matrix(), v[:3]
-    return ts, T
-
-
-def _true_T12(gt: tuple[np.ndarray, np.ndarray], t_kf: float, t_cand: float) -> np.ndarray:
-    """kf camera <- cand camera from ground truth."""
-    ts, T = gt
-    return invert(T[np.argmin(abs(ts - t_kf))]) @ T[np.argmin(abs(ts - t_cand))]
 
 
 def _error(T12: np.ndarray, true: np.ndarray) -> tuple[float, float]:
     """(metres, degrees): where T12 puts cand's camera seen from kf against the truth."""
     return pose_difference(invert(T12), invert(true))
-
-
-def _weld_error(seq: Path, t_kf: float, T12: np.ndarray, true: np.ndarray) -> tuple[float, float]:
-    """(metres, degrees): how far T12 puts the scene kf sees (its depth image, every 8th
-    pixel) from where the true transform puts it, median; and the rotation error. This is
-    what a merge being off means for the welded maps; the camera centres' distance also
-    counts the turn-versus-slide ambiguity of a narrow view (0.9 deg about a scene 3 m away
-    moves the centre 5 cm and the scene 1 cm)."""
-    depth = read_file_list(seq / "depth.txt")
-    j = int(np.argmin([abs(e.timestamp - t_kf) for e in depth]))
-    z = cv2.imread(str(depth[j].path), cv2.IMREAD_UNCHANGED)[::8, ::8].astype(float) / 5000.0
-    fx, fy, cx, cy = (float(v) for v in (seq / "calib.txt").read_text().split()[:4])
-    v, u = np.nonzero(z > 0)
-    zz = z[v, u]
-    pts = np.stack([(u * 8 - cx) * zz / fx, (v * 8 - cy) * zz / fy, zz], 1)
-    return scene_shift(invert(T12), invert(true), pts), pose_difference(T12, true)[1]
 
 
 # ---------------------------------------------------------------- the checks' measures
@@ -150,14 +114,14 @@ def two_maps(renders: dict[str, Path]) -> Iterator[tuple[object, Path]]:
     slam.close()
 
 
-def _overlapping_pairs(core: object, gt: tuple[np.ndarray, np.ndarray]) -> list[tuple[object, object]]:
+def _overlapping_pairs(core: object, gt: Trajectory) -> list[tuple[object, object]]:
     """(map-1 keyframe, map-0 keyframe) pairs whose true views overlap (cameras within 50 cm
     and 25 deg), at most 12."""
     kfs = core.map.all_keyframes()
     pairs = []
     for k1 in (k for k in kfs if k.map_id == 1 and not k.bad):
         for k0 in (k for k in kfs if k.map_id == 0 and not k.bad):
-            d, a = _error(np.eye(4), _true_T12(gt, k1.timestamp, k0.timestamp))
+            d, a = _error(np.eye(4), true_T12(gt, k1.timestamp, k0.timestamp))
             if d < 0.5 and a < 25.0:
                 pairs.append((k1, k0))
     return pairs[:12]
@@ -171,13 +135,13 @@ WRONG = [make_pose(np.eye(3), np.array(v)) for v in
 
 def test_verifier_accepts_only_transforms_close_to_the_truth(two_maps: tuple[object, Path]) -> None:
     core, seq = two_maps
-    gt = _groundtruth(seq)
+    gt = read_tum(seq / "groundtruth.txt")
     closer = core.closer
     pairs = _overlapping_pairs(core, gt)
     assert len(pairs) >= 3
     right = 0
     for k1, k0 in pairs:
-        true = _true_T12(gt, k1.timestamp, k0.timestamp)
+        true = true_T12(gt, k1.timestamp, k0.timestamp)
         covis = [k for k in k1.best_covisibles(5) if not k.bad]
         cand_covis = [k for k in k0.best_covisibles(5) if not k.bad]
         for i, delta in enumerate([np.eye(4), *WRONG]):
@@ -186,8 +150,8 @@ def test_verifier_accepts_only_transforms_close_to_the_truth(two_maps: tuple[obj
             v = closer.verifier.verify(k1, k0, T12, matched, covis, cand_covis)
             if not v.ok or not enough(v.confirmers):
                 continue
-            d, a = _weld_error(seq, k1.timestamp, v.T12, true)
-            assert d <= TOL_M and a <= TOL_DEG, f"kf {k1.id} vs {k0.id}, offset #{i}: accepted {d:.3f} m {a:.2f} deg off"
+            d, a = weld_error(seq, k1.timestamp, v.T12, true)
+            assert d <= WRONG_M and a <= WRONG_DEG, f"kf {k1.id} vs {k0.id}, offset #{i}: accepted {d:.3f} m {a:.2f} deg off"
             right += i == 0  # (an offset one may be refitted back to the truth: fine)
     assert right >= len(pairs) // 2, f"the true transform was accepted for {right} of {len(pairs)} pairs"
 
@@ -196,9 +160,9 @@ def test_wrong_depths_are_refused(two_maps: tuple[object, Path]) -> None:
     """The same true transform, with the keyframe's measured depths scaled by 10 %: the
     RGB-D depth check refuses what the image alone would accept."""
     core, seq = two_maps
-    gt = _groundtruth(seq)
+    gt = read_tum(seq / "groundtruth.txt")
     k1, k0 = _overlapping_pairs(core, gt)[0]
-    true = _true_T12(gt, k1.timestamp, k0.timestamp)
+    true = true_T12(gt, k1.timestamp, k0.timestamp)
     matched = core.closer._match_at(k1, k0, true) or {}
     fit = core.closer.verifier.fit(k1, true @ k0.T_cw, matched)
     assert fit is not None and fit.depth_err <= MAX_DEPTH_ERROR
@@ -232,13 +196,8 @@ def test_every_merge_made_is_right(renders: dict[str, Path], name: str, tmp_path
     seq = renders[name]
     assert main(["run", str(seq), "--out", str(tmp_path), *CLI]) == 0
     stats = json.loads((tmp_path / "stats.json").read_text())
-    gt = _groundtruth(seq)
-    for c in stats["merge_checks"]:
-        if c["result"] != "merged":
-            continue
-        d, a = _weld_error(seq, c["kf_time"], np.array(c["T12"]).reshape(4, 4),
-                           _true_T12(gt, c["kf_time"], c["cand_time"]))
-        assert d <= TOL_M and a <= TOL_DEG, f"{name}: merge {c['kf']} <-> {c['cand']} {d:.3f} m {a:.2f} deg off"
+    for d, a in merge_errors(seq, stats):
+        assert d <= WRONG_M and a <= WRONG_DEG, f"{name}: a merge {d:.3f} m {a:.2f} deg off"
     merged = [c for c in stats["merge_checks"] if c["result"] == "merged"]
     assert len(merged) == stats["merges"] >= 1
     for c in merged:  # a global BA held the weld's keyframes of both maps
