@@ -1,7 +1,8 @@
 """Record or check deterministic reference trajectories of the SLAM presets.
 
 A refactor must not change what the system computes. This script renders two short
-sequences (static and people walking), runs each preset through the CLI with
+sequences (static and people walking), runs each preset (the RGB-D ones and the
+monocular `sdf` and `sdf_rgbd`) through the CLI with
 ``--sequential`` (single-threaded, deterministic) and either stores the trajectories
 (``--record DIR``) or compares a new run against them (``--check DIR``), printing JSON
 and a table with the largest position difference per preset and sequence.
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-PRESETS = ["orb", "default", "stdc", "ddl"]
+PRESETS = ["orb", "default", "stdc", "ddl", "sdf", "sdf_rgbd"]
 SEQUENCES = {"static_xyz": 120, "walking_xyz": 150}
 
 
@@ -58,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     mode.add_argument("--check", type=Path, help="compare a new run against the references here")
     ap.add_argument("--data", type=Path, default=Path("out/reference/data"), help="rendered sequences (cached)")
     ap.add_argument("--presets", default=",".join(PRESETS))
+    ap.add_argument("--work", type=Path, default=Path("out/reference/check"), help="where --check runs write")
     args = ap.parse_args(argv)
     seqs = _render(args.data)
     ref_dir = args.record or args.check
@@ -68,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
                 traj = _run(seq_dir, preset, ref_dir / preset / name)
                 rows.append({"sequence": name, "preset": preset, "frames": len(_load(traj))})
                 continue
-            new = _load(_run(seq_dir, preset, Path("out/reference/check") / preset / name))
+            new = _load(_run(seq_dir, preset, args.work / preset / name))
             ref = _load(ref_dir / preset / name / "trajectory.txt")
             common, ia, ib = np.intersect1d(ref[:, 0], new[:, 0], return_indices=True)
             diff = float(np.abs(ref[ia, 1:4] - new[ib, 1:4]).max()) if len(common) else float("nan")
