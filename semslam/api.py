@@ -42,7 +42,8 @@ from semslam.errors import ConfigError, DataError, SemslamError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.images import depth_to_metres
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
-from semslam.io.trajectory import Trajectory, write_tum
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import write_tum
 from semslam.run_record import Evaluation, RunTiming, evaluate, timing_stats, write_run_report
 from semslam.thread_clock import thread_times
 from semslam.slam.system import System as SlamSystem

@@ -15,7 +15,8 @@ import numpy as np
 from semslam.config import SystemConfig
 from semslam.core.types import RunResult, TrackResult
 from semslam.errors import EvalError
-from semslam.io.trajectory import Trajectory, read_trajectory
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import read_trajectory
 
 if TYPE_CHECKING:
     from semslam.eval.metrics import AteResult, RpeResult

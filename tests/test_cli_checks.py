@@ -26,7 +26,8 @@ from semslam.config.checks import RULES, Num
 from semslam.errors import ConfigError
 from semslam.eval import rpe
 from semslam.geometry.se3 import make_pose, so3_exp
-from semslam.io.trajectory import Trajectory, read_tum, write_tum
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import read_tum, write_tum
 from tests.cli_outcome import Outcome, cli
 
 FRAMES = 5

@@ -18,7 +18,7 @@ from semslam.eval.metrics import ate
 from semslam.features import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.slam.system import System
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import rendered_frames

@@ -15,7 +15,8 @@ from semslam.cli import eval_cmd
 from semslam.errors import TrajectoryError
 from semslam.eval import ate, rpe
 from semslam.geometry.se3 import make_pose, so3_exp
-from semslam.io.trajectory import Trajectory, read_tum, write_tum
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import read_tum, write_tum
 
 
 def _app() -> typer.Typer:

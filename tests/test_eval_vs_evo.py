@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from semslam.errors import EvalError
 from semslam.eval import associate, ate, error_stats, match_timestamps, rpe
 from semslam.eval.metrics import STAT_NAMES, pairs_by_time
-from semslam.io.trajectory import Trajectory, read_trajectory
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import read_trajectory
 
 evo_metrics = pytest.importorskip("evo.core.metrics")
 sync = pytest.importorskip("evo.core.sync")

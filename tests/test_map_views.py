@@ -17,7 +17,7 @@ from plyfile import PlyData, PlyElement
 from semslam.errors import DataError
 from semslam.eval.metrics import ate
 from semslam.eval.report import write_report
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.reconstruction.keyframe_cloud import write_ply
 from semslam.viz.map_views import Cloud, find_cloud, perspective_png, read_cloud, top_down_png, write_views
 from semslam.viz.palette import class_colour, class_name

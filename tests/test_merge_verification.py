@@ -26,7 +26,8 @@ import pytest
 from semslam.geometry.se3 import invert, make_pose, so3_exp
 from semslam.experiments.merge_error import WRONG_DEG, WRONG_M, merge_errors, true_T12, weld_error
 from semslam.io.sequence import read_file_list
-from semslam.io.trajectory import Trajectory, read_tum
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import read_tum
 from semslam.slam.merge_check import (
     MAX_DEPTH_ERROR, depth_error, enough, depth_spread, grid_cells, pose_difference, scene_shift,
 )

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 import pytest
 
-from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg, sharpness
+from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
+from semslam.frontend.sharpness import sharpness
 from semslam.cli.main import main
 from semslam.cli.run_cmd import rolling_shutter_flags
 from semslam.config import load_config
@@ -27,7 +28,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.rotation_about_centre import RotationFit
 from semslam.geometry.se3 import invert
 from semslam.io.calibration import rolling_shutter_ms_from_folder
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.slam import tracking as tracking_module
 from semslam.slam.system import System
 from semslam.slam.tracking import Tracking

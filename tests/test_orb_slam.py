@@ -17,7 +17,7 @@ from semslam.config import load_config
 from semslam.eval.metrics import ate
 from semslam.geometry.camera import PinholeCamera
 from semslam.core.types import Frame
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.slam.map_io import load_map
 from semslam.slam.system import System
 from semslam.core.types import TrackingState

@@ -11,7 +11,7 @@ import numpy as np
 from semslam.eval import ate, rpe
 from semslam.eval.report import write_report
 from semslam.geometry.se3 import make_pose, so3_exp
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 
 
 def _pair(n: int = 3000) -> tuple[Trajectory, Trajectory]:

@@ -1,4 +1,4 @@
-"""The turn between two frames from the shift of small images (``backend/shift_rotation.py``),
+"""The turn between two frames from the shift of small images (``frontend/shift_rotation.py``),
 on a real Kinect photo turned by a known rotation (the homography K R K^-1), sharp and with
 motion blur and a gain change. A shift is not a homography (the edges of a turned image
 stretch), so the bounds are what the tracker needs: a search seed inside the motion model's
@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from semslam.backend.shift_rotation import ShiftRotation, small_image
+from semslam.frontend.shift_rotation import ShiftRotation, small_image
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "kinect_rgbd_5frames"
 K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])

@@ -9,8 +9,8 @@ import pytest
 
 from semslam.errors import TrajectoryError
 from semslam.geometry.se3 import make_pose, quat_to_rot, so3_exp
+from semslam.core.trajectory import Trajectory
 from semslam.io.trajectory import (
-    Trajectory,
     detect_format,
     read_euroc_csv,
     read_kitti,

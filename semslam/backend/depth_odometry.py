@@ -39,21 +39,6 @@ def rotation_angle_deg(T: NDArray[np.float64]) -> float:
     return float(np.degrees(rotation_angle(T[:3, :3])))
 
 
-def sharpness(gray: NDArray[np.uint8]) -> float:
-    """Mean absolute Laplacian over mean intensity, on a 320-px-wide copy: motion blur lowers it
-    (on the blurred glance of ``walking_turns`` from 0.16-0.17 to 0.05-0.09), a gain change
-    does not. What the camera looks at changes it too (0.17 -> 0.11 over the same glance
-    without blur), so it is compared with the frames just before (``Tracking``)."""
-    h, w = gray.shape[:2]
-    scale = 320.0 / w
-    small = cv2.resize(gray, (320, max(1, round(h * scale))), interpolation=cv2.INTER_AREA) if w > 320 else gray
-    small = small.astype(np.float32)
-    mean = float(small.mean())
-    if mean <= 1e-6:
-        return 0.0
-    return float(np.abs(cv2.Laplacian(small, cv2.CV_32F)).mean()) / mean
-
-
 class RotationOdometry:
     """``T_prev_cur`` (a point in the current camera to the previous one) with the rotation
     aligned densely and the translation kept from the initial guess (the motion model)."""

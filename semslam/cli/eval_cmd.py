@@ -24,7 +24,8 @@ from semslam.eval.metrics import (
     ate,
     rpe,
 )
-from semslam.io.trajectory import Trajectory, detect_format, read_trajectory
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import detect_format, read_trajectory
 
 
 def _read_pair(

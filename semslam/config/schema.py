@@ -199,7 +199,7 @@ class SlamConfig:
     depth_odometry_sharp_ratio: float = 0.0
     # Motion blur without dense alignment: a frame whose sharpness is below
     # blur_coast_sharp_ratio x the sharpest of the last 10 tracked frames gets its turn
-    # measured from the shift of small images (backend/shift_rotation.py, PTAM-style), which
+    # measured from the shift of small images (frontend/shift_rotation.py, PTAM-style), which
     # seeds the search when it says faster than blur_coast_turn_deg a frame. Such a frame
     # (or one whose features put its centre > 3 cm off the steady motion, or find no pose)
     # "coasts": it keeps its camera centre on the motion of the last steady frames and takes

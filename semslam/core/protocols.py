@@ -22,16 +22,14 @@ from collections.abc import Iterator
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.trajectory import Trajectory
 from semslam.core.types import FeatureSpec, Frame, Keypoints, LabelMap, TrackResult
 from semslam.geometry.camera import PinholeCamera
-
-if TYPE_CHECKING:
-    from semslam.io.trajectory import Trajectory
 
 BoolImage = NDArray[np.bool_]
 
@@ -54,7 +52,7 @@ class FramePacket:
     #: On the packet, not on TrackResult, so a run does not keep them for every frame.
     keypoints_xy: NDArray[np.float32] | None = None
     keypoint_static: NDArray[np.bool_] | None = None
-    #: The frame's sharpness (``backend.depth_odometry.sharpness``), measured ahead of tracking
+    #: The frame's sharpness (``frontend.sharpness.sharpness``), measured ahead of tracking
     #: by ``System.prepare`` in the reader thread when the tracker compares frames' sharpness
     #: (blur coasting, depth odometry); None: the tracker measures it if it needs it.
     sharpness: float | None = None
@@ -230,11 +228,11 @@ class Tracker(Protocol):
     @property
     def n_keyframes(self) -> int: ...
 
-    def trajectory(self) -> "Trajectory":
+    def trajectory(self) -> Trajectory:
         """Every frame that has a pose (lost frames are left out), after final optimisation."""
         ...
 
-    def keyframe_trajectory(self) -> "Trajectory": ...
+    def keyframe_trajectory(self) -> Trajectory: ...
 
     def map_points(self) -> NDArray[np.float64]:
         """World positions (N, 3) of the map's points now ((0, 3) for a tracker without a map)."""

@@ -181,6 +181,13 @@ class TrackResult:
     is_keyframe: bool = False
     dynamic_ratio: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+    #: The frame's final dynamic mask (semantic classes + moving regions; None without
+    #: dynamics handling), for the map builders.
+    dynamic: NDArray[np.bool_] | None = field(default=None, repr=False)
+    #: For viewers (``viz.rerun_log``): the keypoints extracted (pixels as detected) and, per
+    #: keypoint, False where it was removed as dynamic (moving regions).
+    keypoints_xy: NDArray[np.float32] | None = field(default=None, repr=False)
+    keypoint_static: NDArray[np.bool_] | None = field(default=None, repr=False)
 
 
 # ---------------------------------------------------------------------------- runs

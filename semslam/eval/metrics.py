@@ -33,7 +33,7 @@ from semslam.errors import EvalError
 from semslam.io.association import associate
 from semslam.geometry.alignment import apply_sim3, sim3_matrix, umeyama
 from semslam.geometry.se3 import invert
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.intp]

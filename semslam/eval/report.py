@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from semslam.errors import DataError, EvalError
 from semslam.eval.metrics import STAT_NAMES, AteResult, RpeResult
 from semslam.geometry.alignment import apply_sim3
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.viz.map_views import find_cloud, write_views
 
 log = logging.getLogger(__name__)

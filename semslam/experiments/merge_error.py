@@ -21,7 +21,8 @@ from semslam.geometry.se3 import invert
 from semslam.io.calibration import read_calib_file
 from semslam.io.images import read_depth
 from semslam.io.sequence import read_file_list
-from semslam.io.trajectory import Trajectory, read_tum
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import read_tum
 from semslam.slam.merge_check import pose_difference, scene_shift
 
 #: A merge further off than this at the weld is wrong (issue 38).

@@ -46,7 +46,8 @@ from semslam.io.association import match_timestamps
 from semslam.io.calibration import DEFAULT_CAMERA, camera_from_folder_name, camera_from_values, parse_camera_option
 from semslam.io.images import FrameReadError
 from semslam.io.sequence import Sequence
-from semslam.io.trajectory import Trajectory, write_tum
+from semslam.core.trajectory import Trajectory
+from semslam.io.trajectory import write_tum
 
 log = logging.getLogger(__name__)
 

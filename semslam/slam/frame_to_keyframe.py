@@ -22,7 +22,7 @@ from semslam.core.protocols import FramePacket, TrackerInputs
 from semslam.core.types import DescriptorKind, Keypoints
 from semslam.errors import ConfigError, DataError
 from semslam.features import create_extractor
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.features.matching import match_brute_force, match_candidates, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose, rotation_angle

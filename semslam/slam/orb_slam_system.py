@@ -31,7 +31,7 @@ from semslam.features import create_extractor, feature_spec
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.io.depth import SensorDepth
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.place.database import KeyframeDatabase
 from semslam.place.flat import vocabulary_for
 from semslam.place.vocabulary import Vocabulary

@@ -56,7 +56,7 @@ from semslam.features import create_extractor
 from semslam.features.matching import matcher_for, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 from semslam.slam.sdf_slam_correction import (DepthAlignment, Edge, TrackTable, ViewFeatures, candidate_pairs,
                                               correct_poses, fit_depth_alignment, match_views, pair_constraint, relative_motion)
 from semslam.slam.frame_to_keyframe import sample_depth

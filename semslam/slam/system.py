@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.depth_odometry import sharpness
+from semslam.frontend.sharpness import sharpness
 from semslam.config import SystemConfig
 from semslam.core import registry
 from semslam.core.protocols import DepthSource, FramePacket, MapBuilder, Tracker, TrackerInputs
@@ -24,7 +24,7 @@ from semslam.errors import ConfigError
 from semslam.features.jit import warm_up as warm_up_kernels
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.input_health import InputHealth
-from semslam.io.trajectory import Trajectory
+from semslam.core.trajectory import Trajectory
 
 
 class System:

@@ -15,8 +15,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg, sharpness
-from semslam.backend.shift_rotation import ShiftRotation, small_image
+from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
+from semslam.frontend.sharpness import sharpness
+from semslam.frontend.shift_rotation import ShiftRotation, small_image
 from semslam.geometry.rotation_about_centre import fit_rotation_about_centre
 from semslam.backend.pose_only import optimize_pose
 from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
@@ -152,7 +153,7 @@ class Tracking:
         # centre's velocity over them (``_odometry_guess``).
         self._good_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
         self.n_depth_odometry_runs = 0
-        # Sharpness (backend/depth_odometry.sharpness) of the last tracked frames, and this one's.
+        # Sharpness (frontend/sharpness.py) of the last tracked frames, and this one's.
         self._recent_sharpness: deque[float] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
         self._sharp = False  # this frame is sharp (only with slam.depth_odometry_sharp_ratio > 0)
         self._current_sharpness: float | None = None
@@ -168,7 +169,7 @@ class Tracking:
         # trajectory entries of its frames, re-posed once features track again (``_record``).
         self._coast_from: tuple[float, NDArray[np.float64]] | None = None
         self._coast_run: list[int] = []
-        # The turn measured from the shift of small images (backend/shift_rotation.py), on
+        # The turn measured from the shift of small images (frontend/shift_rotation.py), on
         # blurred frames and while coasting only: the last tracked frame's (index, image),
         # and this frame's turn (deg) and the pose it predicts (None when not measured).
         self.shift = (ShiftRotation(camera.fx, camera.fy) if self.cfg.blur_coast_sharp_ratio > 0 else None)

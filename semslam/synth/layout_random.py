@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from semslam.synth.atlas import Lights
+from semslam.synth.texture_atlas import Lights
 from semslam.synth.scene import Box, _box, _faces
 
 Rng = np.random.Generator

@@ -14,7 +14,7 @@ from typing import Callable
 
 from semslam.errors import ConfigError
 from semslam.synth import layout_lounge, layout_random, scene
-from semslam.synth.atlas import Lights
+from semslam.synth.texture_atlas import Lights
 from semslam.synth.scene import Box
 
 #: World boxes (min, max) that no static box of any layout may enter: where every camera

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 import semslam
 from semslam.synth import imaging, occluder, writer
-from semslam.synth.atlas import Atlas, build_atlas
+from semslam.synth.texture_atlas import TextureAtlas, build_texture_atlas
 from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
 from semslam.synth.depth_noise import DEPTH_SCALE, Z_MAX, Z_MIN, kinect_depth
@@ -65,7 +65,7 @@ class Frame:
 
 
 @functools.lru_cache(maxsize=2)
-def scene_for_seed(seed: int, carried: bool = False, layout: int = 0) -> tuple[list[Box], Atlas]:
+def scene_for_seed(seed: int, carried: bool = False, layout: int = 0) -> tuple[list[Box], TextureAtlas]:
     """Static boxes of room ``layout`` and the atlas, cached. The atlas also holds the
     mover's faces (after the static boxes) and, with ``carried``, the carried box's (last).
     The carried box casts no baked contact shadow (it does not stay where it stands at
@@ -73,9 +73,9 @@ def scene_for_seed(seed: int, carried: bool = False, layout: int = 0) -> tuple[l
     room = get_layout(layout)
     boxes = room.boxes()
     if not carried:
-        return boxes, build_atlas(boxes + [mover_box(0.0)], seed, lights=room.lights)
+        return boxes, build_texture_atlas(boxes + [mover_box(0.0)], seed, lights=room.lights)
     casters = boxes + [mover_box(0.0)]
-    return boxes, build_atlas(casters + [carried_box(0.0)], seed, casters=casters, lights=room.lights)
+    return boxes, build_texture_atlas(casters + [carried_box(0.0)], seed, casters=casters, lights=room.lights)
 
 
 class Renderer:

@@ -26,7 +26,7 @@ Lights = tuple[tuple[NDArray[np.float64], float], ...]
 
 
 @dataclass
-class Atlas:
+class TextureAtlas:
     """Mip levels of the packed texture and, per box, how local points map to texels.
 
     ``tables[i]`` is ``(6, 2, 4)``: atlas x and y (level-0 pixel coordinates, pixel centres
@@ -89,9 +89,9 @@ def _shading(
     return cv2.resize(light.astype(np.float32), (wpx, hpx), interpolation=cv2.INTER_LINEAR)
 
 
-def build_atlas(
+def build_texture_atlas(
     boxes: list[Box], seed: int, casters: list[Box] | None = None, lights: Lights = LIGHTS
-) -> Atlas:
+) -> TextureAtlas:
     """Generate, light and pack the textures of all faces of ``boxes``; contact shadows
     are baked in from ``casters`` (default: all of ``boxes``), light from ``lights``
     (default: layout 0's)."""
@@ -138,4 +138,4 @@ def build_atlas(
     levels = [atlas]
     for _ in range(LEVELS - 1):
         levels.append(cv2.pyrDown(levels[-1]))
-    return Atlas(levels=levels, tables=tables, ppm=ppm)
+    return TextureAtlas(levels=levels, tables=tables, ppm=ppm)
