@@ -40,6 +40,9 @@ import numpy as np
 from semslam.experiments.bench import machine, targets_table
 from semslam.synth import SEQUENCES, ensure_rendered
 
+sys.path.insert(0, str(Path(__file__).parent))
+from results_page import write_results_page  # noqa: E402  (benchmarks/, run as a script)
+
 WALKING = ["walking_xyz", "walking_halfsphere", "walking_box"]
 STATIC = ["static_xyz"]
 RUNS = {"default": [], "orb": ["--map", "octree", "--set", "maps.inpainting.enabled=false"]}
@@ -107,6 +110,31 @@ def _inpainting(run: Path, seq: Path) -> dict[str, Any]:
     }
 
 
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.1f}"
+
+
+def _tables(doc: dict[str, Any]) -> str:
+    """The runs' map scores, the inpainting replay and the targets as markdown tables."""
+    lines = ["| preset | sequence | ATE cm | occupied | ghost voxels (%) | octree precision / recall % "
+             "| cloud point acc % | cloud MPA % | mesh point acc % | map queue max |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for preset, runs in doc["runs"].items():
+        for name, r in runs.items():
+            lines.append(f"| {preset} | {name} | {r['ate_cm']:.2f} | {r['octree_occupied']} | {r['octree_ghost_voxels']} "
+                         f"({_pct(r['octree_ghost_share'])}) | {_pct(r['octree_precision'])} / {_pct(r['octree_recall'])} | "
+                         f"{_pct(r['cloud_point_accuracy'])} | {_pct(r['cloud_mpa'])} | {_pct(r['mesh_point_accuracy'])} | "
+                         f"{r['map_queue_max']} |")
+    if doc["inpainting"]:
+        lines += ["", "| sequence | keyframes with movers | filled % of dynamic | filled % of seen | depth err median cm "
+                  "| RGB err mean |", "|---|---|---|---|---|---|"]
+        for name, r in doc["inpainting"].items():
+            if "filled_share" in r:
+                lines.append(f"| {name} | {r['keyframes_with_dynamic_pixels']} | {_pct(r['filled_share'])} | "
+                             f"{_pct(r['filled_share_of_seen'])} | {r['depth_err_median_cm']:.2f} | {r['rgb_err_mean']:.1f} |")
+    return "\n".join(lines) + "\n\n" + targets_table(doc["targets"], digits=2)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=300)
@@ -116,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sequences", default=",".join(WALKING + STATIC))
     ap.add_argument("--skip-long", action="store_true")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--write-docs", type=Path, metavar="PATH",
+                    help="also write the tables as a dated results page (e.g. docs/results/maps.md)")
     args = ap.parse_args(argv)
 
     doc: dict[str, Any] = {"machine": {**machine(), "loadavg_before": os.getloadavg()}, "runs": {},
@@ -185,28 +215,13 @@ def main(argv: list[str] | None = None) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(doc, indent=2, default=str))
 
-    def pct(x: float | None) -> str:
-        return "-" if x is None else f"{100 * x:.1f}"
-
-    print("\n| preset | sequence | ATE cm | occupied | ghost voxels (%) | octree precision / recall % "
-          "| cloud point acc % | cloud MPA % | mesh point acc % | map queue max |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for preset, runs in doc["runs"].items():
-        for name, r in runs.items():
-            print(f"| {preset} | {name} | {r['ate_cm']:.2f} | {r['octree_occupied']} | {r['octree_ghost_voxels']} "
-                  f"({pct(r['octree_ghost_share'])}) | {pct(r['octree_precision'])} / {pct(r['octree_recall'])} | "
-                  f"{pct(r['cloud_point_accuracy'])} | {pct(r['cloud_mpa'])} | {pct(r['mesh_point_accuracy'])} | "
-                  f"{r['map_queue_max']} |")
-    if doc["inpainting"]:
-        print("\n| sequence | keyframes with movers | filled % of dynamic | filled % of seen | depth err median cm "
-              "| RGB err mean |")
-        print("|---|---|---|---|---|---|")
-        for name, r in doc["inpainting"].items():
-            if "filled_share" in r:
-                print(f"| {name} | {r['keyframes_with_dynamic_pixels']} | {pct(r['filled_share'])} | "
-                      f"{pct(r['filled_share_of_seen'])} | {r['depth_err_median_cm']:.2f} | {r['rgb_err_mean']:.1f} |")
-    print("\n" + targets_table(doc["targets"], digits=2))
+    tables = _tables(doc)
+    print("\n" + tables)
     print(f"\nload average before / after: {doc['machine']['loadavg_before']} / {doc['machine']['loadavg_after']}")
+    if args.write_docs:
+        write_results_page(args.write_docs, "Maps", tables, probe_speed=True,
+                           notes=f"{args.frames} frames per render; each run a `semslam run` process of its own, "
+                                 "then `semslam eval-map`.")
     return 0
 
 

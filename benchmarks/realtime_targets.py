@@ -46,6 +46,9 @@ from semslam.experiments.bench import emit_json, machine, targets_table
 from semslam.experiments.speed_probe import speed_probe
 from semslam.synth import SEQUENCES, ensure_rendered
 
+sys.path.insert(0, str(Path(__file__).parent))
+from results_page import write_results_page  # noqa: E402  (benchmarks/, run as a script)
+
 PRESETS = ["orb", "default", "stdc", "ddl"]
 RENDERS = ["static_xyz", "walking_xyz"]
 TARGETS = {"orb": (15.0, 30.0), "default": (17.0, 35.0)}
@@ -90,6 +93,27 @@ def _median_run(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return mid
 
 
+def _runs_table(doc: dict[str, Any]) -> str:
+    """Every run's row (the median run of each cell) as a markdown table."""
+    lines = ["| preset | sequence | ms/frame median / p95 | tracking thread: CPU / run queue / asleep | extract | track "
+             "| local map | lock wait median / p95 / max | local BA ms | local mapping CPU ms / keyframe | ATE cm | latency median / p95 | late frames "
+             "| every repeat's median |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for preset, runs in doc["runs"].items():
+        for name, r in runs.items():
+            s, w = r["stages_ms_median"], r["lock_wait_ms"]
+            lines.append(f"| {preset} | {name} | {r['ms_median']:.1f} / {r['ms_p95']:.1f} | {_split(r['tracking_thread_ms'])} | "
+                         f"{s.get('extract', 0):.1f} | "
+                         f"{s.get('track', 0):.1f} | {s.get('local_map', 0):.1f} | {w['median'] or 0:.2f} / {w['p95'] or 0:.1f}"
+                         f" / {w['max'] or 0:.1f} | {r['local_ba_ms_median'] or 0:.0f} | "
+                         f"{(r['local_mapping_cpu_ms'] or {}).get('per_keyframe', 0):.0f} | "
+                         f"{'n/a' if r['ate_cm'] is None else format(r['ate_cm'], '.2f')} | "
+                         + (f"{r['latency_ms']['median']:.1f} / {r['latency_ms']['p95']:.1f} | {r['late_frames']} |"
+                            if r["latency_ms"] else "- | - |")
+                         + " " + ", ".join(f"{x['ms_median']:.1f}" for x in r["repeats"]) + " |")
+    return "\n".join(lines)
+
+
 def _cli_run(seq: Path, out: Path, preset: str, prefix: list[str], flags: tuple[str, ...] = ()) -> dict[str, Any]:
     semslam = shutil.which("semslam") or str(Path(sys.executable).with_name("semslam"))
     cmd = [*prefix, semslam, "run", str(seq), "--out", str(out), "--preset", preset, "--quiet", "--no-report", *flags]
@@ -110,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-long", action="store_true")
     ap.add_argument("--skip-one-core", action="store_true")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--write-docs", type=Path, metavar="PATH",
+                    help="also write the tables as a dated results page (e.g. docs/results/speed.md)")
     args = ap.parse_args(argv)
 
     doc: dict[str, Any] = {"machine": {**machine(), "loadavg_before": os.getloadavg(), "speed_before": speed_probe()},
@@ -170,28 +196,17 @@ def main(argv: list[str] | None = None) -> int:
     doc["machine"]["speed_after"] = speed_probe()
 
     emit_json(doc, args.json)
-    print("\n| preset | sequence | ms/frame median / p95 | tracking thread: CPU / run queue / asleep | extract | track "
-          "| local map | lock wait median / p95 / max | local BA ms | local mapping CPU ms / keyframe | ATE cm | latency median / p95 | late frames "
-          "| every repeat's median |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for preset, runs in doc["runs"].items():
-        for name, r in runs.items():
-            s, w = r["stages_ms_median"], r["lock_wait_ms"]
-            print(f"| {preset} | {name} | {r['ms_median']:.1f} / {r['ms_p95']:.1f} | {_split(r['tracking_thread_ms'])} | "
-                  f"{s.get('extract', 0):.1f} | "
-                  f"{s.get('track', 0):.1f} | {s.get('local_map', 0):.1f} | {w['median'] or 0:.2f} / {w['p95'] or 0:.1f}"
-                  f" / {w['max'] or 0:.1f} | {r['local_ba_ms_median'] or 0:.0f} | "
-                  f"{(r['local_mapping_cpu_ms'] or {}).get('per_keyframe', 0):.0f} | "
-                  f"{'n/a' if r['ate_cm'] is None else format(r['ate_cm'], '.2f')} | "
-                  + (f"{r['latency_ms']['median']:.1f} / {r['latency_ms']['p95']:.1f} | {r['late_frames']} |"
-                     if r["latency_ms"] else "- | - |")
-                  + " " + ", ".join(f"{x['ms_median']:.1f}" for x in r["repeats"]) + " |")
-    print("\n" + targets_table(doc["targets"], digits=1))
+    tables = _runs_table(doc) + "\n\n" + targets_table(doc["targets"], digits=1)
+    print("\n" + tables)
     print(f"\nload average before / after: {doc['machine']['loadavg_before']} / {doc['machine']['loadavg_after']}")
     sb, sa = doc["machine"]["speed_before"], doc["machine"]["speed_after"]
     print(f"machine speed before / after (experiments/speed_probe.py): Python loop of 10^7 additions "
           f"{sb['python_loop_1e7_s']:.2f} / {sa['python_loop_1e7_s']:.2f} s, ORB-SLAM2 extraction on the probe "
           f"image {sb['orb_extract_ms']:.1f} / {sa['orb_extract_ms']:.1f} ms")
+    if args.write_docs:
+        write_results_page(args.write_docs, "Real time on two cores", tables, speed=sb,
+                           notes="ms/frame: the time `track()` takes; camera mode feeds frames at their "
+                                 "timestamps' rate (`--realtime`). The speed probe was taken before the runs.")
     return 0
 
 
