@@ -167,6 +167,20 @@ class TrackingState(str, Enum):
     LOST = "lost"
 
 
+@dataclass(frozen=True)
+class KeyframeEvent:
+    """A keyframe a tracker made at this frame, as the map builders take it (the System
+    feeds them; later pose changes come as ``TrackResult.corrected_poses`` and at the end
+    from ``Tracker.final_keyframe_poses``)."""
+
+    id: int
+    timestamp: float
+    T_wc: NDArray[np.float64] = field(repr=False)
+    #: The depth the tracker placed the keyframe's points with where it is not the depth
+    #: source's (SDF-SLAM's prediction aligned to the map); None: the depth source's.
+    depth: NDArray[np.float32] | None = field(default=None, repr=False)
+
+
 @dataclass
 class TrackResult:
     """What a tracker returns for one frame. ``pose_wc`` is None when the frame has no pose
@@ -188,6 +202,10 @@ class TrackResult:
     #: keypoint, False where it was removed as dynamic (moving regions).
     keypoints_xy: NDArray[np.float32] | None = field(default=None, repr=False)
     keypoint_static: NDArray[np.bool_] | None = field(default=None, repr=False)
+    #: The keyframe made at this frame (None: the frame is no keyframe).
+    keyframe: KeyframeEvent | None = field(default=None, repr=False)
+    #: Keyframes' new ``T_wc`` where this frame moved them (a pose-graph correction).
+    corrected_poses: dict[int, NDArray[np.float64]] | None = field(default=None, repr=False)
 
 
 # ---------------------------------------------------------------------------- runs
