@@ -62,7 +62,7 @@ def register(app: typer.Typer) -> None:
         def report(row) -> None:  # type: ignore[no-untyped-def]
             r = row.result
             print(f"{row.variant} on {row.sequence}: ATE {r.ate_rmse}, {r.ms_per_frame['median']:.1f} ms/frame, "
-                  f"loops {r.get('loops')}", file=sys.stderr)
+                  f"loops {r.loop_closing.loops}", file=sys.stderr)
 
         if address and not ray:
             raise typer.BadParameter("--address needs --ray")

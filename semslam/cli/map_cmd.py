@@ -27,6 +27,7 @@ def register(app: typer.Typer) -> None:
         """Rebuild OUT/map/ (octree, semantic cloud, mesh) of a run: inpainting and every map
         from the keyframes' images and their final poses, without tracking again."""
         from semslam.cli.run_cmd import run_overrides
+        from semslam.core.results import MapBuildingCounters
         from semslam.offline_maps import rebuild_maps
 
         overrides = run_overrides(set_, None, True, False, maps=maps)
@@ -48,6 +49,6 @@ def register(app: typer.Typer) -> None:
                 bar.close()
         for name, path in paths.items():
             console.print(f"{name}: {path}")
-        if "inpaint_filled_share" in stats:
-            console.print(f"inpainting filled {100 * stats['inpaint_filled_share']:.1f} % of the keyframes' "
-                          "dynamic pixels")
+        filled = MapBuildingCounters.from_counters(stats).inpaint_filled_share
+        if filled is not None:
+            console.print(f"inpainting filled {100 * filled:.1f} % of the keyframes' dynamic pixels")

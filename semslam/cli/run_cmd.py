@@ -87,14 +87,17 @@ def print_summary(result: RunResult) -> None:
         table.add_row("skipped frames (missing or unreadable)", str(r.skipped_frames))
     if r.frames_not_reached:
         table.add_row("frames not reached (run stopped early)", str(r.frames_not_reached))
-    for key, label in (("frames_featureless", "frames blank or featureless"), ("frames_without_depth",
-                       "frames without depth"), ("frames_all_dynamic", "frames all dynamic")):
-        if r.tracker.get(key):
-            table.add_row(label, str(r.tracker[key]))
+    health = r.input_health
+    for flagged, label in ((health.frames_featureless, "frames blank or featureless"),
+                           (health.frames_without_depth, "frames without depth"),
+                           (health.frames_all_dynamic, "frames all dynamic")):
+        if flagged:
+            table.add_row(label, str(flagged))
     table.add_row("keyframes", str(r.keyframes))
-    for key, label in (("map_points", "map points"), ("loops", "loops closed"), ("relocalisations", "relocalisations")):
-        if key in r.tracker:
-            table.add_row(label, str(r.tracker[key]))
+    for count, label in ((r.mapping.map_points, "map points"), (r.loop_closing.loops, "loops closed"),
+                         (r.tracking.relocalisations, "relocalisations")):
+        if count is not None:
+            table.add_row(label, str(count))
     if r.ate is not None and r.rpe_trans_1s is not None and r.rpe_rot_deg_1s is not None:
         table.add_row(f"ATE RMSE ({r.ate_alignment})", f"{r.ate['rmse'] * 100:.2f} cm")
         if r.ate_se3 is not None:  # monocular: the metric scale counted too
@@ -107,7 +110,7 @@ def print_summary(result: RunResult) -> None:
     if "asleep" in split:  # Linux: where a frame's time went (semslam.thread_clock)
         table.add_row("tracking thread: CPU / run queue / asleep", f"{split['cpu']:.1f} / {split['runqueue']:.1f} / "
                                                             f"{split['asleep']:.1f} ms (medians)")
-    mapping = r.tracker.get("local_mapping_cpu_ms", {})
+    mapping = r.mapping.local_mapping_cpu_ms or {}
     if mapping.get("total"):
         table.add_row("local mapping CPU (total / per keyframe)",
                       f"{mapping['total'] / 1e3:.1f} s / {mapping['per_keyframe']:.0f} ms")

@@ -4,7 +4,8 @@ labels, tracking results. Plain data with no behaviour beyond small derived prop
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import InitVar, asdict, dataclass, field, fields
 from enum import Enum
 from functools import cached_property
 from pathlib import Path
@@ -12,6 +13,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from semslam.core.results import (BLOCKS, AtlasCounters, DynamicsCounters, InputHealthCounters, LoopClosingCounters,
+                                  MapBuildingCounters, MappingCounters, TrackingCounters, join_counters,
+                                  split_counters)
 
 
 # ---------------------------------------------------------------------------- frames
@@ -214,9 +219,11 @@ class RunResult:
     """What one SLAM run produced, as a value (evo's ``Result`` is the model): written by the
     pipeline as ``stats.json``, read back by ``semslam bench`` and the CLI.
 
-    ``tracker`` holds the tracker's own counters (map points, loops, BA counts, failures);
-    ``ate`` / ``rpe_*`` hold evo-style statistics (rmse, mean, median, std, min, max) in
-    metres / degrees when the sequence has ground truth.
+    The components' counters are one typed block each (``tracking``, ``mapping``,
+    ``loop_closing``, ``atlas``, ``dynamics``, ``map_building``, ``input_health``;
+    ``core.results``), at the top level of ``stats.json``; ``tracker=`` takes them as the
+    one flat dict the components report. ``ate`` / ``rpe_*`` hold evo-style statistics
+    (rmse, mean, median, std, min, max) in metres / degrees when the sequence has ground truth.
     """
 
     sequence: str
@@ -252,7 +259,6 @@ class RunResult:
     fps: float = 0.0
     tracking_fps: float = 0.0
     camera: dict[str, object] = field(default_factory=dict)
-    tracker: dict[str, object] = field(default_factory=dict)
     ate: dict[str, float] | None = None
     ate_alignment: str | None = None
     # Monocular runs: ``ate`` is Sim(3)-aligned (as monocular tables report); this is the same
@@ -267,6 +273,20 @@ class RunResult:
     # hold the frames tracked so far.
     interrupted: bool = False
     paths: dict[str, str] = field(default_factory=dict)
+    tracking: TrackingCounters = field(default_factory=TrackingCounters)
+    mapping: MappingCounters = field(default_factory=MappingCounters)
+    loop_closing: LoopClosingCounters = field(default_factory=LoopClosingCounters)
+    atlas: AtlasCounters = field(default_factory=AtlasCounters)
+    dynamics: DynamicsCounters = field(default_factory=DynamicsCounters)
+    map_building: MapBuildingCounters = field(default_factory=MapBuildingCounters)
+    input_health: InputHealthCounters = field(default_factory=InputHealthCounters)
+    #: Counters no block knows (a component's new counter): kept and written as reported.
+    other_counters: dict[str, object] = field(default_factory=dict)
+    tracker: InitVar[Mapping[str, object] | None] = None
+
+    def __post_init__(self, tracker: Mapping[str, object] | None) -> None:
+        if tracker:
+            self.set_counters(tracker)
 
     @property
     def ate_rmse(self) -> float | None:
@@ -276,28 +296,37 @@ class RunResult:
     def rpe_trans_rmse(self) -> float | None:
         return None if self.rpe_trans_1s is None else float(self.rpe_trans_1s["rmse"])
 
-    def to_dict(self) -> dict[str, object]:
-        """The ``stats.json`` layout: every field, the tracker's counters at the top level."""
-        from dataclasses import asdict
+    def set_counters(self, counters: Mapping[str, object]) -> None:
+        """Every block from the components' counters (one flat dict, ``stats.json`` names)."""
+        blocks, self.other_counters = split_counters(counters)
+        for name, block in blocks.items():
+            setattr(self, name, block)
 
+    def counters(self) -> dict[str, object]:
+        """The blocks' counters as one flat dict, in the ``stats.json`` layout."""
+        return join_counters([getattr(self, name) for name in BLOCKS], self.other_counters)
+
+    def to_dict(self) -> dict[str, object]:
+        """The ``stats.json`` layout: every field, the counters at the top level."""
         d = asdict(self)
+        for name in (*BLOCKS, "other_counters"):
+            del d[name]
         d["out_dir"] = str(self.out_dir)
-        tracker = d.pop("tracker")
-        d.update({k: v for k, v in tracker.items() if k not in d})
+        d.update({k: v for k, v in self.counters().items() if k not in d})
         return {k: v for k, v in d.items() if v is not None}
 
     @classmethod
-    def from_dict(cls, d: dict[str, object]) -> "RunResult":
-        from dataclasses import fields
-
-        names = {f.name for f in fields(cls)}
+    def from_dict(cls, d: Mapping[str, object]) -> "RunResult":
+        """A ``stats.json`` read back: its fields, and its counters into the blocks."""
+        names = {f.name for f in fields(cls)} - {*BLOCKS, "other_counters"}
         known = {k: v for k, v in d.items() if k in names}
         known["out_dir"] = Path(str(known.get("out_dir", ".")))
-        known["tracker"] = {k: v for k, v in d.items() if k not in names}
-        return cls(**known)  # type: ignore[arg-type]
+        return cls(**known, tracker={k: v for k, v in d.items() if k not in names})  # type: ignore[arg-type]
 
     def get(self, key: str, default: object = None) -> object:
-        """A field or a tracker counter by name (``loops``, ``map_points``, ...)."""
-        if key in self.tracker:
-            return self.tracker[key]
-        return getattr(self, key, default)
+        """A field or a counter by its ``stats.json`` name (``loops``, ``map_points``, ...)."""
+        return self.to_dict().get(key, default)
+
+
+# api.py replaces the counters once the maps are written (``result.tracker = ...``).
+RunResult.tracker = property(RunResult.counters, RunResult.set_counters)  # type: ignore[assignment,method-assign]

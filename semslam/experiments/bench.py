@@ -66,8 +66,8 @@ class BenchRow:
         return {
             "variant": self.variant, "preset": self.preset, "overrides": self.overrides, "sequence": self.sequence,
             "people": self.people, "motion": self.motion, "frames": r.frames, "tracked_frames": r.tracked_frames,
-            "lost_frames": r.lost_frames, "keyframes": r.keyframes, "loops": r.get("loops"),
-            "relocalisations": r.get("relocalisations"), "ate_rmse_m": r.ate_rmse,
+            "lost_frames": r.lost_frames, "keyframes": r.keyframes, "loops": r.loop_closing.loops,
+            "relocalisations": r.tracking.relocalisations, "ate_rmse_m": r.ate_rmse,
             "rpe_trans_rmse_m_1s": r.rpe_trans_rmse, "ms_per_frame_median": r.ms_per_frame.get("median"),
             "ms_per_frame_p95": r.ms_per_frame.get("p95"), "stages_ms_median": r.stages_ms_median,
             "tracking_thread_ms": r.tracking_thread_ms, "dynamic_ratio_mean": r.dynamic_ratio_mean,
@@ -186,7 +186,7 @@ def markdown_table(rows: list[BenchRow]) -> str:
         variant = f"{row.variant} (r{row.repeat})" if repeated else row.variant
         ate = "n/a" if r.ate_rmse is None else f"{r.ate_rmse * 100:.2f}"
         rpe = "n/a" if r.rpe_trans_rmse is None else f"{r.rpe_trans_rmse * 100:.2f}"
-        loops = r.get("loops")
+        loops = r.loop_closing.loops
         lines.append(f"| {row.sequence} | {row.people} | {variant} | {r.frames} ({r.tracked_frames}) | "
                      f"{r.keyframes} | {'-' if loops is None else loops} | {ate} | {rpe} | "
                      f"{r.ms_per_frame['median']:.1f} | {r.ms_per_frame['p95']:.1f} |")
