@@ -5,7 +5,7 @@ read back, written again)."""
 from __future__ import annotations
 
 import json
-from dataclasses import FrozenInstanceError, fields
+from dataclasses import FrozenInstanceError, fields, replace
 from pathlib import Path
 
 import pytest
@@ -85,14 +85,21 @@ def test_blocks_are_values() -> None:
     assert MapBuildingCounters().to_dict() == {}
 
 
-def test_counters_set_after_the_run_replace_every_block() -> None:
+@pytest.mark.parametrize("how", ["set_counters", "tracker"])
+def test_counters_set_after_the_run_replace_every_block(how: str) -> None:
     """The maps' counters come once the maps are written: setting the counters again
     replaces every block, and a counter not reported again is gone."""
     result = RunResult("seq", "p", Path("out"), tracker={"map_points": 5, "coasted_frames": 1})
-    result.set_counters({"map_points": 6, "map_keyframes": 3})
+    later = {"map_points": 6, "map_keyframes": 3}
+    if how == "tracker":
+        result.tracker = later
+    else:
+        result.set_counters(later)
     assert result.mapping.map_points == 6 and result.map_building.map_keyframes == 3
     assert result.tracking.coasted_frames is None
     assert result.to_dict()["map_keyframes"] == 3 and "coasted_frames" not in result.to_dict()
+    copy = replace(result, preset="q")
+    assert copy.to_dict() == {**result.to_dict(), "preset": "q"}
 
 
 def test_real_run_stats_json_round_trips_byte_for_byte(tum_folder: Path, tmp_path: Path) -> None:

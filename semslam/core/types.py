@@ -282,6 +282,7 @@ class RunResult:
     input_health: InputHealthCounters = field(default_factory=InputHealthCounters)
     #: Counters no block knows (a component's new counter): kept and written as reported.
     other_counters: dict[str, object] = field(default_factory=dict)
+    #: The components' counters as one flat dict (``stats.json`` names), into the blocks.
     tracker: InitVar[Mapping[str, object] | None] = None
 
     def __post_init__(self, tracker: Mapping[str, object] | None) -> None:
@@ -321,12 +322,16 @@ class RunResult:
         names = {f.name for f in fields(cls)} - {*BLOCKS, "other_counters"}
         known = {k: v for k, v in d.items() if k in names}
         known["out_dir"] = Path(str(known.get("out_dir", ".")))
-        return cls(**known, tracker={k: v for k, v in d.items() if k not in names})  # type: ignore[arg-type]
+        result = cls(**known)  # type: ignore[arg-type]
+        result.set_counters({k: v for k, v in d.items() if k not in names})
+        return result
 
     def get(self, key: str, default: object = None) -> object:
         """A field or a counter by its ``stats.json`` name (``loops``, ``map_points``, ...)."""
         return self.to_dict().get(key, default)
 
 
-# api.py replaces the counters once the maps are written (``result.tracker = ...``).
-RunResult.tracker = property(RunResult.counters, RunResult.set_counters)  # type: ignore[assignment,method-assign]
+# ``result.tracker = counters`` (the API's System, once the maps are written and report
+# theirs) is ``set_counters``: assigning to the init-only field would otherwise change nothing.
+# Read, it gives the counters (``dataclasses.replace`` passes them on to the copy).
+RunResult.tracker = property(RunResult.counters, RunResult.set_counters)  # type: ignore[assignment]
