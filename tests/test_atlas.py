@@ -89,21 +89,23 @@ def test_bridge_is_the_map_change_the_motion_model_implies() -> None:
     frame; ``S`` (new world <- left world) follows exactly for an exact motion."""
     from types import SimpleNamespace
 
-    from semslam.slam.tracking import LastTracked, Tracking
+    from semslam.slam.atlas import AtlasFollower, LastTracked
 
     rng = np.random.default_rng(5)
     S = make_pose(so3_exp(rng.normal(size=3)), rng.normal(size=3))
     V = make_pose(so3_exp([0.0, 0.03, 0.0]), [0.01, 0.0, 0.002])  # per frame, 30 Hz
     T_last = make_pose(so3_exp(rng.normal(size=3)), rng.normal(size=3))
     dt = 1 / 30
-    tracker = SimpleNamespace(_last_ok=LastTracked(10.0, T_last, V, dt, map_id=1), map=SimpleNamespace(active_map=1))
+    slam_map = SimpleNamespace(active_map=1)
+    follower = AtlasFollower(SimpleNamespace(map=slam_map))  # type: ignore[arg-type]
+    follower.last_tracked = LastTracked(10.0, T_last, V, dt, map_id=1)
     cur = SimpleNamespace(timestamp=10.0 + 3 * dt, T_cw=V @ V @ V @ T_last @ invert(S))  # 3 frames on, in S's world
-    np.testing.assert_allclose(Tracking._bridge_to(tracker, cur), S, atol=1e-9)  # type: ignore[arg-type]
+    np.testing.assert_allclose(follower.bridge_to(cur), S, atol=1e-9)  # type: ignore[arg-type]
     cur.timestamp = 11.0  # too long a gap for the motion model
-    assert Tracking._bridge_to(tracker, cur) is None  # type: ignore[arg-type]
-    tracker.map.active_map = 2  # the last tracked frame was in another map than the one left
+    assert follower.bridge_to(cur) is None  # type: ignore[arg-type]
+    slam_map.active_map = 2  # the last tracked frame was in another map than the one left
     cur.timestamp = 10.0 + dt
-    assert Tracking._bridge_to(tracker, cur) is None  # type: ignore[arg-type]
+    assert follower.bridge_to(cur) is None  # type: ignore[arg-type]
 
 
 def test_blackout_new_map_right_after_it_and_one_trajectory(renders: dict[str, Path], tmp_path: Path) -> None:

@@ -29,7 +29,8 @@ from semslam.geometry.rotation_about_centre import RotationFit
 from semslam.geometry.se3 import invert
 from semslam.io.calibration import rolling_shutter_ms_from_folder
 from semslam.core.trajectory import Trajectory
-from semslam.slam import tracking as tracking_module
+from semslam.slam.motion_priors import blur_coast, sharpness_history
+from semslam.slam.motion_priors.blur_coast import BlurCoast
 from semslam.slam.system import System
 from semslam.slam.tracking import Tracking
 from semslam.synth import SEQUENCES, Renderer
@@ -178,7 +179,7 @@ def test_sharpness_measured_ahead_by_the_reader_tracks_the_same(
                 packet = system.prepare(f)
                 assert packet.sharpness == sharpness(f.gray)
                 with monkeypatch.context() as m:  # tracking takes the packet's value
-                    m.setattr(tracking_module, "sharpness", _not_again)
+                    m.setattr(sharpness_history, "sharpness", _not_again)
                     system.track(packet)
             else:
                 system.track(f)
@@ -228,15 +229,16 @@ def test_glance_ending_in_a_thin_view_makes_a_keyframe(
     frames, poses, cam = late_glance
     features_own = Tracking._track_frame
 
-    def lost_after_a_coast(self: Tracking, cur: object, timings: dict[str, float]) -> bool:
+    def lost_after_a_coast(self: Tracking, cur: object, prediction: object, timings: dict[str, float]) -> bool:
         last = self.last
-        if self.state is TrackingState.OK and self._coasting and last is not None and self.last_kf_frame != last.index:
+        coasting = any(p.coasting for p in self.priors if isinstance(p, BlurCoast))
+        if self.state is TrackingState.OK and coasting and last is not None and self.last_kf_frame != last.index:
             return False
-        return features_own(self, cur, timings)  # type: ignore[arg-type]
+        return features_own(self, cur, prediction, timings)  # type: ignore[arg-type]
 
     monkeypatch.setattr(Tracking, "_track_frame", lost_after_a_coast)
     with_kf, n_ok, stats = _ate_cm(frames, poses, cam, "slam.blur_coast_sharp_ratio=0.6")
-    monkeypatch.setattr(tracking_module, "COAST_SETTLED_FRAMES", 10**6)
+    monkeypatch.setattr(blur_coast, "COAST_SETTLED_FRAMES", 10**6)
     _, n_ok0, stats0 = _ate_cm(frames, poses, cam, "slam.blur_coast_sharp_ratio=0.6")
     assert stats0["coast_keyframes"] == 0 and n_ok0 < len(frames), (n_ok0, stats0["coasted_frames"])
     assert stats["coast_keyframes"] == 1 and n_ok == len(frames), (n_ok, stats["coasted_frames"])
@@ -254,11 +256,11 @@ def test_coast_whose_matches_run_out_keeps_the_shifts_rotation(
     refusing every fit of a continuing coast: every frame is still tracked, and no frame's
     rotation is more than 1 deg further from the truth than with the fits."""
     frames, poses, cam = late_glance
-    fit = tracking_module.fit_rotation_about_centre
+    fit = blur_coast.fit_rotation_about_centre
 
     def none_left_when_continuing(*args: object, **kwargs: object) -> RotationFit:
         res = fit(*args, **kwargs)  # type: ignore[arg-type]
-        if kwargs.get("min_inliers") == tracking_module.COAST_CONTINUE_MIN_INLIERS:
+        if kwargs.get("min_inliers") == blur_coast.COAST_CONTINUE_MIN_INLIERS:
             return RotationFit(res.R_cw, np.zeros_like(res.inliers), False)
         return res
 
@@ -272,7 +274,7 @@ def test_coast_whose_matches_run_out_keeps_the_shifts_rotation(
         return states, system.stats(), err
 
     _, _, err_fitted = run()
-    monkeypatch.setattr(tracking_module, "fit_rotation_about_centre", none_left_when_continuing)
+    monkeypatch.setattr(blur_coast, "fit_rotation_about_centre", none_left_when_continuing)
     states, stats, err = run()
     assert states.count(TrackingState.OK) == len(frames), states
     assert stats["coasted_on_shift_only"] >= 3, stats["coasted_on_shift_only"]

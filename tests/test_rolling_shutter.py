@@ -90,7 +90,7 @@ def test_depth_is_read_where_the_keypoint_lands_not_under_its_raw_pixel() -> Non
 
 def test_frame_state_redoes_the_move_from_the_raw_keypoints() -> None:
     from semslam.core.types import Keypoints
-    from semslam.slam.frame_state import FrameState
+    from semslam.slam.frame_builders import RgbdFrameBuilder
 
     rng = np.random.default_rng(2)
     uv = rng.uniform([40, 20], [600, 460], (50, 2))
@@ -102,7 +102,7 @@ def test_frame_state_redoes_the_move_from_the_raw_keypoints() -> None:
     depth_img = np.zeros((480, 640), np.float32)
     iu, iv = np.rint(obs[:, 0]).astype(int), np.rint(obs[:, 1]).astype(int)
     depth_img[iv, iu] = z_obs
-    f = FrameState.create(0, 0.0, kps, depth_img, CAM, 40.0)
+    f = RgbdFrameBuilder(CAM, 40.0).build(0, 0.0, kps, depth_img)
     f.to_middle_row(np.eye(4), DT, READOUT, CAM, 40.0)  # a wrong (zero) velocity first
     f.to_middle_row(V, DT, READOUT, CAM, 40.0)  # then the right one: from the raw keypoints
     np.testing.assert_allclose(f.xy, uv, atol=0.05)  # float32 keypoints, rounded depth pixels

@@ -3,14 +3,12 @@ frames whose features fail to match (motion blur on fast turns).
 
 A motion-blurred frame's descriptors match little, and the pose from those few matches is
 degrees off. Dense alignment of the whole image against the previous frame needs no
-descriptors. On the blurred turns of ``walking_turns`` (640x480, 16 ms exposure, up to ~7 deg
-a frame), with only the rotation free and the true translation held, OpenCV's photometric
-``RgbdOdometry`` was 0.007-0.11 deg from the true rotation (``RgbdICPOdometry`` 0.003-0.055,
-``ICPOdometry`` 0.03-0.18), starting from the motion model's 1-2.5 deg. Their 6-DoF modes, and
-Open3D's ``rgbd_odometry_multi_scale`` (PointToPlane, Hybrid, Intensity), slid 2-5 cm along
-the walls on the same frames. So only the rotation is solved; the translation is the guess's
-(``Tracking`` carries the camera centre at the velocity of well-tracked frames). The rotation
-converges from up to 4-6 deg off, and only while the held translation is within ~1 cm."""
+descriptors. Only the rotation is solved: with it alone free, OpenCV's odometries land within
+about a tenth of a degree of the true rotation on blurred turns, while their 6-DoF modes (and
+Open3D's) slide centimetres along walls. The translation is the guess's (the depth-odometry
+prior carries the camera centre at the velocity of well-tracked frames). The rotation
+converges from up to 4-6 deg off, and only while the held translation is within ~1 cm
+(measurements: ``docs/results/tracking_history.md``)."""
 
 from __future__ import annotations
 
@@ -24,8 +22,7 @@ from semslam.config.schema import DEPTH_ODOMETRY_METHODS as METHODS
 from semslam.geometry.se3 import rotation_angle
 
 #: The most an alignment may turn the guess (degrees): it converges from up to 4-6 deg off,
-#: and a larger change is a false minimum (a threaded walking_hard run without this bound
-#: flipped to poses 170 deg off).
+#: and a larger change is a false minimum.
 MAX_CORRECTION_DEG = 6.0
 _CREATE = {
     "rgbd": lambda: cv2.rgbd.RgbdOdometry_create,

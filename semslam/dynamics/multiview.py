@@ -34,13 +34,15 @@ started moving has not moved the ~0.2 m the depth test needs since: on the full
 followed it (15.1 cm ATE). ``pick_references`` prefers the best-overlapping keyframes at
 least ``multiview_min_age_s`` old (0.64 cm with 0.7 s; README, Dynamic scenes).
 
-Pure functions of arrays; the caller passes the candidate keyframes.
+Pure functions of arrays; ``reference_views`` picks the keyframes to compare against from
+the reference keyframe's covisibility.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -57,6 +59,9 @@ PARALLAX_MARGIN_PX = 2.0
 BRIDGE_PX = 4
 #: Samples along each seed's occluder segment at most.
 MAX_STEPS = 16
+#: The reference keyframes are picked among the tracking reference keyframe and this many
+#: minus one of its best covisibles: those overlap most with the frame.
+CANDIDATES = 30
 
 Reference = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]
 
@@ -86,6 +91,27 @@ def pick_references(stamps: Sequence[float], now: float, n: int, min_age_s: floa
     old = [i for i, t in enumerate(stamps) if t <= now - min_age_s]
     young = [i for i, t in enumerate(stamps) if t > now - min_age_s]
     return (old + young)[:n]
+
+
+class ReferenceKeyframe(Protocol):
+    """What the check reads of a keyframe (``slam.map.KeyFrame``)."""
+
+    bad: bool
+    timestamp: float
+    T_cw: NDArray[np.float64]
+    xy: NDArray[np.float64]
+    depth: NDArray[np.float32]
+
+    def best_covisibles(self, n: int) -> Sequence["ReferenceKeyframe"]: ...
+
+
+def reference_views(ref: ReferenceKeyframe, now: float, n: int, min_age_s: float) -> list[Reference]:
+    """The ``n`` views to test a frame at ``now`` against: among ``ref`` (the tracking
+    reference keyframe) and its best covisibles, those with the highest overlap, preferring
+    those old enough for a mover to have moved since (``pick_references``)."""
+    cands = [k for k in (ref, *ref.best_covisibles(CANDIDATES - 1)) if not k.bad]
+    pick = pick_references([k.timestamp for k in cands], now, n, min_age_s)
+    return [(cands[i].T_cw, cands[i].xy, cands[i].depth) for i in pick]
 
 
 def project_references(T_cw: NDArray[np.float64], depth: NDArray[np.float32], camera: PinholeCamera,

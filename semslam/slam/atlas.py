@@ -14,6 +14,9 @@ atlas records which map went into which, and the move of the world for tracking,
 last frame is still in the old coordinates (tracking takes it under the map lock at the
 start of its next frame).
 
+Tracking's side (``AtlasFollower``): when to ask for a new map, mapping its frames into a
+merged map's world, and the guess of how the map it left lies in the one it relocalised in.
+
 Threads: tracking starts maps and activates them, loop closing merges them; all of it
 under ``map.lock``.
 """
@@ -23,12 +26,20 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.geometry.se3 import invert
 from semslam.slam.map import KeyFrame, Map
+
+if TYPE_CHECKING:
+    from semslam.slam.frame_state import FrameState
+
+#: The longest gap (seconds) between the last frame tracked in one map and a relocalisation
+#: in another over which the motion model still bridges the two (``AtlasFollower.bridge_to``).
+BRIDGE_MAX_GAP_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -172,6 +183,76 @@ class Atlas:
             "merges_rejected": dict(sorted(self.merges_rejected.items())),
             "merge_checks": self.merge_checks,
         }
+
+
+@dataclass(frozen=True)
+class LastTracked:
+    """The last frame tracking had (state OK), for bridging a relocalisation into another map."""
+
+    timestamp: float
+    T_cw: NDArray[np.float64]
+    velocity: NDArray[np.float64] | None
+    velocity_dt: float
+    map_id: int
+
+
+class AtlasFollower:
+    """Tracking's side of the atlas: how long it has been lost, the last frame it tracked,
+    and the world changes merges make under its frames."""
+
+    def __init__(self, atlas: Atlas) -> None:
+        self.atlas = atlas
+        self.lost_since: float | None = None
+        self.last_tracked: LastTracked | None = None
+
+    def new_map_wanted(self, last: "FrameState | None", lost: bool, new_map_pending: bool, timestamp: float) -> bool:
+        """Under the map lock before a frame: map the last frame into its map's new world if
+        a merge moved it; once relocalisation has failed for ``slam.new_map_after_s``, start
+        a new map (True), which the next frame with enough keypoints and depth makes its
+        first keyframe (ORB-SLAM3 CreateMapInAtlas). Frames until then stay LOST."""
+        self.apply_world_change(last)
+        if not lost or new_map_pending:
+            self.lost_since = None
+            return False
+        if self.lost_since is None:
+            self.lost_since = last.timestamp if last is not None else timestamp
+        if self.atlas.new_map_due(timestamp - self.lost_since):
+            self.atlas.start_new_map()
+            return True
+        return False
+
+    def apply_world_change(self, frame: "FrameState | None") -> None:
+        """Map ``frame`` into its map's world if a merge moved that map."""
+        S = self.atlas.take_world_change()
+        if S is not None and frame is not None and frame.T_cw is not None:
+            frame.T_cw = frame.T_cw @ invert(S)
+
+    def tracked(self, timestamp: float, T_cw: NDArray[np.float64], velocity: NDArray[np.float64] | None,
+                velocity_dt: float) -> None:
+        """A frame tracked in the active map, with the motion model's velocity."""
+        self.last_tracked = LastTracked(timestamp, T_cw, velocity, velocity_dt, self.atlas.map.active_map)
+
+    def relocalised(self, kf: KeyFrame, cur: "FrameState") -> None:
+        """``cur`` relocalised at ``kf``: if that is another map's, tracking goes on there."""
+        if kf.map_id != self.atlas.map.active_map:
+            self.atlas.activate(kf, self.bridge_to(cur))
+
+    def bridge_to(self, cur: "FrameState") -> NDArray[np.float64] | None:
+        """``S`` (this frame's map world <- the left map's world) if the last frame tracked in
+        the left map is at most ``BRIDGE_MAX_GAP_S`` old: that frame carried by the motion
+        model to now is this frame in the left map's world. A guess for loop closing, which
+        verifies it (``LoopClosing._merge_on_hints``)."""
+        last = self.last_tracked
+        if (last is None or cur.T_cw is None or last.velocity is None or last.velocity_dt <= 0
+                or last.map_id != self.atlas.map.active_map):
+            return None
+        gap = cur.timestamp - last.timestamp
+        if not 0 < gap <= BRIDGE_MAX_GAP_S:
+            return None
+        T_pred = last.T_cw
+        for _ in range(max(1, round(gap / last.velocity_dt))):
+            T_pred = last.velocity @ T_pred
+        return invert(cur.T_cw) @ T_pred
 
 
 def map_runs(frame_maps: list[int]) -> list[list[int]]:

@@ -1,4 +1,5 @@
-"""A tracked frame: features with depth, their map points and the pose being estimated."""
+"""A tracked frame: features with depth, their map points and the pose being estimated
+(built per sensor by ``slam/frame_builders.py``)."""
 
 from __future__ import annotations
 
@@ -33,18 +34,6 @@ class FrameState:
     # Undistorted keypoints and their depths as extracted, kept by the first to_middle_row.
     _raw_xy: NDArray[np.float64] | None = field(default=None, repr=False)
     _raw_depth: NDArray[np.float32] | None = field(default=None, repr=False)
-
-    @classmethod
-    def create(cls, index: int, timestamp: float, kps: Keypoints, depth_img: NDArray[np.float32] | None,
-               camera: PinholeCamera, bf: float) -> "FrameState":
-        xy = camera.undistort_points(kps.xy)
-        if depth_img is not None:
-            z = sample_depth(depth_img, kps.xy).astype(np.float32)
-        else:
-            z = np.zeros(len(kps), np.float32)
-        ur = np.where(z > 0, xy[:, 0] - bf / np.maximum(z, 1e-6), -1.0)
-        n = len(kps)
-        return cls(index, timestamp, kps, xy, z, ur, PointSlots([None] * n), np.zeros(n, bool))
 
     def __len__(self) -> int:
         return len(self.keypoints)

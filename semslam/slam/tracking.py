@@ -7,31 +7,31 @@ The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comm
 from __future__ import annotations
 
 import time
-from collections import deque
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
-from semslam.frontend.sharpness import sharpness
-from semslam.frontend.shift_rotation import ShiftRotation, small_image
-from semslam.geometry.rotation_about_centre import fit_rotation_about_centre
 from semslam.backend.pose_only import optimize_pose
-from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
 from semslam.config import SystemConfig
 from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket, MotionPrior
-from semslam.core.types import TrackingState, TrackResult
+from semslam.core.types import ScalePyramid, TrackingState, TrackResult
 from semslam.dynamics.masks import keypoints_in_mask
-from semslam.dynamics.multiview import pick_references
+from semslam.dynamics.multiview import reference_views
 from semslam.geometry.camera import PinholeCamera
-from semslam.geometry.rolling_shutter import row_time_fraction
 from semslam.geometry.se3 import invert, orthonormalize
+from semslam.slam.atlas import AtlasFollower
+from semslam.slam.frame_builders import FrameBuilder, frame_builder
 from semslam.slam.frame_state import FrameState
 from semslam.slam.keyframe_worker import KeyframeSink
 from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
+from semslam.slam.motion_priors.base import FrameImages, FrameOutcome, MotionState, PosePrior, PosePrediction, Stage
+from semslam.slam.motion_priors.blur_coast import BlurCoast
+from semslam.slam.motion_priors.constant_velocity import ConstantVelocity
+from semslam.slam.motion_priors.depth_odometry import DepthOdometry
+from semslam.slam.motion_priors.rolling_shutter import RollingShutter
+from semslam.slam.motion_priors.sharpness_history import SharpnessHistory
 from semslam.slam.row_kernels import first_seen_unique
 from semslam.slam.search import project, rotation_consistent, search_by_bow, search_by_projection
 
@@ -41,58 +41,22 @@ if TYPE_CHECKING:
     from semslam.place.vocabulary import Vocabulary
 
 
-#: The longest gap (seconds) between the last frame tracked in one map and a relocalisation
-#: in another over which the motion model still bridges the two (``Tracking._bridge_to``).
-BRIDGE_MAX_GAP_S = 0.5
-#: Matches the joint rolling-shutter fit uses at most (its cost grows with them).
-RS_SOLVE_MAX_POINTS = 200
-#: The multi-view check picks its reference keyframes among the reference keyframe and this
-#: many minus one of its best covisibles.
-MULTIVIEW_CANDIDATES = 30
-#: Well-tracked frames whose camera centres give the velocity a blurred frame's translation
-#: is carried on with (one frame's is centimetres off on a turn's first frames).
-CENTRE_VELOCITY_FRAMES = 10
-#: A blurred frame's features keep their matches for the coast's rotation fit when their own
-#: pose turned within this many degrees of the images' shift (else they are searched again).
-COAST_AGREE_DEG = 2.0
-#: A coast needs its rotation to hold on this many matches; fewer, and the frame is lost as
-#: ORB-SLAM2 would lose it.
-COAST_MIN_INLIERS = 10
-#: ...and a frame that continues a coast run (the one before it held) this many: a glance's
-#: most blurred frames, turning into a view where the map is thin, keep fewer. walking_hard
-#: frame 156 held on 11 matches in a sequential run and on 8 in threaded ones (local mapping
-#: behind), which then lost 30 frames until the atlas started a new map (threaded runs losing
-#: frames: 4 of 8 -> 3 of 14; --sequential the same bytes). Three bearings fix a rotation;
-#: six give it redundancy against a wrong match (the fit's own default). With fewer, such a
-#: frame keeps the images' shift's rotation (no matches): a glance into a view the map does
-#: not cover yet (walking_hard seed 21, the first glance: 12, 8, 7, 5 matches, then 7 frames
-#: lost --sequential; with the shift's rotation 0 lost, 1.36 -> 1.00 cm).
-COAST_CONTINUE_MIN_INLIERS = 6
-#: A fast-turning frame whose features put the camera centre this far (metres) from where the
-#: steady motion says it is coasts even when sharp: a hand-held camera does not move 3 cm in
-#: a frame's time (1 m/s at 30 Hz), a 6-DoF fit on a turning frame's few matches does.
-COAST_CENTRE_JUMP_M = 0.03
-#: A coast run whose frames have been sharp and turning slowly for this many frames in a row
-#: makes a keyframe at the last one's coasted pose. The glance has ended in a view the map
-#: barely covers; the coast holds its rotation on 20-35 matches there, too few for the
-#: features' own pose (the motion model needs 20 from the last frame, the local map 30), so
-#: without a keyframe every frame coasts until blur_coast_max_frames and then is lost until
-#: the atlas starts a new map (threaded walking_hard: 30 frames lost in 2 of 3 runs pinned
-#: to one core). Never on the first calm frames: a keyframe at a coasted pose carries the
-#: coast's centre error into the map (on every calm coasted frame: --sequential 1.00 ->
-#: 2.58 cm), and the features usually find the map again within two frames.
-COAST_SETTLED_FRAMES = 3
-
-
-@dataclass(frozen=True)
-class LastTracked:
-    """The last frame tracking had (state OK), for bridging a relocalisation into another map."""
-
-    timestamp: float
-    T_cw: NDArray[np.float64]
-    velocity: NDArray[np.float64] | None
-    velocity_dt: float
-    map_id: int
+def pose_priors(config: SystemConfig, camera: PinholeCamera, slam_map: Map, pyramid: ScalePyramid,
+                sharpness: SharpnessHistory) -> list[PosePrior]:
+    """The priors ``config`` turns on, in the order tracking asks them: the rolling shutter
+    (keypoints moved before anything), the images' shift on blurred frames (its prediction
+    before the constant velocity's; its coast before depth odometry), depth odometry, and
+    the constant velocity last (the motion model's fallback)."""
+    cfg = config.slam
+    priors: list[PosePrior] = []
+    if cfg.rolling_shutter_ms > 0:
+        priors.append(RollingShutter(cfg, camera, slam_map, pyramid))
+    if cfg.blur_coast_sharp_ratio > 0:
+        priors.append(BlurCoast(cfg, camera, slam_map, pyramid, sharpness))
+    if cfg.depth_odometry != "none":
+        priors.append(DepthOdometry(cfg, camera, sharpness))
+    priors.append(ConstantVelocity())
+    return priors
 
 
 class Tracking:
@@ -100,7 +64,8 @@ class Tracking:
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
                  database: "KeyframeDatabase", extractor: Extractor, keyframes: KeyframeSink,
-                 depth: DepthSource, dynamics: DynamicStage | None, atlas: "Atlas | None" = None) -> None:
+                 depth: DepthSource, dynamics: DynamicStage | None, atlas: "Atlas | None" = None,
+                 builder: FrameBuilder | None = None, priors: list[PosePrior] | None = None) -> None:
         self.cfg = config.slam
         self.dyn = config.dynamics
         self.camera = camera
@@ -119,13 +84,18 @@ class Tracking:
         self.keyframes = keyframes
         self.depth = depth
         self.dynamics = dynamics
+        self.builder = builder if builder is not None else frame_builder(config, camera)
+        self.sharpness = SharpnessHistory()
+        self.priors = (priors if priors is not None
+                       else pose_priors(config, camera, slam_map, self.pyr, self.sharpness))
         self.seed = config.seed
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
         self.state = TrackingState.NOT_INITIALIZED
         self.last: FrameState | None = None
+        # The motion model: this frame's T_cw = velocity @ the last frame's, measured over
+        # velocity_dt seconds (None: unknown).
         self.velocity: NDArray[np.float64] | None = None
-        self._last_ok: LastTracked | None = None
-        self.velocity_dt = 0.0  # seconds between the two frames the velocity was measured on
+        self.velocity_dt = 0.0
         self.ref_kf: KeyFrame | None = None
         self.last_kf_frame = -1
         self.last_reloc_frame = -(10**9)
@@ -139,43 +109,33 @@ class Tracking:
         # Per tracked frame: (timestamp, reference keyframe, T_c_ref) for the trajectory.
         # Lost frames have no pose and are not recorded (ORB-SLAM's SaveTrajectoryTUM skips them).
         self.trajectory_refs: list[tuple[float, KeyFrame, NDArray[np.float64]]] = []
-        # Multi-map atlas (ORB-SLAM3): lost since this timestamp; a new map is wanted.
-        self.atlas = atlas
-        self.lost_since: float | None = None
+        # Multi-map atlas (ORB-SLAM3): a new map is wanted once lost long enough.
+        self.atlas = AtlasFollower(atlas) if atlas is not None else None
         self.new_map_pending = False
-        # Motion blur (slam.depth_odometry): the last tracked frame's (index, gray, depth) to
-        # align the next against, and how many frames kept the aligned pose.
-        self.odometry = (RotationOdometry(camera.K, self.cfg.depth_odometry)
-                         if self.cfg.depth_odometry != "none" else None)
-        self._odo_prev: tuple[int, NDArray[np.uint8], NDArray[np.float32]] | None = None
-        self.n_depth_odometry_frames = 0
-        # (timestamp, camera centre) of the last frames the features tracked well, for the
-        # centre's velocity over them (``_odometry_guess``).
-        self._good_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
-        self.n_depth_odometry_runs = 0
-        # Sharpness (frontend/sharpness.py) of the last tracked frames, and this one's.
-        self._recent_sharpness: deque[float] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
-        self._sharp = False  # this frame is sharp (only with slam.depth_odometry_sharp_ratio > 0)
-        self._current_sharpness: float | None = None
-        # Motion blur without alignment (slam.blur_coast_sharp_ratio): frames in a row kept on
-        # the motion's centre, their count, and the centres of the last steady frames.
-        self._coasting = 0
-        self.n_coasted_frames = 0
-        self.n_coast_keyframes = 0
-        self.n_coast_shift_only = 0
-        self._calm_coasted = 0
-        self._steady_centres: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=CENTRE_VELOCITY_FRAMES)
-        # The coast under way: the steady frame before it (timestamp, centre) and the
-        # trajectory entries of its frames, re-posed once features track again (``_record``).
-        self._coast_from: tuple[float, NDArray[np.float64]] | None = None
-        self._coast_run: list[int] = []
-        # The turn measured from the shift of small images (frontend/shift_rotation.py), on
-        # blurred frames and while coasting only: the last tracked frame's (index, image),
-        # and this frame's turn (deg) and the pose it predicts (None when not measured).
-        self.shift = (ShiftRotation(camera.fx, camera.fy) if self.cfg.blur_coast_sharp_ratio > 0 else None)
-        self._prev_gray: tuple[int, NDArray[np.uint8]] | None = None
-        self._shift_turn_deg: float | None = None
-        self._shift_prediction: NDArray[np.float64] | None = None
+
+    # ------------------------------------------------------------------ the priors' counters
+    def _counter(self, name: str) -> int:
+        return sum(getattr(p, name, 0) for p in self.priors)
+
+    @property
+    def n_depth_odometry_frames(self) -> int:
+        return self._counter("n_depth_odometry_frames")
+
+    @property
+    def n_depth_odometry_runs(self) -> int:
+        return self._counter("n_depth_odometry_runs")
+
+    @property
+    def n_coasted_frames(self) -> int:
+        return self._counter("n_coasted_frames")
+
+    @property
+    def n_coast_keyframes(self) -> int:
+        return self._counter("n_coast_keyframes")
+
+    @property
+    def n_coast_shift_only(self) -> int:
+        return self._counter("n_coast_shift_only")
 
     def start_lost_in(self, ref_kf: KeyFrame) -> None:
         """A loaded map: start lost (the camera is nowhere until it relocalises) with this
@@ -193,7 +153,7 @@ class Tracking:
 
     def _track(self, packet: FramePacket) -> TrackResult:
         frame = packet.frame
-        self._current_sharpness = packet.sharpness  # measured ahead by the reader, or None
+        self.sharpness.begin(packet.sharpness)  # measured ahead by the reader, or None
         timings: dict[str, float] = {}
         dynamic, mask = None, None
         if self.dynamics is not None:
@@ -203,423 +163,127 @@ class Tracking:
         t0 = time.perf_counter()
         self._dropped = None  # set by _remove_moving
         kps = self.extractor.extract(frame.gray, mask)
-        packet.keypoints_xy = kps.xy
         depth = self.depth.depth(frame)
-        cur = FrameState.create(frame.index, frame.timestamp, kps, depth, self.camera, self.cfg.bf)
-        if self.cfg.rolling_shutter_ms > 0 and self.velocity is not None and self.velocity_dt > 0:
-            self._to_middle_row(cur, self.velocity, self.velocity_dt, depth)
+        images = FrameImages(frame, depth)
+        cur = self.builder.build(frame.index, frame.timestamp, kps, depth)
+        self._correct(Stage.FEATURES, cur, True, images, timings)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
         is_kf = False
+        posed_by: PosePrior | None = None
+        centre: NDArray[np.float64] | None = None
         t_wait = time.perf_counter()
         with self.map.lock:
             t0 = time.perf_counter()
             timings["lock_wait"] = (t0 - t_wait) * 1e3
             self._follow_atlas(frame.timestamp)
-            if self.state is TrackingState.NOT_INITIALIZED or self.new_map_pending:
+            started_map = self.state is TrackingState.NOT_INITIALIZED or self.new_map_pending
+            if started_map:
                 ok = self._initialize(cur)
                 is_kf = ok
                 timings["track"] = (time.perf_counter() - t0) * 1e3
                 if not ok:
-                    return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings)
+                    return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings,
+                                       keypoints_xy=kps.xy)
             else:
-                if self.shift is not None:
-                    self._measure_blur(frame.gray, cur.timestamp)
-                ok = self._track_frame(cur, timings)
-                if ok:
-                    self._refine_rolling_shutter(cur, depth)
-                timings["track"] = (time.perf_counter() - t0) * 1e3
-                if ok:
-                    t0 = time.perf_counter()
-                    ok = self._track_local_map(cur)
-                    if ok and self.cfg.rolling_shutter_solve:
-                        self._refine_rolling_shutter(cur, depth)  # again, on the local map's matches
-                    timings["local_map"] = (time.perf_counter() - t0) * 1e3
-                odo = coasted = False
-                if self.odometry is not None and self.cfg.depth_odometry_sharp_ratio > 0:
-                    self._sharp = self._is_sharp(frame.gray, self.cfg.depth_odometry_sharp_ratio)
-                if self.shift is not None:
-                    if self._coast_wanted(frame.gray, cur, ok):
-                        ok = coasted = self._coast(cur, ok)
-                    else:
-                        self._coasting = 0
-                if not coasted and self._odometry_due(ok, cur.T_cw, depth):
-                    t0 = time.perf_counter()
-                    ok, odo = self._track_with_odometry(cur, frame.gray, depth, ok)  # type: ignore[arg-type]
-                    timings["depth_odometry"] = (time.perf_counter() - t0) * 1e3
+                ok, posed_by = self._track_in_map(cur, images, timings)
                 if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
                     t0 = time.perf_counter()
-                    T_odo = cur.T_cw.copy() if odo or coasted else None
+                    T_posed = cur.T_cw.copy() if posed_by is not None else None
                     dynamic = self._remove_moving(cur, depth, dynamic)
-                    if T_odo is not None:  # its refit on the few matches left would undo the alignment
-                        cur.T_cw = T_odo
-                        self._keep_matches_consistent(cur)
+                    if T_posed is not None:  # its refit on the few matches left would undo the prior's pose
+                        cur.T_cw = T_posed
+                        self.keep_matches_consistent(cur)
                     timings["multiview"] = (time.perf_counter() - t0) * 1e3
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
-                    self.velocity = cur.T_cw @ invert(self.last.T_cw) if self.last is not None and self.last.T_cw is not None else None
-                    self.velocity_dt = cur.timestamp - self.last.timestamp if self.last is not None else 0.0
-                    if self.odometry is not None and not odo and self.n_matches_inliers >= self.cfg.depth_odometry_below:
-                        self._good_centres.append((cur.timestamp, invert(cur.T_cw)[:3, 3]))
-                    if not coasted and (self.velocity is None
-                                        or rotation_angle_deg(self.velocity) <= self.cfg.blur_coast_turn_deg):
-                        self._steady_centres.append((cur.timestamp, invert(cur.T_cw)[:3, 3]))
-                    self._last_ok = LastTracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt,
-                                                self.map.active_map)
-                    settled = coasted and self._coast_settled(frame.gray)
-                    if (not self.cfg.localization_only
-                            and (settled or not coasted and self._keyframe_wanted(cur, odo))):
-                        t0 = time.perf_counter()
-                        self._create_keyframe(cur)
-                        timings["keyframe"] = (time.perf_counter() - t0) * 1e3
-                        is_kf = True
-                        self.n_coast_keyframes += settled
-                    # Outliers are not carried to the next frame (ORB-SLAM discards them here).
-                    out = np.flatnonzero(cur.outlier)
-                    cur.points.put(out, [None] * out.size, np.full(out.size, -1, np.intp))
-                    cur.outlier[:] = False
+                    assert cur.T_cw is not None
+                    centre = invert(cur.T_cw)[:3, 3]  # as tracked, before a merge moves the world
+                    is_kf = self._tracked(cur, posed_by, timings)
                 else:
                     self.velocity = None
-                    self._steady_centres.clear()
-                    self._coast_run.clear()
                     if cur.T_cw is None:
                         cur.T_cw = self.last.T_cw.copy() if self.last is not None and self.last.T_cw is not None else np.eye(4)
             if cur.ref_kf is None:
                 cur.ref_kf = self.ref_kf
-            self._apply_world_change(cur)  # a merge inside this frame's keyframe (sequential)
-            if self.state is TrackingState.OK:
-                self._record(cur)
+            if self.atlas is not None:
+                self.atlas.apply_world_change(cur)  # a merge inside this frame's keyframe (sequential)
+            recorded_at = self._record(cur) if self.state is TrackingState.OK else None
             self.last = cur
-            if self.odometry is not None:
-                self._odo_prev = ((cur.index, frame.gray, depth) if self.state is TrackingState.OK and depth is not None
-                                  else None)
-            if self.shift is not None:
-                self._prev_gray = (cur.index, frame.gray) if self.state is TrackingState.OK else None
-            if self.state is TrackingState.OK and self._current_sharpness is not None and not self._coasting:
-                self._recent_sharpness.append(self._current_sharpness)
-            self._current_sharpness = None
+            outcome = FrameOutcome(cur, images, self.state is TrackingState.OK, started_map, posed_by, is_kf,
+                                   self.velocity, centre, self.n_matches_inliers, self.trajectory_refs, recorded_at)
+            for prior in self.priors:
+                prior.update(outcome)
+            self.sharpness.end(self.state is TrackingState.OK)
             n_inl = int(((cur.points.rows >= 0) & ~cur.outlier).sum())
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         # count_nonzero: the same value as mean() of the bool mask without its float copy (0.3 ms)
         self.last_dynamic_ratio = np.count_nonzero(dynamic) / dynamic.size if dynamic is not None else 0.0
-        if dynamic is not None:
-            packet.dynamic = dynamic  # the final mask (semantic + moving regions) for map builders
-        packet.keypoint_static = ~self._dropped if self._dropped is not None else np.ones(len(kps), bool)
+        static = ~self._dropped if self._dropped is not None else np.ones(len(kps), bool)
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
-                           timings=timings)
+                           timings=timings, dynamic=dynamic, keypoints_xy=kps.xy, keypoint_static=static)
 
-    # ------------------------------------------------------------------ motion blur
-    def _odometry_due(self, ok: bool, cur_T: NDArray[np.float64] | None, depth: NDArray[np.float32] | None) -> bool:
-        """Dense alignment for this frame: the option is on, the last frame was tracked and
-        its images are kept, and the features tracked weakly or not at all, or the camera
-        turns fast (predicted or tracked), which is where blur makes a few wrong matches
-        look like a good pose."""
-        last, prev = self.last, self._odo_prev
-        if (self.odometry is None or depth is None or self.state is not TrackingState.OK or last is None
-                or last.T_cw is None or prev is None or prev[0] != last.index):
-            return False
-        if not ok:
-            return True
-        if self._sharp:  # slam.depth_odometry_sharp_ratio > 0: features on a sharp image are
-            return False  # believed (a rolling shutter's skew biases the alignment, not them)
-        if self.n_matches_inliers < self.cfg.depth_odometry_below:
-            return True
-        fast = self.cfg.depth_odometry_turn_deg
-        return ((self.velocity is not None and rotation_angle_deg(self.velocity) > fast)
-                or (cur_T is not None and rotation_angle_deg(cur_T @ invert(last.T_cw)) > fast))
+    def _motion_state(self) -> MotionState:
+        return MotionState(self.last, self.state is TrackingState.OK, self.velocity, self.velocity_dt)
 
-    def _sharpness(self, gray: NDArray[np.uint8]) -> float:
-        """This frame's sharpness: the packet's (measured ahead by the reader), else measured
-        here, once per frame."""
-        if self._current_sharpness is None:
-            self._current_sharpness = sharpness(gray)
-        return self._current_sharpness
+    def _track_in_map(self, cur: FrameState, images: FrameImages,
+                      timings: dict[str, float]) -> tuple[bool, PosePrior | None]:
+        """Motion model or reference keyframe (relocalisation when lost), then the local map,
+        each step followed by the priors' corrections. ``(tracked, the prior that posed the
+        frame or None)``."""
+        t0 = time.perf_counter()
+        state = self._motion_state()
+        prediction = next((p for p in (prior.predict(state, images) for prior in self.priors) if p is not None), None)
+        ok = self._track_frame(cur, prediction, timings)
+        ok, _ = self._correct(Stage.MATCHED, cur, ok, images, timings)
+        timings["track"] = (time.perf_counter() - t0) * 1e3
+        if ok:
+            t0 = time.perf_counter()
+            ok = self.track_local_map(cur)
+            timings["local_map"] = (time.perf_counter() - t0) * 1e3
+        return self._correct(Stage.LOCAL_MAP, cur, ok, images, timings)
 
-    def _is_sharp(self, gray: NDArray[np.uint8], ratio: float) -> bool:
-        """This frame's sharpness against the sharpest of the last tracked (not coasted) frames."""
-        recent = self._recent_sharpness
-        return not recent or self._sharpness(gray) >= ratio * max(recent)
+    def _correct(self, stage: Stage, cur: FrameState, ok: bool, images: FrameImages,
+                 timings: dict[str, float]) -> tuple[bool, PosePrior | None]:
+        """The priors' corrections at ``stage``, in order, until one poses the frame."""
+        state = self._motion_state()
+        for prior in self.priors:
+            t0 = time.perf_counter()
+            correction = prior.correct(stage, state, cur, ok, images, self)
+            if correction is None:
+                continue
+            timings[prior.name] = (time.perf_counter() - t0) * 1e3
+            ok = correction.tracked
+            if correction.posed:
+                return ok, prior
+        return ok, None
 
-    def _measure_blur(self, gray: NDArray[np.uint8], cur_t: float) -> None:
-        """This frame's sharpness; on a blurred frame, or while coasting, the turn since the
-        last tracked frame from the images' shift, and the pose it predicts: rotation from
-        the shift, centre from the steady motion. When the turn is fast the motion model
-        searches from that prediction instead of the constant velocity (wrong while a turn
-        speeds up or slows down). Sharp frames track as ORB-SLAM2 does (to the byte)."""
-        assert self.shift is not None
-        self._shift_turn_deg = None
-        self._shift_prediction = None
-        self._sharpness(gray)
-        last, prev = self.last, self._prev_gray
-        if (self.state is not TrackingState.OK or last is None or last.T_cw is None or prev is None
-                or prev[0] != last.index or prev[1].shape != gray.shape or len(self._steady_centres) < 2):
-            return
-        if not self._coasting and self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio):
-            return
-        shift = self.shift.shift_px(small_image(prev[1]), small_image(gray))
-        if shift is None:
-            return
-        R_lc = self.shift.relative_rotation(*shift)
-        self._shift_turn_deg = float(np.degrees(np.arccos(np.clip((np.trace(R_lc) - 1.0) / 2.0, -1.0, 1.0))))
-        T = np.eye(4)
-        T[:3, :3] = R_lc.T @ last.T_cw[:3, :3]
-        T[:3, 3] = -T[:3, :3] @ self._steady_centre(cur_t)
-        self._shift_prediction = T
-
-    def _shift_says_fast(self) -> bool:
-        return self._shift_turn_deg is not None and self._shift_turn_deg > self.cfg.blur_coast_turn_deg
-
-    def _coast_wanted(self, gray: NDArray[np.uint8], cur: FrameState, ok: bool) -> bool:
-        """Coast a frame whose turn was measured (blurred, or right after a coast) when its
-        features found no pose; a blurred one when the images' shift says the camera turns
-        fast or its features put the centre more than COAST_CENTRE_JUMP_M from the steady
-        motion's (a slide along a far wall, seen on a glance's first, slowly turning frame
-        too); a sharp one only when both hold. A sharp frame turning slowly after a glance is
-        believed even when its centre jumped: the view the turn ended on needs its keyframe,
-        and coasting it (no keyframe) left tracking without points there (6 lost frames on
-        the blur-only render). Never more than blur_coast_max_frames in a row."""
-        pred = self._shift_prediction
-        if self.state is not TrackingState.OK or pred is None or self._coasting >= self.cfg.blur_coast_max_frames:
-            return False
-        if not ok or cur.T_cw is None:
-            return True
-        jump = float(np.linalg.norm(invert(cur.T_cw)[:3, 3] - invert(pred)[:3, 3])) > COAST_CENTRE_JUMP_M
-        if self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio):
-            return jump and self._shift_says_fast()
-        return self._shift_says_fast() or jump
-
-    def _coast_settled(self, gray: NDArray[np.uint8]) -> bool:
-        """True on the COAST_SETTLED_FRAMES-th coasted frame in a row that is sharp and turns
-        slowly (the shift says under blur_coast_turn_deg): the glance has ended in a view the
-        map barely covers, where the features keep failing, so this frame makes a keyframe at
-        its coasted pose."""
-        calm = self._is_sharp(gray, self.cfg.blur_coast_sharp_ratio) and not self._shift_says_fast()
-        self._calm_coasted = self._calm_coasted + 1 if calm else 0
-        return self._calm_coasted == COAST_SETTLED_FRAMES
-
-    def _steady_centre(self, cur_t: float) -> NDArray[np.float64]:
-        """The camera centre at ``cur_t`` moved on from the last steady frame at the velocity
-        of the last steady frames (a least-squares line through their centres)."""
-        times = np.array([t for t, _ in self._steady_centres])
-        centres = np.array([c for _, c in self._steady_centres])
-        dt = times - times[-1]
-        if len(times) < 2 or np.ptp(dt) <= 0:
-            return centres[-1].copy()
-        A = np.column_stack([np.ones_like(dt), dt])
-        coef, *_ = np.linalg.lstsq(A, centres, rcond=None)
-        return centres[-1] + coef[1] * (cur_t - times[-1])
-
-    def _coast(self, cur: FrameState, ok: bool) -> bool:
-        """Pose a frame the features cannot: centre from the steady motion, rotation fitted to
-        its matches about that centre, starting from the images' shift. The features' own
-        matches are used when their pose turned as the shift says; else the local map is
-        searched from the prediction. False (lost) when fewer than COAST_MIN_INLIERS matches
-        hold the rotation on the first frame of a run; on a frame that continues one, fewer
-        than COAST_CONTINUE_MIN_INLIERS leave it the shift's rotation."""
-        last, pred = self.last, self._shift_prediction
-        assert last is not None and last.T_cw is not None and pred is not None
-        centre = invert(pred)[:3, 3]
-        agree = (ok and cur.T_cw is not None
-                 and rotation_angle_deg(cur.T_cw[:3, :3] @ pred[:3, :3].T) <= COAST_AGREE_DEG)
-        if not agree:
-            cur.clear_points()
-            cur.outlier[:] = False
-            cur.T_cw = pred.copy()
-            self._track_local_map(cur)  # its matches are what counts here, not its pose
+    def _tracked(self, cur: FrameState, posed_by: PosePrior | None, timings: dict[str, float]) -> bool:
+        """A tracked frame: the motion model's velocity, the keyframe decision, the outliers
+        dropped. True when it made a keyframe."""
         assert cur.T_cw is not None
-        idx = cur.matched_indices(self.map.store)
-        idx = idx[~cur.outlier[idx]] if agree else idx
-        fit = fit_rotation_about_centre(self.map.store.pos[cur.points.rows[idx]], centre, cur.xy[idx],
-                                        self.camera.K, pred[:3, :3],
-                                        self.pyr.scales[cur.keypoints.octave[idx]],
-                                        min_inliers=COAST_CONTINUE_MIN_INLIERS if self._coasting else COAST_MIN_INLIERS)
-        R_cw = fit.R_cw
-        if not fit.ok:
-            if not self._coasting:  # nothing in the image agrees (a covered lens): lost, as without the option
-                return False
-            # A glance into a view the map does not cover yet: its matches ran out, its
-            # rotation is the images' shift's, until the features find the map again.
-            R_cw = pred[:3, :3]
-            cur.clear_points()
-            cur.outlier[:] = False
-            self.n_coast_shift_only += 1
-        T = np.eye(4)
-        T[:3, :3] = R_cw
-        T[:3, 3] = -R_cw @ centre
-        cur.T_cw = T
-        self._keep_matches_consistent(cur)
-        if self._coasting == 0:
-            self._coast_from = self._steady_centres[-1]
-            self._coast_run.clear()
-            self._calm_coasted = 0
-        self._coasting += 1
-        self.n_coasted_frames += 1
-        return True
-
-    def _odometry_guess(self, cur_t: float) -> NDArray[np.float64]:
-        """The frame's pose to align from: the motion model's rotation, the camera centre
-        moved on at the velocity of the last frames the features tracked well (a weak
-        frame's translation can be centimetres off, and the alignment keeps it)."""
         last = self.last
-        assert last is not None and last.T_cw is not None
-        guess = self.velocity @ last.T_cw if self.velocity is not None else last.T_cw.copy()
-        c = invert(last.T_cw)[:3, 3]
-        good = self._good_centres
-        if len(good) >= 2 and good[-1][0] > good[0][0]:
-            v = (good[-1][1] - good[0][1]) / (good[-1][0] - good[0][0])
-            c = c + v * (cur_t - last.timestamp)
-        guess = guess.copy()
-        guess[:3, 3] = -guess[:3, :3] @ c
-        return guess
-
-    def _track_with_odometry(self, cur: FrameState, gray: NDArray[np.uint8], depth: NDArray[np.float32],
-                             ok: bool) -> tuple[bool, bool]:
-        """The frame's rotation aligned densely against the last frame (translation: see
-        ``_odometry_guess``). Features that agree with it keep their pose untouched; else the
-        local map is searched again from the aligned pose, and if the features still
-        disagree (or find too little) the frame keeps the aligned pose and the matches it
-        explains. ``(tracked, pose from the alignment)``."""
-        last, prev = self.last, self._odo_prev
-        assert self.odometry is not None and last is not None and last.T_cw is not None and prev is not None
-        guess = self._odometry_guess(cur.timestamp)
-        rel = self.odometry.relative(prev[1], prev[2], gray, depth, last.T_cw @ invert(guess))
-        if rel is None:
-            return ok, False
-        self.n_depth_odometry_runs += 1
-        T_odo = orthonormalize(invert(rel) @ last.T_cw)
-        max_deg = self.cfg.depth_odometry_max_deg
-        if ok and cur.T_cw is not None and rotation_angle_deg(cur.T_cw @ invert(T_odo)) <= max_deg:
-            return True, False
-        cur.clear_points()
+        self.velocity = cur.T_cw @ invert(last.T_cw) if last is not None and last.T_cw is not None else None
+        self.velocity_dt = cur.timestamp - last.timestamp if last is not None else 0.0
+        if self.atlas is not None:
+            self.atlas.tracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt)
+        is_kf = False
+        if not self.cfg.localization_only and self._keyframe_wanted(cur, posed_by):
+            t0 = time.perf_counter()
+            self._create_keyframe(cur)
+            timings["keyframe"] = (time.perf_counter() - t0) * 1e3
+            is_kf = True
+        # Outliers are not carried to the next frame (ORB-SLAM discards them here).
+        out = np.flatnonzero(cur.outlier)
+        cur.points.put(out, [None] * out.size, np.full(out.size, -1, np.intp))
         cur.outlier[:] = False
-        cur.T_cw = T_odo.copy()
-        # A frame turning slowly is sharp: its features are believed once they track
-        # (a long aligned stretch drifts from the map by more than max_deg).
-        sharp = self._sharp or rotation_angle_deg(rel) <= self.cfg.depth_odometry_turn_deg
-        if self._track_local_map(cur) and (sharp or rotation_angle_deg(cur.T_cw @ invert(T_odo)) <= max_deg):
-            return True, False
-        # Blurred: keep the aligned pose and the matches it explains (the next frame's motion
-        # model searches around their points).
-        cur.T_cw = T_odo
-        self._keep_matches_consistent(cur)
-        self.n_depth_odometry_frames += 1
-        return True, True
+        return is_kf
 
-    def _keep_matches_consistent(self, cur: FrameState, th_px: float = 5.991 ** 0.5) -> None:
-        """Unmatch the keypoints whose map point projects farther than ``th_px`` (x the
-        level's scale) from them under the frame's pose."""
-        assert cur.T_cw is not None
-        idx = cur.matched_indices(self.map.store)
-        cur.outlier[:] = False
-        if len(idx) == 0:
-            self.n_matches_inliers = 0
-            return
-        uv, z = project(cur.T_cw, self.map.store.pos[cur.points.rows[idx]], self.camera.fx, self.camera.fy,
-                        self.camera.cx, self.camera.cy)
-        err = np.linalg.norm(uv - cur.xy[idx], axis=1)
-        bad = (z <= 0) | (err > th_px * self.pyr.scales[cur.keypoints.octave[idx]])
-        for i in idx[bad].tolist():
-            cur.points[i] = None
-        rows = cur.points.rows
-        rows = rows[rows >= 0]
-        self.n_matches_inliers = int((self.map.store.n_kf_obs[rows] > 0).sum())
-
-    def _keyframe_wanted(self, cur: FrameState, odo: bool) -> bool:
-        """ORB-SLAM2's decision; a frame posed by the alignment only while it turns slowly
-        (sharp but seeing little of the map: a new view), then also with few matches."""
-        if not odo:
+    def _keyframe_wanted(self, cur: FrameState, posed_by: PosePrior | None) -> bool:
+        """ORB-SLAM2's decision, or for a frame a prior posed, that prior's."""
+        if posed_by is None:
             return self._need_new_keyframe(cur)
-        if self.velocity is None or rotation_angle_deg(self.velocity) > self.cfg.depth_odometry_keyframe_deg:
-            return False
-        return self._need_new_keyframe(cur) or self.n_matches_inliers <= 15
-
-    # ------------------------------------------------------------------ rolling shutter
-    def _to_middle_row(self, cur: FrameState, velocity: NDArray[np.float64], dt: float,
-                       depth: NDArray[np.float32] | None) -> None:
-        cur.to_middle_row(velocity, dt, self.cfg.rolling_shutter_ms / 1e3, self.camera, self.cfg.bf,
-                          depth if self.cfg.rolling_shutter_global_depth else None)
-
-    def _refine_rolling_shutter(self, cur: FrameState, depth: NDArray[np.float32] | None) -> None:
-        """Redo the rolling-shutter move with a better velocity and refit the pose on the
-        moved keypoints. The velocity is the tracked pose's (from the last frame to this
-        one), or with ``slam.rolling_shutter_solve`` the one fitted jointly with the pose to
-        the raw matches (``backend/rolling_shutter_pose.py``): the previous interval's
-        average is wrong while a turn speeds up or slows down."""
-        last = self.last
-        # Only from a tracked last frame: a lost one keeps a stale pose, and the "velocity" to
-        # it (a relocalisation's pose against it) would move every keypoint by a wrong amount.
-        if (self.cfg.rolling_shutter_ms <= 0 or not self.cfg.rolling_shutter_refine or cur.T_cw is None
-                or self.state is not TrackingState.OK or last is None or last.T_cw is None
-                or cur.timestamp <= last.timestamp):
-            return
-        dt = cur.timestamp - last.timestamp
-        velocity = cur.T_cw @ invert(last.T_cw)
-        if self.cfg.rolling_shutter_solve:
-            velocity = self._solve_velocity(cur, velocity, dt)
-        self._to_middle_row(cur, velocity, dt, depth)
-        self._optimize(cur)
-        self._discard_outliers(cur)
-
-    def _solve_velocity(self, cur: FrameState, guess: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
-        """The frame's velocity fitted with its pose to the raw keypoints of its matches."""
-        assert cur.T_cw is not None
-        idx = cur.matched_indices(self.map.store)
-        idx = idx[~cur.outlier[idx]]
-        if len(idx) < 20:
-            return guess
-        if len(idx) > RS_SOLVE_MAX_POINTS:  # 12 unknowns: a spread subset fixes them as well
-            idx = idx[np.linspace(0, len(idx) - 1, RS_SOLVE_MAX_POINTS).astype(np.intp)]
-        raw = cur.raw_xy[idx]
-        frac = row_time_fraction(cur.keypoints.xy[idx, 1], int(round(self.camera.image_size[1])),
-                                 self.cfg.rolling_shutter_ms / 1e3, dt)
-        res = solve_rolling_shutter_pose(cur.T_cw, guess, self.map.store.pos[cur.points.rows[idx]], raw, frac,
-                                         self.pyr.inv_sigma2[cur.keypoints.octave[idx]],
-                                         (self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy))
-        return res.velocity_cw
-
-    # ------------------------------------------------------------------ atlas
-    def _follow_atlas(self, timestamp: float) -> None:
-        """Under the map lock before a frame: map the last frame into its map's new world if
-        a merge moved it; once relocalisation has failed for ``slam.new_map_after_s``, ask
-        for a new map, which the next frame with enough keypoints and depth starts
-        (ORB-SLAM3 CreateMapInAtlas). Frames until then stay LOST."""
-        if self.atlas is None:
-            return
-        self._apply_world_change(self.last)
-        if self.state is not TrackingState.LOST or self.new_map_pending:
-            self.lost_since = None
-            return
-        if self.lost_since is None:
-            self.lost_since = self.last.timestamp if self.last is not None else timestamp
-        if self.atlas.new_map_due(timestamp - self.lost_since):
-            self.atlas.start_new_map()
-            self.new_map_pending = True
-            self.velocity = None
-            self.local_kfs = []
-            self.local_rows = np.zeros(0, np.intp)
-
-    def _bridge_to(self, cur: FrameState) -> NDArray[np.float64] | None:
-        """``S`` (this frame's map world <- the left map's world) if the last frame tracked in
-        the left map is at most ``BRIDGE_MAX_GAP_S`` old: that frame carried by the motion
-        model to now is this frame in the left map's world. A guess for loop closing, which
-        verifies it (``LoopClosing._merge_on_hints``)."""
-        last = self._last_ok
-        if (last is None or cur.T_cw is None or last.velocity is None or last.velocity_dt <= 0
-                or last.map_id != self.map.active_map):
-            return None
-        gap = cur.timestamp - last.timestamp
-        if not 0 < gap <= BRIDGE_MAX_GAP_S:
-            return None
-        T_pred = last.T_cw
-        for _ in range(max(1, round(gap / last.velocity_dt))):
-            T_pred = last.velocity @ T_pred
-        return invert(cur.T_cw) @ T_pred
-
-    def _apply_world_change(self, frame: FrameState | None) -> None:
-        """Map ``frame`` into its map's world if a merge moved that map (``Atlas``)."""
-        S = self.atlas.take_world_change() if self.atlas is not None else None
-        if S is not None and frame is not None and frame.T_cw is not None:
-            frame.T_cw = frame.T_cw @ invert(S)
+        return posed_by.keyframe_wanted(self._motion_state(), cur, self, lambda: self._need_new_keyframe(cur))
 
     # ------------------------------------------------------------------ dynamics
     def _motion_prior(self) -> MotionPrior | None:
@@ -638,12 +302,7 @@ class Tracking:
         ref = self.ref_kf
         if ref is None or cur.T_cw is None or self.dynamics is None:
             return dynamic
-        # Reference keyframes with the highest overlap (the reference and its best
-        # covisibles), preferring those old enough for a mover to have moved since.
-        cands = [k for k in (ref, *ref.best_covisibles(MULTIVIEW_CANDIDATES - 1)) if not k.bad]
-        pick = pick_references([k.timestamp for k in cands], cur.timestamp, self.dyn.multiview_keyframes,
-                               self.dyn.multiview_min_age_s)
-        refs = [(cands[i].T_cw, cands[i].xy, cands[i].depth) for i in pick]
+        refs = reference_views(ref, cur.timestamp, self.dyn.multiview_keyframes, self.dyn.multiview_min_age_s)
         regions = self.dynamics.after_pose(cur.T_cw, depth, refs)
         if regions is None:
             return dynamic
@@ -659,36 +318,28 @@ class Tracking:
                     self.map.set_bad_point(p)
                     self.n_culled_dynamic_points += 1
             cur.drop(~drop)
-            self._optimize(cur)
+            self.optimize(cur)
         return regions.moving if dynamic is None else (dynamic | regions.moving)
 
-    def _record(self, cur: FrameState) -> None:
+    def _record(self, cur: FrameState) -> int | None:
+        """The frame in the trajectory, relative to its reference keyframe; its entry."""
         ref = cur.ref_kf or self.ref_kf
         if ref is None or cur.T_cw is None:
-            return
+            return None
         self.trajectory_refs.append((cur.timestamp, ref, cur.T_cw @ ref.T_wc))
-        if self._coasting:
-            self._coast_run.append(len(self.trajectory_refs) - 1)
-        elif self._coast_run:
-            self._bridge_coast(cur.timestamp, invert(cur.T_cw)[:3, 3])
+        return len(self.trajectory_refs) - 1
 
-    def _bridge_coast(self, t_after: float, c_after: NDArray[np.float64]) -> None:
-        """Features track again after a coast: move the coasted frames' camera centres onto
-        the line between the steady frames either side (in time), keeping their rotations.
-        Extrapolated centres drift (a velocity a few cm/s off over a third of a second);
-        the interpolation is off by at most a/8 T^2 (under 5 mm for a hand-held camera's
-        ~0.4 m/s^2 over 0.3 s). The trajectory written at the end has these; the live
-        poses of those frames were the extrapolation."""
-        run, self._coast_run = self._coast_run, []
-        if self._coast_from is None or t_after <= self._coast_from[0]:
+    # ------------------------------------------------------------------ atlas
+    def _follow_atlas(self, timestamp: float) -> None:
+        """Under the map lock before a frame: the last frame into its map's new world after
+        a merge; a new map once lost long enough, which the next frame starts."""
+        if self.atlas is None:
             return
-        t_before, c_before = self._coast_from
-        for k in run:
-            t, ref, T_c_ref = self.trajectory_refs[k]
-            T_cw = T_c_ref @ ref.T_cw
-            c = c_before + (t - t_before) / (t_after - t_before) * (c_after - c_before)
-            T_cw[:3, 3] = -T_cw[:3, :3] @ c
-            self.trajectory_refs[k] = (t, ref, T_cw @ ref.T_wc)
+        if self.atlas.new_map_wanted(self.last, self.state is TrackingState.LOST, self.new_map_pending, timestamp):
+            self.new_map_pending = True
+            self.velocity = None
+            self.local_kfs = []
+            self.local_rows = np.zeros(0, np.intp)
 
     # ------------------------------------------------------------------ initialisation
     def _initialize(self, cur: FrameState) -> bool:
@@ -731,11 +382,13 @@ class Tracking:
         return kf
 
     # ------------------------------------------------------------------ frame tracking
-    def _track_frame(self, cur: FrameState, timings: dict[str, float]) -> bool:
+    def _track_frame(self, cur: FrameState, prediction: PosePrediction | None, timings: dict[str, float]) -> bool:
+        """Motion model from the priors' prediction, else the reference keyframe; when lost,
+        relocalisation."""
         if self.state is TrackingState.OK:
             ok = False
-            if self.velocity is not None and cur.index > self.last_reloc_frame + 1:
-                ok = self._track_with_motion_model(cur)
+            if self.velocity is not None and prediction is not None and cur.index > self.last_reloc_frame + 1:
+                ok = self._track_with_motion_model(cur, prediction)
             if not ok:
                 ok = self._track_reference_keyframe(cur)
             return ok
@@ -747,7 +400,7 @@ class Tracking:
             self.last_reloc_frame = cur.index
         return ok
 
-    def _optimize(self, cur: FrameState) -> int:
+    def optimize(self, cur: FrameState) -> int:
         """Pose-only optimisation over the frame's matched points; marks outliers."""
         idx = cur.matched_indices(self.map.store)
         if len(idx) < 3:
@@ -762,7 +415,26 @@ class Tracking:
         cur.outlier[idx[~res.inliers]] = True
         return int(res.inliers.sum())
 
-    def _discard_outliers(self, cur: FrameState) -> int:
+    def keep_matches_consistent(self, cur: FrameState, th_px: float = 5.991 ** 0.5) -> None:
+        """Unmatch the keypoints whose map point projects farther than ``th_px`` (x the
+        level's scale) from them under the frame's pose (a prior's pose, not fitted to them)."""
+        assert cur.T_cw is not None
+        idx = cur.matched_indices(self.map.store)
+        cur.outlier[:] = False
+        if len(idx) == 0:
+            self.n_matches_inliers = 0
+            return
+        uv, z = project(cur.T_cw, self.map.store.pos[cur.points.rows[idx]], self.camera.fx, self.camera.fy,
+                        self.camera.cx, self.camera.cy)
+        err = np.linalg.norm(uv - cur.xy[idx], axis=1)
+        bad = (z <= 0) | (err > th_px * self.pyr.scales[cur.keypoints.octave[idx]])
+        for i in idx[bad].tolist():
+            cur.points[i] = None
+        rows = cur.points.rows
+        rows = rows[rows >= 0]
+        self.n_matches_inliers = int((self.map.store.n_kf_obs[rows] > 0).sum())
+
+    def discard_outliers(self, cur: FrameState) -> int:
         """Unmatch the outliers; the number of matches left whose point is in a keyframe."""
         for i in np.flatnonzero(cur.outlier & (cur.points.rows >= 0)).tolist():
             cur.points[i] = None
@@ -771,11 +443,10 @@ class Tracking:
         rows = rows[rows >= 0]
         return int((self.map.store.n_kf_obs[rows] > 0).sum())
 
-    def _track_with_motion_model(self, cur: FrameState) -> bool:
+    def _track_with_motion_model(self, cur: FrameState, prediction: PosePrediction) -> bool:
         last = self.last
-        assert last is not None and last.T_cw is not None and self.velocity is not None
-        cur.T_cw = (self._shift_prediction.copy() if self._shift_prediction is not None and self._shift_says_fast()
-                    else self.velocity @ last.T_cw)
+        assert last is not None and last.T_cw is not None
+        cur.T_cw = prediction.T_cw
         store = self.map.store
         idx = last.matched_indices(store)
         idx = idx[~last.outlier[idx]]
@@ -805,8 +476,8 @@ class Tracking:
         if len(ti) < 20:
             return False
         cur.points.put(ti, store.points(rows[sel]), rows[sel])
-        self._optimize(cur)
-        return self._discard_outliers(cur) >= 10
+        self.optimize(cur)
+        return self.discard_outliers(cur) >= 10
 
     def _inside(self, uv: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.bool_]:
         return (z > 0) & self.camera.in_image(uv)
@@ -846,8 +517,8 @@ class Tracking:
         for a, b in zip(ia, ib):
             cur.points[b] = kf.points[a]
         cur.T_cw = self.last.T_cw.copy()
-        self._optimize(cur)
-        return self._discard_outliers(cur) >= 10
+        self.optimize(cur)
+        return self.discard_outliers(cur) >= 10
 
     # ------------------------------------------------------------------ local map
     def _update_local_map(self, cur: FrameState) -> None:
@@ -878,7 +549,7 @@ class Tracking:
         rows = first_seen_unique(rows)
         self.local_rows = rows[~self.map.store.bad[rows]]
 
-    def _track_local_map(self, cur: FrameState) -> bool:
+    def track_local_map(self, cur: FrameState) -> bool:
         """Project the local map's points into the frame, match them (SearchLocalPoints),
         optimise the pose and count the inliers (TrackLocalMap)."""
         self._update_local_map(cur)
@@ -909,7 +580,7 @@ class Tracking:
                 radius = th * np.where(view_cos[sel] > 0.998, 2.5, 4.0) * self.pyr.scales[level]
                 qi, ti = self._search(cur, uv[sel], radius, level - 1, level, store.descriptor[cand[sel]])
                 cur.points.put(ti, store.points(cand[sel[qi]]), cand[sel[qi]])
-        self._optimize(cur)
+        self.optimize(cur)
         rows = cur.points.rows
         inlier_rows = rows[(rows >= 0) & ~cur.outlier]
         np.add.at(store.n_found, inlier_rows, 1)
@@ -1010,20 +681,20 @@ class Tracking:
             cur.clear_points()
             for k in inl.reshape(-1):
                 cur.points[ib[k]] = kf.points[ia[k]]
-            n_good = self._optimize(cur)
+            n_good = self.optimize(cur)
             if n_good < 10:
                 continue
-            self._discard_outliers(cur)
+            self.discard_outliers(cur)
             if n_good < 50:
                 # Guided search with the candidate's points to gather more matches.
                 self._project_keyframe_points(cur, kf, 10.0)
-                n_good = self._optimize(cur)
-                self._discard_outliers(cur)
+                n_good = self.optimize(cur)
+                self.discard_outliers(cur)
             if n_good >= 50:
                 self.ref_kf = kf
                 cur.ref_kf = kf
-                if self.atlas is not None and kf.map_id != self.map.active_map:
-                    self.atlas.activate(kf, self._bridge_to(cur))  # tracking goes on in that map
+                if self.atlas is not None:
+                    self.atlas.relocalised(kf, cur)  # in another map's keyframe: tracking goes on there
                 return True
         cur.clear_points()
         cur.T_cw = None

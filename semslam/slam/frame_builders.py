@@ -1,0 +1,72 @@
+"""What tracking needs of a sensor's frame, per sensor: keypoints (undistorted), a depth and
+a right-image coordinate per keypoint where the sensor gives one, empty map-point slots."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.config import SystemConfig
+from semslam.core.types import Keypoints
+from semslam.geometry.camera import PinholeCamera
+from semslam.slam.frame_state import FrameState
+from semslam.slam.frame_to_keyframe import sample_depth
+from semslam.slam.map import PointSlots
+
+
+class FrameBuilder(Protocol):
+    """Turns one frame's keypoints (and the depth image, where there is one) into a
+    ``FrameState``."""
+
+    camera: PinholeCamera
+
+    def build(self, index: int, timestamp: float, kps: Keypoints,
+              depth_img: NDArray[np.float32] | None) -> FrameState: ...
+
+
+def _frame(index: int, timestamp: float, kps: Keypoints, xy: NDArray[np.float64], z: NDArray[np.float32],
+           ur: NDArray[np.float64]) -> FrameState:
+    n = len(kps)
+    return FrameState(index, timestamp, kps, xy, z, ur, PointSlots([None] * n), np.zeros(n, bool))
+
+
+class RgbdFrameBuilder:
+    """Depth read at each keypoint; the right coordinate a stereo camera of baseline
+    ``bf / fx`` would see (ORB-SLAM2's virtual right image), -1 without depth."""
+
+    def __init__(self, camera: PinholeCamera, bf: float) -> None:
+        self.camera = camera
+        self.bf = bf
+
+    def build(self, index: int, timestamp: float, kps: Keypoints,
+              depth_img: NDArray[np.float32] | None) -> FrameState:
+        xy = self.camera.undistort_points(kps.xy)
+        if depth_img is not None:
+            z = sample_depth(depth_img, kps.xy).astype(np.float32)
+        else:
+            z = np.zeros(len(kps), np.float32)
+        ur = np.where(z > 0, xy[:, 0] - self.bf / np.maximum(z, 1e-6), -1.0)
+        return _frame(index, timestamp, kps, xy, z, ur)
+
+
+class MonocularFrameBuilder:
+    """No depth: every keypoint's depth is 0 and its right coordinate -1 (none)."""
+
+    def __init__(self, camera: PinholeCamera) -> None:
+        self.camera = camera
+
+    def build(self, index: int, timestamp: float, kps: Keypoints,
+              depth_img: NDArray[np.float32] | None = None) -> FrameState:
+        n = len(kps)
+        return _frame(index, timestamp, kps, self.camera.undistort_points(kps.xy), np.zeros(n, np.float32),
+                      np.full(n, -1.0))
+
+
+def frame_builder(config: SystemConfig, camera: PinholeCamera) -> FrameBuilder:
+    """The builder for the frames ``config`` gives: RGB-D whenever they come with depth, the
+    sensor's or a depth network's (a monocular camera as pseudo-RGB-D)."""
+    if config.sensor == "rgbd" or config.depth.source != "sensor":
+        return RgbdFrameBuilder(camera, config.slam.bf)
+    return MonocularFrameBuilder(camera)

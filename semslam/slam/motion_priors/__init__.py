@@ -1,0 +1,1 @@
+"""Pose priors: what predicts or corrects a frame's pose besides its features (``base.py``)."""

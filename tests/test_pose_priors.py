@@ -1,0 +1,77 @@
+"""The pose priors' interface (``slam/motion_priors``): what each predicts, and that a prior
+with nothing to go on says nothing."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from semslam.config.schema import SlamConfig
+from semslam.core.types import Frame
+from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.se3 import make_pose, so3_exp
+from semslam.slam.motion_priors.base import FrameImages, MotionState, PosePrior, Stage
+from semslam.slam.motion_priors.blur_coast import BlurCoast
+from semslam.slam.motion_priors.constant_velocity import ConstantVelocity
+from semslam.slam.motion_priors.depth_odometry import DepthOdometry
+from semslam.slam.motion_priors.sharpness_history import SharpnessHistory
+
+CAM = PinholeCamera(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
+
+
+def _images() -> FrameImages:
+    rgb = np.random.default_rng(0).integers(0, 255, (480, 640, 3), np.uint8)
+    return FrameImages(Frame(5, 0.2, rgb), np.ones((480, 640), np.float32))
+
+
+def _last(T_cw: np.ndarray) -> SimpleNamespace:
+    return SimpleNamespace(index=4, timestamp=0.1667, T_cw=T_cw)
+
+
+def test_constant_velocity_predicts_the_last_motion_again() -> None:
+    V = make_pose(so3_exp([0.0, 0.02, 0.01]), [0.01, 0.0, 0.003])
+    T_last = make_pose(so3_exp([0.3, -0.2, 0.1]), [0.5, 0.1, -0.2])
+    state = MotionState(_last(T_last), True, V, 1 / 30)  # type: ignore[arg-type]
+    prediction = ConstantVelocity().predict(state, _images())
+    assert prediction is not None and prediction.covariance is None
+    np.testing.assert_array_equal(prediction.T_cw, V @ T_last)
+
+
+def test_constant_velocity_without_a_velocity_predicts_nothing() -> None:
+    state = MotionState(_last(np.eye(4)), False, None, 0.0)  # type: ignore[arg-type]
+    assert ConstantVelocity().predict(state, _images()) is None
+    assert ConstantVelocity().predict(MotionState(None, False, None, 0.0), _images()) is None
+
+
+def test_priors_without_a_last_frame_say_nothing() -> None:
+    """Blur coasting and depth odometry need the last tracked frame's images: before one,
+    they neither predict nor correct."""
+    cfg = SlamConfig(blur_coast_sharp_ratio=0.6, depth_odometry="rgbd")
+    store_map = SimpleNamespace(store=None)
+    pyramid = SimpleNamespace(scales=np.ones(8))
+    sharpness = SharpnessHistory()
+    priors: list[PosePrior] = [BlurCoast(cfg, CAM, store_map, pyramid, sharpness),  # type: ignore[arg-type]
+                               DepthOdometry(cfg, CAM, sharpness)]
+    state = MotionState(None, False, None, 0.0)
+    images = _images()
+    cur = SimpleNamespace(T_cw=None, timestamp=0.2)
+    sharpness.begin(None)
+    ops = SimpleNamespace(n_matches_inliers=0)
+    for prior in priors:
+        assert prior.predict(state, images) is None
+        for stage in Stage:
+            assert prior.correct(stage, state, cur, False, images, ops) is None  # type: ignore[arg-type]
+
+
+def test_sharpness_history_compares_with_the_sharpest_counted_frame() -> None:
+    history = SharpnessHistory()
+    gray = np.zeros((8, 8), np.uint8)
+    for measured, counts, sharp in ((10.0, True, True), (50.0, False, True), (8.0, True, False)):
+        history.begin(measured)
+        assert history.is_sharp(gray, 0.9) == sharp
+        if not counts:
+            history.exclude()  # a coasted frame is no reference
+        history.end(tracked=True)
+    history.begin(9.5)
+    assert history.is_sharp(gray, 0.9) and not history.is_sharp(gray, 1.0)  # against 10, not 50
