@@ -8,8 +8,9 @@ import pytest
 
 from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints, orb_spec
 from semslam.features.matching import matcher_for
-from semslam.slam.map import KeyFrame, Map, MapPoint, update_normals_and_depths
+from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
 from semslam.slam.map_batch import compute_distinctive_descriptors
+from semslam.slam.point_store import MapPoint
 from tests.map_world import random_map
 
 
@@ -71,10 +72,10 @@ def test_distinctive_descriptors_equal_per_point(spec: FeatureSpec) -> None:
         np.testing.assert_array_equal(p.descriptor, expected)
         n_multi += sum(1 for kf in p.observations if not kf.bad) >= 3
     assert n_multi > 50  # the test exercised real medians
-    # the single-point method gives the same
+    # one point alone gives the same
     q = points[7]
     q.descriptor = before[q.id]
-    q.compute_distinctive_descriptor(matcher)
+    compute_distinctive_descriptors([q], matcher)
     np.testing.assert_array_equal(q.descriptor, want[q.id] if want[q.id] is not None else before[q.id])
 
 
@@ -94,8 +95,8 @@ def test_distinctive_descriptor_ties_take_the_first_observation() -> None:
 def test_update_normals_and_depths_equals_per_point() -> None:
     rng = np.random.default_rng(3)
     m, points = _world(rng, orb_spec(1.2, 8))
-    for p in points[::5]:  # some points lose their reference keyframe's observation
-        p.observations.pop(p.ref_kf, None)
+    for p in points[::5]:  # some points lose their reference keyframe's observation (and keep it as reference)
+        m.store.unobserve(p.row, p.ref_kf)
     points[1].bad = True
     scales = m.spec.pyramid.scales
     want = _reference_normals(points, scales)
@@ -334,7 +335,7 @@ def test_fusion_apply_leaves_each_merged_point_its_distinctive_descriptor() -> N
 
 def test_point_slots_put_equals_item_assignment() -> None:
     """put() sets many slots (and their store rows) as item assignment does one by one."""
-    from semslam.slam.map import PointSlots
+    from semslam.slam.point_store import PointSlots
 
     rng = np.random.default_rng(10)
     _, points = _world(rng, orb_spec(1.2, 8), n_pts=20)
@@ -350,15 +351,22 @@ def test_point_slots_put_equals_item_assignment() -> None:
     assert list(one) == list(many) and np.array_equal(one.rows, many.rows)
 
 
-def test_valid_points_skip_a_slot_cleared_between_rows_and_list() -> None:
-    """Local mapping reads keyframes without the map lock; tracking clears a slot (list
-    first, then rows). Caught in between, valid_points skips the slot instead of
-    returning None, and good() reads one snapshot of the rows."""
+def test_point_slots_hold_rows_only() -> None:
+    """A keyframe's slots are its points' store rows: the point in a slot is the store's
+    object at its row, the rows cannot be written around the slots, and a point of another
+    store is refused (rows and objects cannot disagree)."""
     rng = np.random.default_rng(11)
     m, points = _world(rng, orb_spec(1.2, 8))
     kf = m.all_keyframes()[0]
     for i, p in enumerate(points[:10]):
         kf.points[i] = p
-    list.__setitem__(kf.points, 4, None)  # the list cleared, its row not yet
-    assert None not in kf.valid_points() and len(kf.valid_points()) == 9
-    assert 4 in kf.points.good(m.store).tolist()  # rows still say a point is there
+    assert [kf.points[i] for i in range(10)] == points[:10]
+    assert kf.points.rows[:10].tolist() == [p.row for p in points[:10]]
+    with pytest.raises(ValueError):
+        kf.points.rows[4] = points[20].row
+    kf.points[4] = None
+    assert kf.points[4] is None and kf.points.rows[4] == -1
+    assert kf.valid_points() == points[:4] + points[5:10]
+    loose = MapPoint(10_000, points[0].pos, points[0].descriptor, points[0].ref_kf)  # a store of its own
+    with pytest.raises(ValueError):
+        kf.points[5] = loose

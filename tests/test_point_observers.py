@@ -1,8 +1,9 @@
-"""The point store's observer rows (``PointStore.observers``) mirror the points'
-``observations`` dicts through every change the map makes (adds, erases, re-adds, replaced
-and culled points, rows wider than the initial width), and ``observer_counts`` gives what
-the ``Counter`` over those dicts gave tracking: the same keyframes in the same first-seen
-order, with the same counts."""
+"""A point's observations live once, in the point store's rows (``PointStore.observers`` /
+``observer_kp``): ``MapPoint.observations`` is read from them, in the order a dict would keep
+(adds, erases, re-adds, replaced and culled points, rows wider than the initial width), and
+``observer_counts`` gives what a ``Counter`` over the observations gives: the same keyframes
+in the same first-seen order, with the same counts. Array attributes cannot be changed in
+place (the change would not reach the store)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ from collections import Counter
 from itertools import chain
 
 import numpy as np
+import pytest
 
 from semslam.core.types import orb_spec
-from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map import KeyFrame, Map
+from semslam.slam.point_store import MapPoint
 from tests.map_world import random_map
 
 
@@ -68,3 +71,37 @@ def test_observer_counts_equal_the_counter_over_the_dicts() -> None:
             assert observers[int(np.argmax(counts))] is max(want, key=lambda k: want[k])
     observers, counts = m.store.observer_counts(np.zeros(0, np.intp))
     assert observers == [] and counts.size == 0
+
+
+def test_observations_keep_the_order_of_a_dict() -> None:
+    """Every change goes to the store's rows; the observations read back equal a dict that
+    saw the same changes (re-observing keeps the place, erase and re-add goes last)."""
+    rng = np.random.default_rng(6)
+    m, kfs, points = _world(rng)
+    p = next(q for q in points if len(q.observations) >= 4)
+    mirror = dict(p.observations)
+    first, second = list(mirror)[:2]
+    p.add_observation(first, 7)  # keeps its place
+    mirror[first] = 7
+    p.erase_observation(second)
+    del mirror[second]
+    p.add_observation(second, 3)  # goes last
+    mirror[second] = 3
+    assert list(p.observations.items()) == list(mirror.items())
+    assert p.n_obs == len(mirror)  # no depth (ur < 0): one each
+    with pytest.raises(TypeError):
+        p.observations[kfs[0]] = 1  # type: ignore[index]
+
+
+def test_array_attributes_cannot_be_changed_in_place() -> None:
+    """``p.pos[0] = x`` raises instead of changing a copy; assigning the attribute writes
+    the store."""
+    rng = np.random.default_rng(7)
+    m, _, points = _world(rng)
+    p = points[0]
+    for name in ("pos", "normal", "descriptor"):
+        with pytest.raises(ValueError):
+            getattr(p, name)[0] = 1
+    pos = p.pos + 1.0
+    p.pos = pos
+    np.testing.assert_array_equal(m.store.pos[p.row], pos)

@@ -34,7 +34,8 @@ from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.fusion import PointArrays, PointFusion
 from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
-from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map import KeyFrame, Map
+from semslam.slam.point_store import MapPoint
 from semslam.slam.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
                                     point_positions)
 from semslam.slam.map_batch import warm_up as warm_up_kernels
@@ -153,8 +154,8 @@ class LocalMapping(KeyframeWorker):
             return
         with self.map.lock:
             if desc is not None:
-                desc.write(self.map.store)
-            normals.write(self.map.store)
+                desc.write()
+            normals.write()
 
     def cpu_ms(self) -> dict[str, float]:
         """This thread's CPU milliseconds over the run, per step, in total and per keyframe
@@ -442,7 +443,7 @@ class LocalMapping(KeyframeWorker):
                     p.erase_observation(k)
             alive = ~store.bad[rows]
             store.pos[rows[alive]] = result.points_w[alive]
-            normals.write(store)
+            normals.write()
         t4 = time.perf_counter()
         self.stats["local_ba"] += int(result.converged)
         self.stats["local_ba_ms"].append((t4 - t0) * 1e3)

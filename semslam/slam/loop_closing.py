@@ -27,7 +27,8 @@ from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
 from semslam.slam.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.atlas import MergeHint
 from semslam.slam.merge_check import COVISIBLES, MIN_PROJECTED, PENDING_MISSES, MergeVerifier, PendingMerge, enough
-from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map import KeyFrame, Map
+from semslam.slam.point_store import MapPoint
 from semslam.slam.map_batch import normals_and_depths
 from semslam.slam.search import project, search_by_bow, search_by_projection
 
@@ -137,7 +138,7 @@ class LoopClosing(KeyframeWorker):
         update = normals_and_depths(points, self.pyr.scales)
         if update.points:
             with self.map.lock:
-                update.write(self.map.store)
+                update.write()
 
     # ---------------------------------------------------------------- per keyframe
     def process(self, kf: KeyFrame) -> None:

@@ -1,16 +1,14 @@
 """The map: keyframes, map points and the covisibility graph (ORB-SLAM2's Map, KeyFrame,
 MapPoint), shared by tracking, local mapping and loop closing under one lock.
 
-Keyframes and points are small Python objects; arrays are gathered from them where a
-stage needs vectorised work (projection of the local map, bundle adjustment).
+Point data (attributes and observations) live in the map's ``PointStore``
+(``slam.point_store``); keyframes hold their points as store rows (``PointSlots``).
 """
 
 from __future__ import annotations
 
 import threading
-from collections import Counter
 from dataclasses import dataclass, field
-from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -21,208 +19,10 @@ from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
 from semslam.features.keypoint_grid import KeypointGrid
 from semslam.features.matching import matcher_for
 from semslam.geometry.se3 import invert
-from semslam.slam.row_kernels import first_seen_unique
+from semslam.slam.map_batch import compute_distinctive_descriptors, normals_and_depths
+from semslam.slam.point_store import MapPoint, PointSlots, PointStore
 
 Array = NDArray[np.float64]
-
-
-class PointStore:
-    """Map point attributes in contiguous arrays, one row per point ever created (rows are
-    never reused, so a row stays the point's for the whole run).
-
-    Why: tracking projects, gathers and counts the whole local map every frame; with the
-    attributes in arrays that is a few fancy-indexing calls instead of Python loops over
-    objects. ``MapPoint`` objects remain the handles for structure (observations,
-    reference keyframe); their numeric attributes are properties on these rows.
-
-    Writers: every write happens under the map's lock (tracking: ``n_visible``,
-    ``n_found``, new rows; local mapping, loop closing, BA results: positions, normals,
-    distance ranges, descriptors, flags). Growth replaces the arrays, so nobody keeps a
-    view of them across a lock release."""
-
-    def __init__(self, descriptor_dim: int, descriptor_dtype: Any, capacity: int = 4096) -> None:
-        self.size = 0
-        self.objects: list[MapPoint] = []
-        self._capacity = 0
-        self._dim, self._dtype = int(descriptor_dim), np.dtype(descriptor_dtype)
-        self.pos = np.zeros((0, 3))
-        self.normal = np.zeros((0, 3))
-        self.descriptor = np.zeros((0, self._dim), self._dtype)
-        self.min_dist = np.zeros(0)
-        self.max_dist = np.zeros(0)
-        self.n_visible = np.zeros(0, np.int64)
-        self.n_found = np.zeros(0, np.int64)
-        self.n_kf_obs = np.zeros(0, np.int32)  # keyframes observing the point
-        self.n_obs = np.zeros(0, np.int32)  # ORB-SLAM's nObs: RGB-D/stereo observations count twice
-        self.bad = np.zeros(0, bool)
-        # Ids of the keyframes observing the point, in the order of its ``observations``
-        # dict: the first ``n_kf_obs[row]`` entries of the row (widened when one is full).
-        # Why: tracking counts the observers of ~500 points every frame; a Counter over the
-        # dicts hashes every KeyFrame in Python (~0.6 ms a frame), this is one gather.
-        self.observers = np.zeros((0, 8), np.int64)
-        # Every keyframe that ever observed a point (culled ones too: the trajectory keeps
-        # them alive anyway, as reference keyframes of the frames).
-        self.keyframes_by_id: dict[int, KeyFrame] = {}
-        self._grow(capacity)
-
-    _FIELDS = ("pos", "normal", "descriptor", "min_dist", "max_dist", "n_visible", "n_found", "n_kf_obs", "n_obs",
-               "bad", "observers")
-
-    def _grow(self, capacity: int) -> None:
-        for name in self._FIELDS:
-            old = getattr(self, name)
-            new = np.zeros((capacity, *old.shape[1:]), old.dtype)
-            new[:self.size] = old[:self.size]
-            setattr(self, name, new)
-        self._capacity = capacity
-
-    def allocate(self, point: "MapPoint") -> int:
-        """A new row for ``point`` (amortised O(1))."""
-        if self.size == self._capacity:
-            self._grow(2 * self._capacity)
-        row = self.size
-        self.size += 1
-        self.objects.append(point)
-        return row
-
-    def points(self, rows: NDArray[np.intp]) -> list["MapPoint"]:
-        objs = self.objects
-        return [objs[r] for r in rows.tolist()]
-
-    def add_observer(self, row: int, kf: "KeyFrame") -> None:
-        """Append ``kf`` to the row's observers (before ``n_kf_obs`` counts it)."""
-        n = int(self.n_kf_obs[row])
-        if n == self.observers.shape[1]:
-            wider = np.zeros((self.observers.shape[0], 2 * n), np.int64)
-            wider[:, :n] = self.observers
-            self.observers = wider
-        self.observers[row, n] = kf.id
-        self.keyframes_by_id[kf.id] = kf
-
-    def remove_observer(self, row: int, kf: "KeyFrame") -> None:
-        """Remove ``kf`` from the row's observers keeping the others' order (before
-        ``n_kf_obs`` stops counting it)."""
-        n = int(self.n_kf_obs[row])
-        ids = self.observers[row, :n]
-        k = int(np.flatnonzero(ids == kf.id)[0])
-        ids[k:n - 1] = ids[k + 1:n].copy()
-
-    def observer_counts(self, rows: NDArray[np.intp]) -> tuple[list["KeyFrame"], NDArray[np.int64]]:
-        """The keyframes observing any of ``rows`` in first-seen order (points in ``rows``
-        order, each point's observers in the order they were added: the order of a
-        ``Counter`` over the points' ``observations``) and how many of the points each
-        observes."""
-        if len(rows) == 0:
-            return [], np.zeros(0, np.int64)
-        n = self.n_kf_obs[rows]
-        ids = self.observers[rows, :max(int(n.max()), 1)]
-        ids = ids[np.arange(ids.shape[1]) < n[:, None]]  # row-major: points in order, observers in order
-        if ids.size == 0:
-            return [], np.zeros(0, np.int64)
-        order = first_seen_unique(ids)
-        counts = np.bincount(ids)[order]
-        by_id = self.keyframes_by_id
-        return [by_id[i] for i in order.tolist()], counts
-
-
-def _row_property(field_name: str, kind: type, copy: bool = False) -> property:
-    """A MapPoint attribute stored in ``PointStore.<field_name>[row]``."""
-    if copy:
-        def get(self: "MapPoint") -> Any:
-            return getattr(self._store, field_name)[self._row].copy()
-    else:
-        def get(self: "MapPoint") -> Any:
-            return kind(getattr(self._store, field_name)[self._row])
-
-    def set_(self: "MapPoint", value: Any) -> None:
-        getattr(self._store, field_name)[self._row] = value
-
-    return property(get, set_)
-
-
-class MapPoint:
-    """A 3D point with the keyframes that observe it (ORB-SLAM2 MapPoint). Numeric
-    attributes live in the map's ``PointStore`` (row ``_row``); array attributes are
-    returned as copies (assign to change them)."""
-
-    __slots__ = ("id", "_row", "_store", "observations", "ref_kf", "first_kf_id", "replaced_by", "__weakref__")
-
-    def __init__(self, pid: int, pos: Array, descriptor: NDArray[Any], ref_kf: "KeyFrame",
-                 store: PointStore | None = None) -> None:
-        if store is None:  # a point outside any map (tests): a store of its own
-            store = PointStore(np.asarray(descriptor).size, np.asarray(descriptor).dtype, capacity=1)
-        self._store = store
-        self._row = store.allocate(self)
-        self.id = pid
-        self.pos = np.asarray(pos, dtype=np.float64)
-        self.descriptor = descriptor
-        self.observations: dict[KeyFrame, int] = {}
-        self.n_visible = 1
-        self.n_found = 1
-        self.ref_kf = ref_kf
-        self.first_kf_id = ref_kf.id
-        self.replaced_by: MapPoint | None = None
-
-    pos = _row_property("pos", float, copy=True)
-    normal = _row_property("normal", float, copy=True)
-    descriptor = _row_property("descriptor", float, copy=True)
-    min_dist = _row_property("min_dist", float)
-    max_dist = _row_property("max_dist", float)
-    n_visible = _row_property("n_visible", int)
-    n_found = _row_property("n_found", int)
-    bad = _row_property("bad", bool)
-
-    @property
-    def row(self) -> int:
-        return self._row
-
-    def __repr__(self) -> str:
-        return f"MapPoint({self.id}, obs={len(self.observations)})"
-
-    @property
-    def n_obs(self) -> int:
-        """Observation count with RGB-D/stereo observations counted twice (ORB-SLAM's nObs)."""
-        return int(self._store.n_obs[self._row])
-
-    @property
-    def found_ratio(self) -> float:
-        return self.n_found / max(self.n_visible, 1)
-
-    def add_observation(self, kf: "KeyFrame", idx: int) -> None:
-        if kf not in self.observations:
-            self._store.add_observer(self._row, kf)
-            self._store.n_kf_obs[self._row] += 1
-            self._store.n_obs[self._row] += 2 if kf.ur[idx] >= 0 else 1
-        else:
-            self._store.n_obs[self._row] += (2 if kf.ur[idx] >= 0 else 1) - (2 if kf.ur[self.observations[kf]] >= 0 else 1)
-        self.observations[kf] = idx
-
-    def clear_observations(self) -> None:
-        self.observations = {}
-        self._store.n_kf_obs[self._row] = 0
-        self._store.n_obs[self._row] = 0
-
-    def erase_observation(self, kf: "KeyFrame") -> None:
-        if kf in self.observations:
-            idx = self.observations.pop(kf)
-            self._store.remove_observer(self._row, kf)
-            self._store.n_kf_obs[self._row] -= 1
-            self._store.n_obs[self._row] -= 2 if kf.ur[idx] >= 0 else 1
-            if self.ref_kf is kf and self.observations:
-                self.ref_kf = next(iter(self.observations))
-            if len(self.observations) <= 1 and kf.map is not None:
-                kf.map.set_bad_point(self)
-
-    def update_normal_and_depth(self, scale_factors: Array) -> None:
-        update_normals_and_depths([self], scale_factors)
-
-    def compute_distinctive_descriptor(self, matcher: Matcher) -> None:
-        """The observation descriptor with the least median distance to the others
-        (distances by the matcher of the map's descriptor kind); many points at once:
-        ``slam.map_batch.compute_distinctive_descriptors``, which this calls."""
-        from semslam.slam.map_batch import compute_distinctive_descriptors
-
-        compute_distinctive_descriptors([self], matcher)
 
 
 def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> None:
@@ -231,66 +31,7 @@ def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> N
     ``slam.map_batch.normals_and_depths`` and written here (the caller holds the map lock).
     Bad points and points without observations are skipped; the depth range needs the
     reference keyframe among the observations."""
-    from semslam.slam.map_batch import normals_and_depths
-
-    update = normals_and_depths(points, scale_factors)
-    if update.points:
-        store = update.points[0]._store
-        shared = all(p._store is store for p in update.points)
-        update.write(store if shared else None)
-
-
-class PointSlots(list):  # type: ignore[type-arg]
-    """A keyframe's map point per keypoint (``MapPoint | None``), a list that also keeps
-    the points' store rows in ``rows`` (-1 = none), so the local map is gathered with
-    array operations. Only item assignment is supported as a change."""
-
-    def __init__(self, points: Any = ()) -> None:
-        super().__init__(points)
-        self.rows = np.fromiter((-1 if p is None else p._row for p in self), np.intp, len(self))
-
-    def __setitem__(self, i: Any, p: Any) -> None:
-        if not isinstance(i, (int, np.integer)):
-            raise TypeError("PointSlots supports item assignment by index only")
-        super().__setitem__(i, p)
-        self.rows[i] = -1 if p is None else p._row
-
-    def put(self, idx: NDArray[np.intp], points: list[Any], rows: NDArray[np.intp] | None = None) -> None:
-        """``self[idx[k]] = points[k]`` for every k at once (``rows``: the points' store rows,
-        when the caller has them; None entries clear slots)."""
-        setitem = super().__setitem__
-        for i, p in zip(idx.tolist(), points):
-            setitem(i, p)
-        if rows is None:
-            rows = np.fromiter((-1 if p is None else p._row for p in points), np.intp, len(points))
-        self.rows[idx] = rows
-
-    def good_rows(self, store: PointStore) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Slots holding a point that is not bad (``store``: the points' store) and those
-        points' store rows. Safe without the map lock: one snapshot of the rows (a slot
-        cleared meanwhile would otherwise read row -1, the newest point's)."""
-        rows = self.rows.copy()
-        has = rows >= 0
-        has[has] = ~store.bad[rows[has]]
-        idx = np.flatnonzero(has)
-        return idx, rows[idx]
-
-    def good(self, store: PointStore) -> NDArray[np.intp]:
-        """The slots of ``good_rows``."""
-        return self.good_rows(store)[0]
-
-    def free(self, store: PointStore) -> NDArray[np.bool_]:
-        """Slots without a point, or with a bad one (``store``: the points' store); one
-        snapshot of the rows, as ``good``."""
-        rows = self.rows.copy()
-        free = rows < 0
-        free[~free] = store.bad[rows[~free]]
-        return free
-
-    def _unsupported(self, *args: Any, **kwargs: Any) -> None:
-        raise TypeError("a keyframe's point slots have a fixed length")
-
-    append = extend = insert = pop = remove = clear = __delitem__ = __iadd__ = _unsupported  # type: ignore[assignment]
+    normals_and_depths(points, scale_factors).write()
 
 
 @dataclass(eq=False)
@@ -305,7 +46,7 @@ class KeyFrame:
     xy: Array  # undistorted keypoint positions
     depth: NDArray[np.float32]
     ur: NDArray[np.float64]
-    points: list[MapPoint | None]
+    points: PointSlots  # built from a list of MapPoint | None
     map: "Map | None" = None
     bow: Any = None  # place.vocabulary.BowVector, set by local mapping
     featvec: dict[int, Any] = field(default_factory=dict)
@@ -366,10 +107,10 @@ class KeyFrame:
 
     def point_store(self) -> PointStore | None:
         """Where this keyframe's points live: its map's store (or, for a keyframe outside a
-        map, its first point's); None without points."""
+        map, its points'); None without points."""
         if self.map is not None:
             return self.map.store
-        return next((p._store for p in self.points if p is not None), None)
+        return self.points.store
 
     def tracked_points(self, min_obs: int = 1) -> int:
         """Points with at least ``min_obs`` observations (ORB-SLAM TrackedMapPoints)."""
@@ -380,24 +121,27 @@ class KeyFrame:
         store = self.point_store()
         return int((~store.bad[rows] & (store.n_obs[rows] >= min_obs)).sum())
 
+    def _good_rows(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """The slots with a good point and the points' store rows (one snapshot)."""
+        store = self.point_store()
+        if store is None:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        return self.points.good_rows(store)
+
     def valid_indices(self) -> NDArray[np.intp]:
-        """Keypoints with a good map point (in a map: by the store's flags, no property per
-        point; outside one, as tests build them, point by point)."""
-        if self.map is None:
-            return np.array([i for i, p in enumerate(self.points) if p is not None and not p.bad], np.intp)
-        return self.points.good(self.map.store)
+        """Keypoints with a good map point."""
+        return self._good_rows()[0]
 
     def valid_points(self) -> list[MapPoint]:
-        """The good points, in slot order. Local mapping reads without the map lock, and
-        tracking may clear a slot (a point culled) between the rows and the list: skipped."""
-        pts = self.points
-        return [p for p in map(pts.__getitem__, self.valid_indices().tolist()) if p is not None]
+        """The good points, in slot order (one snapshot of the slots: local mapping reads
+        without the map lock)."""
+        store = self.point_store()
+        return [] if store is None else store.points(self._good_rows()[1])
 
     def free_mask(self) -> NDArray[np.bool_]:
         """Keypoints without a map point, or with a bad one (as ``valid_indices`` reads them)."""
-        if self.map is None:
-            return np.array([p is None or p.bad for p in self.points], bool)
-        return self.points.free(self.map.store)
+        store = self.point_store()
+        return np.ones(len(self.points), bool) if store is None else self.points.free(store)
 
     def best_covisibles(self, n: int) -> list["KeyFrame"]:
         return [kf for kf in self.ordered_covis[:n] if not kf.bad]
@@ -407,8 +151,11 @@ class KeyFrame:
 
     def update_connections(self) -> None:
         """Covisibility weights = shared map points; spanning-tree parent = best covisible."""
-        every = Counter(chain.from_iterable(p.observations for p in self.valid_points()))  # C loop, first-seen order
-        counts = {kf: n for kf, n in every.items() if kf is not self and not kf.bad}
+        store = self.point_store()
+        if store is None:
+            return
+        observers, shared = store.observer_counts(self._good_rows()[1])  # first-seen order, as a Counter
+        counts = {kf: n for kf, n in zip(observers, shared.tolist()) if kf is not self and not kf.bad}
         if not counts:
             return
         best = max(counts, key=lambda k: counts[k])
@@ -521,7 +268,7 @@ class Map:
         old.replaced_by = new
         self.points.pop(old.id, None)
         if descriptor:
-            new.compute_distinctive_descriptor(self.matcher)
+            compute_distinctive_descriptors([new], self.matcher)
 
     def set_bad_keyframe(self, kf: KeyFrame) -> None:
         """Remove a redundant keyframe, re-parenting its children (ORB-SLAM KeyFrame::SetBadFlag)."""

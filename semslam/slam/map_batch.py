@@ -1,8 +1,8 @@
 """Map point statistics for many points at once (ORB-SLAM's ComputeDistinctiveDescriptors
 and UpdateNormalAndDepth).
 
-Python objects hold the map; what costs is visiting them one by one and paying numpy's call
-overhead per point.  Here the observations of all points are gathered once into arrays; the
+What costs is visiting points one by one and paying numpy's call overhead per point.  Here
+the observations of all points are gathered from the point store's rows at once; the
 distinctive descriptor is chosen by one compiled kernel for binary descriptors (Hamming
 distance, the map's usual kind) or per group of points with the same observation count with
 the matcher's own distances for any other kind.
@@ -10,65 +10,81 @@ the matcher's own distances for any other kind.
 Computing and writing are separate (:func:`distinctive_descriptors` and
 :func:`normals_and_depths` return an update whose ``write`` stores it): local mapping and loop
 closing compute without the map lock and write under it, as every write to the point store
-must happen (docs/architecture.md).  ``write(store)`` writes by store rows in one numpy
-assignment per field; without a store, attribute by attribute.
+must happen (docs/architecture.md).  ``write()`` writes by store rows in one numpy
+assignment per field.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from itertools import chain, repeat
 from operator import attrgetter
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.protocols import Matcher
 from semslam.features.matching import HammingMatcher
-
-if TYPE_CHECKING:
-    from semslam.core.protocols import Matcher
-    from semslam.slam.map import KeyFrame, MapPoint, PointStore
+from semslam.slam.point_store import MapPoint, Observer, PointStore
+from semslam.slam.row_kernels import first_seen_unique
 
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int32)
 
 
-_ROW = attrgetter("_row")
-_STORE = attrgetter("_store")
+_ROW = attrgetter("row")
+_STORE = attrgetter("store")
 
 
-def store_rows(points: list["MapPoint"]) -> NDArray[np.intp]:
+def store_rows(points: list[MapPoint]) -> NDArray[np.intp]:
     """The store rows of ``points`` (one C-level pass: no property per point)."""
     return np.fromiter(map(_ROW, points), np.intp, len(points))
 
 
-def shared_store(points: list["MapPoint"]) -> "PointStore | None":
+def shared_store(points: list[MapPoint]) -> PointStore | None:
     """The one store all ``points`` live in (a map's), or None if they are in several
     (points made outside a map, in tests) or there are none."""
     stores = set(map(_STORE, points))
     return stores.pop() if len(stores) == 1 else None
 
 
-def observation_table(points: list["MapPoint"], kf_index: dict["KeyFrame", int] | None = None
-                      ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list["KeyFrame"]]:
+def one_store(points: list[MapPoint]) -> PointStore:
+    """The store all ``points`` live in (the batch statistics need one)."""
+    store = shared_store(points)
+    if store is None:
+        raise ValueError("points of several stores (or none)")
+    return store
+
+
+def _first_seen_keyframes(store: PointStore, ids: NDArray[np.int64]) -> tuple[list[Observer], NDArray[np.intp]]:
+    """The keyframes of ``ids`` in first-seen order and each id's position among them."""
+    order = first_seen_unique(ids)
+    position = np.zeros(int(order.max()) + 1 if order.size else 0, np.intp)
+    position[order] = np.arange(order.size)
+    by_id = store.keyframes_by_id
+    return [by_id[i] for i in order.tolist()], position[ids]
+
+
+def observation_table(points: list[MapPoint], kf_index: dict[Observer, int] | None = None
+                      ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[Observer]]:
     """Every observation of ``points`` as flat arrays (point row, keyframe row, keypoint
     index), point-major in observation order, and the keyframes the rows refer to.
 
     With ``kf_index`` only the observations by those keyframes are listed (rows from it);
     without, every observing keyframe gets a row in first-seen order."""
-    # Flattened with chain/map (loops in C): tens of thousands of observations per call.
-    obs_dicts = [p.observations for p in points]
-    counts = np.fromiter(map(len, obs_dicts), np.intp, len(obs_dicts))
-    obs_kf = list(chain.from_iterable(obs_dicts))
-    kp = np.fromiter(chain.from_iterable(d.values() for d in obs_dicts), np.intp, len(obs_kf))
-    point_row = np.repeat(np.arange(len(obs_dicts), dtype=np.intp), counts)
+    empty = np.zeros(0, np.intp)
+    if not points:
+        return empty, empty, empty, [] if kf_index is None else list(kf_index)
+    store = one_store(points)
+    point_row, ids, kp = store.observation_table(store_rows(points))
     if kf_index is None:
-        kfs = list(dict.fromkeys(obs_kf))  # first-seen order
-        kf_index = {kf: k for k, kf in enumerate(kfs)}
-        kf_row = np.fromiter(map(kf_index.__getitem__, obs_kf), np.intp, len(obs_kf))
+        kfs, kf_row = _first_seen_keyframes(store, ids)
         return point_row, kf_row, kp, kfs
-    kf_row = np.fromiter(map(kf_index.get, obs_kf, repeat(-1, len(obs_kf))), np.intp, len(obs_kf))
+    lookup = np.full(int(ids.max()) + 1 if ids.size else 0, -1, np.intp)
+    for kf, k in kf_index.items():
+        if kf.id < lookup.size:
+            lookup[kf.id] = k
+    kf_row = lookup[ids]
     keep = kf_row >= 0
     return point_row[keep], kf_row[keep], kp[keep], list(kf_index)
 
@@ -80,7 +96,7 @@ def _per_keyframe(kf_row: NDArray[np.intp], n_kfs: int) -> list[NDArray[np.intp]
     return [order[bounds[k]:bounds[k + 1]] for k in range(n_kfs)]
 
 
-def gather_keypoints(kfs: list["KeyFrame"], kf_row: NDArray[np.intp], kp: NDArray[np.intp]
+def gather_keypoints(kfs: list[Observer], kf_row: NDArray[np.intp], kp: NDArray[np.intp]
                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
     """(uv, ur, octave) of keypoint ``kp[m]`` of keyframe ``kfs[kf_row[m]]``, one fancy index
     per keyframe."""
@@ -97,7 +113,7 @@ def gather_keypoints(kfs: list["KeyFrame"], kf_row: NDArray[np.intp], kp: NDArra
     return uv, ur, octave
 
 
-def gather_descriptors(kfs: list["KeyFrame"], kf_row: NDArray[np.intp], kp: NDArray[np.intp]) -> NDArray[Any]:
+def gather_descriptors(kfs: list[Observer], kf_row: NDArray[np.intp], kp: NDArray[np.intp]) -> NDArray[Any]:
     """The descriptor of keypoint ``kp[m]`` of keyframe ``kfs[kf_row[m]]`` (row m), one
     fancy index per keyframe (a map's keyframes hold one kind of descriptor)."""
     like = kfs[0].keypoints.descriptors
@@ -108,7 +124,7 @@ def gather_descriptors(kfs: list["KeyFrame"], kf_row: NDArray[np.intp], kp: NDAr
     return out
 
 
-def point_positions(points: list["MapPoint"]) -> NDArray[np.float64]:
+def point_positions(points: list[MapPoint]) -> NDArray[np.float64]:
     """(N, 3) positions of ``points``: one fancy index when they share a store."""
     store = shared_store(points)
     if store is None:
@@ -120,28 +136,24 @@ def point_positions(points: list["MapPoint"]) -> NDArray[np.float64]:
 class DescriptorUpdate:
     """Chosen descriptors (one row per point), to be written under the map lock."""
 
-    points: list["MapPoint"] = field(default_factory=list)
+    points: list[MapPoint] = field(default_factory=list)
     descriptors: NDArray[Any] | None = None
 
-    def write(self, store: "PointStore | None" = None) -> None:
+    def write(self) -> None:
         if not self.points or self.descriptors is None:
             return
-        if store is not None:
-            store.descriptor[store_rows(self.points)] = self.descriptors
-            return
-        for p, d in zip(self.points, self.descriptors):
-            p.descriptor = d
+        one_store(self.points).descriptor[store_rows(self.points)] = self.descriptors
 
 
-def distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher") -> DescriptorUpdate:
+def distinctive_descriptors(points: list[MapPoint], matcher: Matcher) -> DescriptorUpdate:
     """For each point, the observation descriptor with the least median distance to the
     other observations' descriptors (ORB-SLAM ComputeDistinctiveDescriptors; ties: the
     first observation in insertion order).  Observations by bad keyframes are ignored; a
     point with one observation takes its descriptor, one with none keeps its own (it is not
     in the update).
 
-    The median runs over the full distance row, the zero distance to itself included, as
-    ``MapPoint.compute_distinctive_descriptor`` always did.
+    The median runs over the full distance row, the zero distance to itself included (as
+    in ORB-SLAM).
     """
     point_row, kf_row, kp, kfs = observation_table(points)
     good_kf = np.fromiter((not kf.bad for kf in kfs), bool, len(kfs))
@@ -164,7 +176,7 @@ def distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher") -> Des
     return DescriptorUpdate(owners, desc[chosen])
 
 
-def compute_distinctive_descriptors(points: list["MapPoint"], matcher: "Matcher") -> None:
+def compute_distinctive_descriptors(points: list[MapPoint], matcher: Matcher) -> None:
     """:func:`distinctive_descriptors` written at once (the caller holds the map lock)."""
     distinctive_descriptors(points, matcher).write()
 
@@ -174,36 +186,28 @@ class NormalUpdate:
     """Normals of ``points`` and the depth ranges of ``points[ranged]``, to be written
     under the map lock."""
 
-    points: list["MapPoint"] = field(default_factory=list)
+    points: list[MapPoint] = field(default_factory=list)
     normal: NDArray[np.float64] | None = None
     ranged: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
     min_dist: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     max_dist: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
-    def write(self, store: "PointStore | None" = None) -> None:
+    def write(self) -> None:
         if not self.points or self.normal is None:
             return
-        if store is not None:
-            rows = store_rows(self.points)
-            store.normal[rows] = self.normal
-            store.min_dist[rows[self.ranged]] = self.min_dist
-            store.max_dist[rows[self.ranged]] = self.max_dist
-            return
-        for p, n in zip(self.points, self.normal):
-            p.normal = n
-        for j, mn, mx in zip(self.ranged.tolist(), self.min_dist.tolist(), self.max_dist.tolist()):
-            p = self.points[j]
-            p.max_dist = mx
-            p.min_dist = mn
+        store = one_store(self.points)
+        rows = store_rows(self.points)
+        store.normal[rows] = self.normal
+        store.min_dist[rows[self.ranged]] = self.min_dist
+        store.max_dist[rows[self.ranged]] = self.max_dist
 
 
-def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float64],
+def normals_and_depths(points: list[MapPoint], scale_factors: NDArray[np.float64],
                        pos: NDArray[np.float64] | None = None,
-                       centers: dict["KeyFrame", NDArray[np.float64]] | None = None,
-                       erased: dict[int, set["KeyFrame"]] | None = None) -> NormalUpdate:
+                       centers: dict[Observer, NDArray[np.float64]] | None = None,
+                       erased: dict[int, set[Observer]] | None = None) -> NormalUpdate:
     """Mean viewing direction of each point and the distance range it can be matched at
-    (ORB-SLAM UpdateNormalAndDepth): one pass over the observations in Python, the rest in
-    numpy.  Bad points and points without observations are left out; the depth range needs
+    (ORB-SLAM UpdateNormalAndDepth), from the store's observation rows.  Bad points and points without observations are left out; the depth range needs
     the reference keyframe among the observations.
 
     The map as it will be after a change not made yet (a BA result about to be applied):
@@ -211,62 +215,69 @@ def normals_and_depths(points: list["MapPoint"], scale_factors: NDArray[np.float
     centres, and ``erased[point id]`` are observations left out as ``erase_observation``
     will erase them (a point left with <= 1 observation by that goes bad and is left out;
     one that loses its reference keyframe takes the first remaining one, as it will)."""
-    erased = erased or {}
-    centers = centers or {}
-    live: list[MapPoint] = []
-    live_idx: list[int] = []
-    obs_kfs: list[list[KeyFrame]] = []
-    refs: list[tuple[KeyFrame, int] | None] = []
-    for j, p in enumerate(points):
-        if p.bad or not p.observations:
-            continue
-        gone = erased.get(p.id)
-        if gone:
-            kfs = [kf for kf in p.observations if kf not in gone]
-            if len(kfs) <= 1:
-                continue
-            ref = p.ref_kf if p.ref_kf not in gone else kfs[0]
-        else:
-            kfs = list(p.observations)
-            ref = p.ref_kf
-        live.append(p)
-        live_idx.append(j)
-        obs_kfs.append(kfs)
-        idx = p.observations.get(ref)
-        refs.append(None if idx is None else (ref, idx))
-    if not live:
+    if not points:
         return NormalUpdate()
-    flat = list(chain.from_iterable(obs_kfs))  # loops in C: thousands of observations
-    kf_row = {kf: k for k, kf in enumerate(dict.fromkeys(flat))}  # first-seen order
-    rows = np.fromiter(map(kf_row.__getitem__, flat), np.intp, len(flat))
-    counts = np.fromiter(map(len, obs_kfs), np.intp, len(live))
-    center = np.array([centers[kf] if kf in centers else kf.center for kf in kf_row])
-    xyz = point_positions(live) if pos is None else np.asarray(pos)[live_idx]
-    d = np.repeat(xyz, counts, axis=0) - center[rows]
+    store = one_store(points)
+    rows = store_rows(points)
+    owner, ids, kp = store.observation_table(rows)
+    per_point = np.bincount(owner, minlength=len(points))
+    live = ~store.bad[rows] & (per_point > 0)
+    ref_ids = np.fromiter((p.ref_kf.id for p in points), np.int64, len(points))
+    # The reference keyframe's keypoint, among all the observations (-1: not observed).
+    is_ref = ids == ref_ids[owner]
+    ref_kp = np.full(len(points), -1, np.intp)
+    ref_kp[owner[is_ref]] = kp[is_ref]
+    kept = np.ones(ids.size, bool)
+    if erased:
+        starts = np.zeros(len(points), np.intp)
+        np.cumsum(per_point[:-1], out=starts[1:])
+        index = {p.id: j for j, p in enumerate(points)}
+        for pid, gone in erased.items():
+            j = index.get(pid)
+            if j is None or not live[j] or not gone:
+                continue
+            seg = slice(starts[j], starts[j] + per_point[j])
+            gone_ids = {kf.id for kf in gone}
+            drop = np.fromiter((i in gone_ids for i in ids[seg].tolist()), bool, int(per_point[j]))
+            kept[seg] &= ~drop
+            left = ids[seg][~drop]
+            if left.size <= 1:
+                live[j] = False
+            elif int(ref_ids[j]) in gone_ids:
+                ref_ids[j] = left[0]
+                hit = np.flatnonzero(ids[seg] == left[0])
+                ref_kp[j] = kp[seg][hit[0]]
+    live_idx = np.flatnonzero(live)
+    if not live_idx.size:
+        return NormalUpdate()
+    used = kept & live[owner]
+    kfs, kf_row = _first_seen_keyframes(store, ids[used])
+    counts = np.bincount(owner[used], minlength=len(points))[live_idx]
+    centers = centers or {}
+    center = np.array([centers[kf] if kf in centers else kf.center for kf in kfs])
+    xyz = store.pos[rows[live_idx]] if pos is None else np.asarray(pos)[live_idx]
+    d = np.repeat(xyz, counts, axis=0) - center[kf_row]
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
-    starts = np.zeros(len(live), np.intp)
+    starts = np.zeros(live_idx.size, np.intp)
     np.cumsum(counts[:-1], out=starts[1:])
     normals = np.add.reduceat(d, starts, axis=0)
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
-    ref_rows: list[int] = []
-    ref_kfs: list[int] = []
-    ref_levels: list[int] = []
-    for j, r in enumerate(refs):
-        if r is not None:
-            ref_rows.append(j)
-            ref_kfs.append(kf_row[r[0]])
-            ref_levels.append(int(r[0].keypoints.octave[r[1]]))
-    rr = np.asarray(ref_rows, np.intp)
+    rr = np.flatnonzero(ref_kp[live_idx] >= 0)
     if rr.size:
-        dist = np.linalg.norm(xyz[rr] - center[ref_kfs], axis=1)
-        max_d = dist * scale_factors[np.asarray(ref_levels, np.intp)]
+        ref_of = live_idx[rr]
+        by_id = store.keyframes_by_id
+        levels = np.fromiter((by_id[int(i)].keypoints.octave[k] for i, k in zip(ref_ids[ref_of].tolist(), ref_kp[ref_of].tolist())),
+                             np.intp, rr.size)
+        ref_center = np.array([centers[kf] if kf in centers else kf.center for kf in map(by_id.__getitem__, ref_ids[ref_of].tolist())])
+        dist = np.linalg.norm(xyz[rr] - ref_center, axis=1)
+        max_d = dist * scale_factors[levels]
     else:
         max_d = np.zeros(0)
-    return NormalUpdate(live, normals, rr, max_d / scale_factors[-1], max_d)
+    return NormalUpdate([points[j] for j in live_idx.tolist()], normals, rr, max_d / scale_factors[-1], max_d)
 
 
 def _generic_choice(desc: NDArray, start: NDArray[np.intp], cnt: NDArray[np.intp],
-                    matcher: "Matcher") -> NDArray[np.intp]:
+                    matcher: Matcher) -> NDArray[np.intp]:
     """Row of the chosen descriptor per point, with the matcher's distances (any kind)."""
     chosen = start.copy()  # one observation: the first (and only) row
     for n in np.unique(cnt[cnt >= 2]).tolist():

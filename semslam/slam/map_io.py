@@ -26,7 +26,7 @@ import numpy as np
 import semslam
 from semslam.core.types import FeatureSpec, Keypoints
 from semslam.errors import ConfigError, DataError
-from semslam.slam.map import KeyFrame, Map
+from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
 
 FORMAT = "semslam-map-2"
 #: How a zip archive (an .npz) starts: a file record, or the end record of an empty archive.
@@ -276,8 +276,7 @@ def load_map(path: str | Path, spec: FeatureSpec) -> Map:
             kfs[int(a)].loop_edges.add(kfs[int(b)])
     for kf in m.all_keyframes():
         kf.update_connections()
-    for p in points:
-        p.update_normal_and_depth(spec.pyramid.scales)
+    update_normals_and_depths(points, spec.pyramid.scales)
     loops = meta.get("loops", 0)
     m.n_loops = loops if isinstance(loops, int) else 0
     return m

@@ -27,7 +27,8 @@ from semslam.geometry.se3 import invert
 from semslam.slam.atlas import Atlas
 from semslam.slam.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.local_mapping import apply_in_slices
-from semslam.slam.map import KeyFrame, Map, MapPoint
+from semslam.slam.map import KeyFrame, Map
+from semslam.slam.point_store import MapPoint
 
 log = logging.getLogger(__name__)
 
