@@ -66,9 +66,9 @@ def _row(r: Any) -> dict[str, Any]:
         "tracking_thread_ms": r.tracking_thread_ms or None,
         "lock_wait_ms": {"median": r.stages_ms_median.get("lock_wait"), "p95": r.stages_ms_p95.get("lock_wait"),
                          "max": r.stages_ms_max.get("lock_wait")},
-        "local_ba_ms_median": r.get("local_ba_ms_median"), "jit_warmup_s": r.get("jit_warmup_s"),
+        "local_ba_ms_median": r.mapping.local_ba_ms_median, "jit_warmup_s": r.tracking.jit_warmup_s,
         # Local mapping's CPU (its Python holds the GIL tracking needs): total and per keyframe.
-        "local_mapping_cpu_ms": r.get("local_mapping_cpu_ms"),
+        "local_mapping_cpu_ms": r.mapping.local_mapping_cpu_ms,
         "latency_ms": r.latency_ms or None, "late_frames": r.late_frames if r.realtime else None,
     }
 
