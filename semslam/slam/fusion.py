@@ -36,7 +36,7 @@ def adopt_matched_points(slam_map: Map, kf: KeyFrame, matched: dict[int, MapPoin
         cur = kf.points[idx]
         if cur is not None and not cur.bad:
             slam_map.replace_point(cur, lp)
-        elif kf not in lp.observations:
+        elif not lp.is_observed_by(kf):
             lp.add_observation(kf, idx)
             kf.points[idx] = lp
 
@@ -153,11 +153,11 @@ class PointFusion:
         n = 0
         merged: dict[int, MapPoint] = {}  # points that took another's observations
         for p, t in matches:
-            if p.bad or kf in p.observations:
+            if p.bad or p.is_observed_by(kf):
                 continue
             existing = kf.points[t]
             if existing is not None and not existing.bad:
-                keep, drop = (existing, p) if len(existing.observations) > len(p.observations) else (p, existing)
+                keep, drop = (existing, p) if existing.n_observers > p.n_observers else (p, existing)
                 self.map.replace_point(drop, keep, descriptor=False)
                 merged[keep.id] = keep
             else:

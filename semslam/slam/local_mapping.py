@@ -203,7 +203,7 @@ class LocalMapping(KeyframeWorker):
             for i, p in slots:
                 if p.bad or kf.points[i] is not p:
                     continue
-                if kf not in p.observations:
+                if not p.is_observed_by(kf):
                     p.add_observation(kf, i)
                     matched.append(p)
                 else:  # created by tracking for this keyframe
@@ -418,7 +418,7 @@ class LocalMapping(KeyframeWorker):
         erased: dict[int, set[KeyFrame]] = {}
         for m in outliers.tolist():
             p, k = points[problem.obs_point[m]], kfs[problem.obs_pose[m]]
-            if k in p.observations:
+            if p.is_observed_by(k):
                 erased.setdefault(p.id, set()).add(k)
         # Normals and depth ranges of the map as the result will leave it, computed now
         # without the lock, written with the result.
@@ -436,8 +436,8 @@ class LocalMapping(KeyframeWorker):
                     k.set_pose(T)
             for m in outliers.tolist():
                 p, k = points[problem.obs_point[m]], kfs[problem.obs_pose[m]]
-                if not p.bad and k in p.observations:
-                    idx = p.observations[k]
+                idx = None if p.bad else p.keypoint_in(k)
+                if idx is not None:
                     if k.points[idx] is p:
                         k.points[idx] = None
                     p.erase_observation(k)

@@ -608,8 +608,8 @@ class LoopClosing(KeyframeWorker):
                 candidates = list(self.map.points.values())
             if len(kfs) < 2:
                 return
-            points = [p for p in candidates if not p.bad and p.observations
-                      and (map_id is None or next(iter(p.observations)).map_id == map_id)]
+            points = [p for p in candidates if not p.bad and p.n_observers
+                      and (map_id is None or p.store.first_observer(p.row).map_id == map_id)]
             rows = np.fromiter((p.row for p in points), np.intp, len(points))
             free, fixed = kfs[1:], kfs[:1]
             problem = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)

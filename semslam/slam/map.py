@@ -255,7 +255,7 @@ class Map:
         if old is new or old.bad or new.bad:
             return
         for kf, idx in list(old.observations.items()):
-            if kf in new.observations:
+            if new.is_observed_by(kf):
                 if kf.points[idx] is old:
                     kf.points[idx] = None
             else:

@@ -109,16 +109,16 @@ class PointStore:
             wider[:, :n] = old
             setattr(self, name, wider)
 
-    def _observer_slot(self, row: int, kf: Observer) -> int:
-        """Where ``kf`` is among the row's observers, -1 if it does not observe the point."""
-        n = int(self.n_kf_obs[row])
-        hit = np.flatnonzero(self.observers[row, :n] == kf.id)
-        return int(hit[0]) if hit.size else -1
+    def observer_slot(self, row: int, kf: Observer) -> int:
+        """Where ``kf`` is among the row's observers, -1 if it does not observe the point
+        (a list search: rows hold a few observers, numpy's call costs more)."""
+        ids = self.observers[row, :self.n_kf_obs[row]].tolist()
+        return ids.index(kf.id) if kf.id in ids else -1
 
     def observe(self, row: int, kf: Observer, idx: int) -> None:
         """``kf`` observes the point at keypoint ``idx`` (a keyframe observing it already
         keeps its place, with the new keypoint)."""
-        k = self._observer_slot(row, kf)
+        k = self.observer_slot(row, kf)
         if k < 0:
             n = int(self.n_kf_obs[row])
             if n == self.observers.shape[1]:
@@ -135,7 +135,7 @@ class PointStore:
     def unobserve(self, row: int, kf: Observer) -> int | None:
         """Remove ``kf``'s observation keeping the others' order; its keypoint, or None if
         ``kf`` did not observe the point."""
-        k = self._observer_slot(row, kf)
+        k = self.observer_slot(row, kf)
         if k < 0:
             return None
         n = int(self.n_kf_obs[row])
@@ -248,13 +248,26 @@ class MapPoint:
         return self._store
 
     def __repr__(self) -> str:
-        return f"MapPoint({self.id}, obs={int(self._store.n_kf_obs[self._row])})"
+        return f"MapPoint({self.id}, obs={self.n_observers})"
 
     @property
     def observations(self) -> MappingProxyType[Observer, int]:
         """Keyframe -> keypoint index, in the order the observations were added (read from
         the store; change them with ``add_observation`` / ``erase_observation``)."""
         return MappingProxyType(self._store.observations(self._row))
+
+    def keypoint_in(self, kf: Observer) -> int | None:
+        """The keypoint of ``kf`` observing the point, None if ``kf`` does not."""
+        k = self._store.observer_slot(self._row, kf)
+        return None if k < 0 else int(self._store.observer_kp[self._row, k])
+
+    def is_observed_by(self, kf: Observer) -> bool:
+        return self._store.observer_slot(self._row, kf) >= 0
+
+    @property
+    def n_observers(self) -> int:
+        """Keyframes observing the point."""
+        return int(self._store.n_kf_obs[self._row])
 
     @property
     def n_obs(self) -> int:
@@ -276,7 +289,7 @@ class MapPoint:
         ``kf`` was, and a point left with one observation or none goes bad."""
         if self._store.unobserve(self._row, kf) is None:
             return
-        left = int(self._store.n_kf_obs[self._row])
+        left = self.n_observers
         if self.ref_kf is kf and left:
             self.ref_kf = self._store.first_observer(self._row)
         if left <= 1 and kf.map is not None:
@@ -292,11 +305,11 @@ class PointSlots:
 
     def __init__(self, points: Iterable[MapPoint | None] = ()) -> None:
         pts = list(points)
-        self._store: PointStore | None = None
-        self._rows = np.full(len(pts), -1, np.intp)
-        for i, p in enumerate(pts):
-            if p is not None:
-                self[i] = p
+        stores = {p._store for p in pts if p is not None}
+        if len(stores) > 1:
+            raise ValueError("a slots object holds points of one store")
+        self._store: PointStore | None = stores.pop() if stores else None
+        self._rows = np.fromiter((-1 if p is None else p._row for p in pts), np.intp, len(pts))
 
     @property
     def rows(self) -> NDArray[np.intp]:
