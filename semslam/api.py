@@ -6,6 +6,11 @@ time, and ``save`` writes what ``semslam run`` writes (``trajectory.txt``,
 ``keyframes.txt``, ``stats.json``, ``config.json``, the maps, ``report.html`` with ground
 truth). ``pipeline.run_slam`` is a loop over this class: one code path for both.
 
+It is the one System of a run: it builds the parts (``semslam.assembly``: depth source,
+dynamic stage, maps' worker, tracker), runs each frame through them in order and alone
+feeds the map builders, from the keyframes and pose corrections the tracker's results
+announce and the final keyframe poses at the end.
+
     import cv2
     from semslam import System
 
@@ -26,27 +31,29 @@ import json
 import logging
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Union
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.assembly import RunParts, assemble
 from semslam.config import SystemConfig, config_from_dict, config_to_dict, load_config
-from semslam.core.protocols import FramePacket
-from semslam.core.types import Frame, RunResult, TrackResult
-from semslam.errors import ConfigError, DataError, SemslamError
-from semslam.geometry.camera import PinholeCamera
-from semslam.io.images import depth_to_metres
-from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
+from semslam.core.protocols import DynamicStage, FramePacket, KeyframeSnapshot, MapStage, Tracker
 from semslam.core.trajectory import Trajectory
+from semslam.core.types import Frame, RunResult, TrackingState, TrackResult
+from semslam.errors import ConfigError, DataError, SemslamError
+from semslam.frame_input import as_metres, as_rgb, check_timestamp
+from semslam.frontend.sharpness import sharpness
+from semslam.geometry.camera import PinholeCamera
+from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
+from semslam.io.input_health import InputHealth
 from semslam.io.trajectory import write_tum
 from semslam.run_record import Evaluation, RunTiming, evaluate, timing_stats, write_run_report
 from semslam.thread_clock import thread_times
-from semslam.slam.system import System as SlamSystem
 
 log = logging.getLogger(__name__)
 
@@ -82,8 +89,13 @@ class System:
         self.out = Path(out) if out is not None else None
         self.name = name
         self._load_map = Path(load_map) if load_map is not None else None
-        self._slam: SlamSystem | None = None
+        self._parts: RunParts | None = None
         self._start_lock = threading.Lock()
+        # Frames per tracking state, not the TrackResults: a 20-minute run would keep 36 000 of
+        # them (~1.5 kB each with pose and timings) only to count them at the end.
+        self._states: Counter[TrackingState] = Counter()
+        self._input_health = InputHealth()  # why frames could not be tracked (blank, no depth, all dynamic)
+        self._stopped = False  # the tracker shut down, the maps told the final poses
         self._timing = RunTiming()
         self._last_t = -np.inf
         self._n_given = 0
@@ -95,12 +107,22 @@ class System:
             self._start()
 
     # ------------------------------------------------------------------ lifetime
-    def _start(self) -> SlamSystem:
-        """The SLAM system, built on first use (``pipeline.run_slam``'s reader thread may be first)."""
+    def _start(self) -> RunParts:
+        """The run's parts, built on first use (``pipeline.run_slam``'s reader thread may be first)."""
         with self._start_lock:
-            if self._slam is None:
-                self._slam = SlamSystem(self.config, self.camera, self._load_map)
-            return self._slam
+            if self._parts is None:
+                self._parts = assemble(self.config, self.camera, self._load_map)
+            return self._parts
+
+    @property
+    def tracker(self) -> Tracker:
+        """The tracker of ``tracking.method`` (for tools and tests that look inside)."""
+        return self._start().tracker
+
+    @property
+    def dynamics(self) -> DynamicStage | None:
+        """The dynamic stage (None with dynamics handling off)."""
+        return self._start().dynamics
 
     def __enter__(self) -> System:
         return self
@@ -130,8 +152,8 @@ class System:
             self.save(self.out)
             return
         self._closed = True
-        if self._slam is not None:
-            self._slam.close()
+        if self._parts is not None:
+            self._close_run(self._parts)
 
     @property
     def closed(self) -> bool:
@@ -148,13 +170,13 @@ class System:
         where = f"System.track (frame {self._n_given}, t={timestamp})"
         if self.closed:
             raise SemslamError(f"{where}: the system is closed (save() or close() ended the run)")
-        t = _check_timestamp(timestamp, self._last_t, where)
-        image = _as_rgb(rgb, self.bgr if bgr is None else bgr, where)
+        t = check_timestamp(timestamp, self._last_t, where)
+        image = as_rgb(rgb, self.bgr if bgr is None else bgr, where)
         metres = self._as_depth(depth, image.shape[:2], where)
         if self.camera.width > 0 and (self.camera.width, self.camera.height) != (image.shape[1], image.shape[0]):
             raise DataError(where, f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
                                    f"{self.camera.width}x{self.camera.height}")
-        if self._slam is None:
+        if self._parts is None:
             self.camera = self.camera.with_image_size(image.shape[1], image.shape[0])
         self._last_t = t
         frame = Frame(self._n_given, t, image, metres)
@@ -170,12 +192,20 @@ class System:
         if depth is None:
             raise DataError(where, f"no depth: preset {self.config.preset!r} is RGB-D (sensor rgbd); give depth, "
                                    "or use a monocular preset (sensor='mono', preset 'sdf')")
-        return _as_metres(depth, self.config.depth_scale, shape, where)
+        return as_metres(depth, self.config.depth_scale, shape, where)
 
     def prepare(self, frame: Frame) -> FramePacket:
         """Start the work that can run ahead of tracking (segmentation) on a decoded frame;
         ``pipeline.run_slam`` calls it from its reader thread."""
-        return self._start().prepare(frame)
+        parts = self._start()
+        if parts.dynamics is not None:
+            parts.dynamics.prepare(frame)
+        # Work that depends on the image alone runs here too, off the tracking thread: the grey
+        # conversion (cached on the frame) and, where tracking compares frames' sharpness, that.
+        gray = frame.gray
+        slam = self.config.slam
+        wanted = slam.blur_coast_sharp_ratio > 0 or slam.depth_odometry_sharp_ratio > 0
+        return FramePacket(frame, sharpness(gray) if wanted else None)
 
     def track_frame(self, packet: FramePacket, arrived: float | None = None) -> TrackResult:
         """Track a prepared frame and record its timings (``track`` after its checks, and
@@ -183,21 +213,49 @@ class System:
         (``time.perf_counter``), for the latency of camera-rate runs."""
         if self.closed:
             raise SemslamError("System.track_frame: the system is closed (save() or close() ended the run)")
-        slam = self._start()
+        parts = self._start()
         cpu0, runq0 = thread_times()  # where the frame's time goes: CPU / run queue / asleep
         t0 = time.perf_counter()
-        result = slam.track(packet)
+        result = self._track(parts, packet)
         done = time.perf_counter()
         cpu1, runq1 = thread_times()
         self._timing.add(t0, done, result, arrived, cpu1 - cpu0,
                          None if runq0 is None or runq1 is None else runq1 - runq0)
         return result
 
+    def _track(self, parts: RunParts, packet: FramePacket) -> TrackResult:
+        """The tracker's result for the packet, fed to the maps and counted."""
+        result = parts.tracker.track(packet)
+        if parts.maps is not None:
+            self._feed_maps(parts, parts.maps, packet.frame, result)
+        self._states[result.state] += 1
+        self._input_health.observe(packet.frame, result)
+        return result
+
+    def _feed_maps(self, parts: RunParts, maps: MapStage, frame: Frame, result: TrackResult) -> None:
+        """The keyframe the result announces (or, when the maps want every frame, the tracked
+        frame), then the keyframe poses it corrected."""
+        event = result.keyframe
+        if event is not None:
+            maps.add_keyframe(self._snapshot(parts, frame, result, event.id, event.timestamp, event.T_wc, event.depth))
+        elif maps.wants_frames and result.pose_wc is not None:
+            maps.add_frame(self._snapshot(parts, frame, result, -1, result.timestamp, result.pose_wc, None))
+        if result.corrected_poses:
+            maps.correct_poses(result.corrected_poses)
+
+    def _snapshot(self, parts: RunParts, frame: Frame, result: TrackResult, kf_id: int, timestamp: float,
+                  T_wc: NDArray[np.float64], depth: NDArray[np.float32] | None) -> KeyframeSnapshot:
+        """A frame, its pose, its depth (the tracker's, else the depth source's), its final
+        dynamic mask and its class labels, as the map builders take them."""
+        labels = parts.dynamics.labels(frame.index) if parts.dynamics is not None else None
+        return KeyframeSnapshot(kf_id, timestamp, T_wc, frame.rgb, depth if depth is not None else parts.depth.depth(frame),
+                                result.dynamic, labels, self.camera)
+
     # ------------------------------------------------------------------ at any time
     @property
     def has_map(self) -> bool:
         """Whether the tracker keeps a map that ``save(save_map=...)`` can write (``orb_slam``)."""
-        return self._start().has_map
+        return self._start().tracker.has_map
 
     @property
     def n_frames(self) -> int:
@@ -206,12 +264,12 @@ class System:
 
     @property
     def n_keyframes(self) -> int:
-        return self._slam.n_keyframes if self._slam is not None else 0
+        return self._parts.tracker.n_keyframes if self._parts is not None else 0
 
     def trajectory(self) -> Trajectory:
         """Camera-to-world poses of every frame tracked so far that has one (lost frames are
         left out); after ``save``, the poses after the final optimisation."""
-        return self._slam.trajectory() if self._slam is not None else Trajectory.from_poses([])
+        return self._parts.tracker.trajectory() if self._parts is not None else Trajectory.from_poses([])
 
     def save_trajectory(self, path: str | Path) -> None:
         """``trajectory()`` as a TUM file (``timestamp tx ty tz qx qy qz qw``; evo reads it)."""
@@ -219,13 +277,13 @@ class System:
 
     def keyframes(self) -> Trajectory:
         """Camera-to-world poses of the keyframes."""
-        return self._slam.keyframe_trajectory() if self._slam is not None else Trajectory.from_poses([])
+        return self._parts.tracker.keyframe_trajectory() if self._parts is not None else Trajectory.from_poses([])
 
     def map_points(self) -> NDArray[np.float64]:
         """World positions (N, 3) of the sparse map's points now ((0, 3) for a tracker without a
         map). They carry no colour or class; the coloured, labelled maps (``maps.builders``:
         semantic cloud, octree, mesh) are built from the keyframes and written by ``save``."""
-        return self._slam.map_points() if self._slam is not None else np.zeros((0, 3))
+        return self._parts.tracker.map_points() if self._parts is not None else np.zeros((0, 3))
 
     def stats(self) -> dict[str, Any]:
         """What ``stats.json`` holds so far (counts, ms/frame, per-stage times, the tracker's
@@ -262,12 +320,12 @@ class System:
             raise SemslamError(f"System.save: the run has ended already ({self._ended_how()})")
         out = Path(target)
         out.mkdir(parents=True, exist_ok=True)
-        slam = self._start()
+        parts = self._start()
         try:
-            slam.shutdown()  # the final optimisation; worker threads and the BA process stop
+            self._shutdown(parts)  # the final optimisation; worker threads and the BA process stop
         except BaseException as exc:  # a worker that failed on the last keyframes
             error = error or exc
-        failure = self._write_outputs(slam, out, groundtruth, report, save_map, error, interrupted, skipped, total)
+        failure = self._write_outputs(parts, out, groundtruth, report, save_map, error, interrupted, skipped, total)
         error = error or failure
         if error is not None:
             raise error
@@ -277,17 +335,61 @@ class System:
     def _ended_how(self) -> str:
         return f"saved to {self.result.out_dir}" if self.result is not None else "closed"
 
-    def _write_outputs(self, slam: SlamSystem, out: Path, groundtruth: str | Path | None, report: bool,
+    def _shutdown(self, parts: RunParts) -> None:
+        """Stop the tracker's threads and processes (its final optimisation first), tell the
+        maps the final keyframe poses, stop the dynamic stage; once."""
+        if self._stopped:
+            return
+        self._stopped = True
+        try:
+            try:
+                parts.tracker.shutdown()
+            finally:  # a worker that failed does not keep the maps from the final poses
+                if parts.maps is not None:
+                    parts.maps.correct_poses(parts.tracker.final_keyframe_poses())
+        finally:
+            if parts.dynamics is not None:
+                parts.dynamics.close()
+
+    def _close_run(self, parts: RunParts) -> None:
+        """Stop and free everything without writing maps."""
+        try:
+            self._shutdown(parts)
+        finally:
+            self._close_parts(parts)
+
+    @staticmethod
+    def _close_parts(parts: RunParts) -> None:
+        if parts.maps is not None:
+            parts.maps.close()
+        if parts.dynamics is not None:  # the stage's stats stay readable once closed
+            parts.dynamics.close()
+
+    @staticmethod
+    def _write_maps(parts: RunParts, out_dir: Path) -> dict[str, Path]:
+        """The maps' files under ``out_dir``; then every part is closed."""
+        try:
+            return parts.maps.finish(out_dir) if parts.maps is not None else {}
+        finally:
+            System._close_parts(parts)
+
+    @staticmethod
+    def _save_map(parts: RunParts, path: Path) -> None:
+        if not parts.tracker.has_map:
+            raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
+        parts.tracker.save_map(path)
+
+    def _write_outputs(self, parts: RunParts, out: Path, groundtruth: str | Path | None, report: bool,
                        save_map: str | Path | None, error: BaseException | None, interrupted: bool,
                        skipped: Sequence[str], total: int | None) -> BaseException | None:
         """The run's record first (trajectory, keyframes, ``stats.json``, ``config.json``), then
         what may fail or take long (the map file, the maps, the report), then ``stats.json``
         again with their paths and counters; returns the first failure of those."""
-        traj = slam.trajectory()
+        traj = parts.tracker.trajectory()
         write_tum(out / "trajectory.txt", traj)
         paths = {"trajectory": str(out / "trajectory.txt"), "stats": str(out / "stats.json"),
                  "config": str(out / "config.json")}
-        kf_traj = slam.keyframe_trajectory()
+        kf_traj = parts.tracker.keyframe_trajectory()
         if len(kf_traj):
             write_tum(out / "keyframes.txt", kf_traj)
             paths["keyframes"] = str(out / "keyframes.txt")
@@ -299,15 +401,15 @@ class System:
         (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
         self.result = result
         # Interrupted: no report (its plots take a second or more) and no maps (`semslam map OUT`).
-        failure = self._write_extras(slam, out, result, save_map if error is None else None,
+        failure = self._write_extras(parts, out, result, save_map if error is None else None,
                                      evaluation if report and not interrupted else None, interrupted)
-        result.tracker = slam.stats()  # now with the maps' counters
+        result.tracker = self._tracker_stats(parts)  # now with the maps' counters
         if failure is not None:
             result.error = result.error or f"{type(failure).__name__}: {failure}"
         (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
         return failure
 
-    def _write_extras(self, slam: SlamSystem, out: Path, result: RunResult, save_map: str | Path | None,
+    def _write_extras(self, parts: RunParts, out: Path, result: RunResult, save_map: str | Path | None,
                       evaluation: Evaluation | None, interrupted: bool) -> BaseException | None:
         """The map file, the maps of ``maps.builders``, the report: each tried even when one
         before failed; the first failure is returned, not raised."""
@@ -315,26 +417,41 @@ class System:
         closed = False
         try:
             if save_map:
-                _attempt(failures, Path(save_map), lambda: slam.save_map(Path(save_map)))
+                _attempt(failures, Path(save_map), lambda: self._save_map(parts, Path(save_map)))
             if interrupted:  # stop fast: finishing the maps takes seconds
-                slam.close()
-            else:  # write_maps closes the system, also when a builder fails
-                _attempt(failures, out / "map",
-                         lambda: result.paths.update({n: str(p) for n, p in slam.write_maps(out / "map").items()}))
+                self._close_run(parts)
+            else:  # _write_maps closes the parts, also when a builder fails
+                _attempt(failures, out / "map", lambda: result.paths.update(
+                    {n: str(p) for n, p in self._write_maps(parts, out / "map").items()}))
             closed = True
             if evaluation is not None:
                 _attempt(failures, out / "report.html",
                          lambda: write_run_report(out, evaluation, self.config, result))
         finally:
             if not closed:  # a KeyboardInterrupt while the map file was written
-                slam.close()
+                self._close_run(parts)
         return failures[0] if failures else None
+
+    def _counts(self) -> dict[str, int]:
+        return {
+            "frames": sum(self._states.values()),
+            "tracked_frames": self._states[TrackingState.OK],
+            "lost_frames": self._states[TrackingState.LOST],
+            "uninitialized_frames": self._states[TrackingState.NOT_INITIALIZED],
+            "keyframes": self.n_keyframes,
+        }
+
+    def _tracker_stats(self, parts: RunParts) -> dict[str, Any]:
+        """The tracker's, the dynamic stage's and (once written) the maps' counters."""
+        return {**parts.tracker.stats(), **(parts.dynamics.stats() if parts.dynamics is not None else {}),
+                **(parts.maps.stats() if parts.maps is not None else {}), **self._input_health.stats(),
+                "jit_warmup_s": parts.jit_warmup_s}
 
     def _run_result(self, out: Path, paths: dict[str, str], skipped: Sequence[str],
                     error: BaseException | None, total: int | None = None) -> RunResult:
         timing, cam = self._timing, self.camera
         n = len(timing.frame_ms)
-        counts = self._slam.counts() if self._slam is not None else {}
+        counts = self._counts() if self._parts is not None else {}
         given = counts.get("frames", 0) + len(skipped)
         return RunResult(
             sequence=self.name, preset=self.config.preset, out_dir=out, **counts,
@@ -352,7 +469,7 @@ class System:
             tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,
             camera={"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width,
                     "height": cam.height, "dist": list(cam.dist), "source": cam.source},
-            tracker=self._slam.stats() if self._slam is not None else {}, paths=paths,
+            tracker=self._tracker_stats(self._parts) if self._parts is not None else {}, paths=paths,
             interrupted=timing.interrupted or isinstance(error, KeyboardInterrupt),
             error=None if error is None else f"{type(error).__name__}: {error}",
         )
@@ -412,53 +529,3 @@ def make_camera(camera: CameraLike | None) -> PinholeCamera:
     except (TypeError, ValueError):
         raise ConfigError(f"camera: expected (fx, fy, cx, cy[, k1, k2, p1, p2, k3]), got {camera!r}") from None
     return camera_from_values(values, "camera")
-
-
-# ---------------------------------------------------------------------------- input checks
-def _check_timestamp(timestamp: float, last: float, where: str) -> float:
-    try:
-        t = float(timestamp)
-    except (TypeError, ValueError):
-        raise DataError(where, f"timestamp {timestamp!r} is not a number") from None
-    if not np.isfinite(t):
-        raise DataError(where, "timestamp is not finite")
-    if t <= last:
-        raise DataError(where, f"timestamp {t:.6f} is not after the previous frame's ({last:.6f}); "
-                               "timestamps must increase")
-    return t
-
-
-def _as_rgb(image: Any, bgr: bool, where: str) -> NDArray[np.uint8]:
-    """A fresh HxWx3 RGB copy (a keyframe keeps its image: the caller's buffer may be reused)."""
-    if not isinstance(image, np.ndarray):
-        raise DataError(where, f"rgb is a {type(image).__name__}, expected a numpy array (HxWx3 uint8)")
-    if image.dtype != np.uint8:
-        raise DataError(where, f"rgb is {image.dtype}, expected uint8 (HxWx3, 0-255)")
-    if image.ndim == 2:
-        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_GRAY2RGB)
-    if image.ndim != 3 or image.shape[2] != 3 or min(image.shape[:2]) < 1:
-        raise DataError(where, f"rgb has shape {image.shape}, expected HxWx3 (or HxW grey)")
-    if bgr:
-        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2RGB)
-    return np.array(image, copy=True, order="C")
-
-
-def _as_metres(depth: Any, scale: float, shape: tuple[int, ...], where: str) -> NDArray[np.float32]:
-    """Depth in metres as float32 (0 = no measurement), converted as ``io.images.read_depth``
-    converts a depth PNG, so the same image gives the same numbers."""
-    if not isinstance(depth, np.ndarray):
-        raise DataError(where, f"depth is a {type(depth).__name__}, expected a numpy array (HxW)")
-    if depth.ndim == 3 and depth.shape[2] == 1:
-        depth = depth[:, :, 0]
-    if depth.ndim != 2:
-        raise DataError(where, f"depth has shape {depth.shape}, expected HxW")
-    if depth.shape != tuple(shape):
-        raise DataError(where, f"depth is {depth.shape[1]}x{depth.shape[0]} but rgb is {shape[1]}x{shape[0]}")
-    if depth.dtype == np.uint16:
-        return depth_to_metres(depth, scale)
-    if depth.dtype in (np.float32, np.float64):
-        if (depth < 0).any():
-            raise DataError(where, "depth has negative values (expected metres, 0 = no measurement)")
-        return depth_to_metres(depth, scale)
-    raise DataError(where, f"depth is {depth.dtype}; expected uint16 ({scale:g} units per metre, depth_scale) "
-                           "or float metres")

@@ -103,16 +103,16 @@ def _frame_indices(seq_stamps: NDArray[np.float64], kf_stamps: NDArray[np.float6
 def _snapshot(k: int, frame: Frame, T_wc: NDArray[np.float64], dynamics: Any, refs: list[Any],
               camera: Any) -> KeyframeSnapshot:
     """The keyframe as the live run fed it: the semantic mask (+ SRM), the moving regions."""
-    packet = FramePacket(frame)
-    dynamic = None
+    dynamic, labels = None, None
     if dynamics is not None:
-        dynamics.prepare(packet)
-        dynamic, _, _ = dynamics.before_extraction(packet)
+        dynamics.prepare(frame)
+        dynamic, _, _ = dynamics.before_extraction(FramePacket(frame))
+        labels = dynamics.labels(frame.index)
         if frame.depth is not None and refs:
             regions = dynamics.after_pose(np.linalg.inv(T_wc), frame.depth, refs)
             if regions is not None:
                 dynamic = regions.moving if dynamic is None else dynamic | regions.moving
-    return KeyframeSnapshot(k, frame.timestamp, T_wc, frame.rgb, frame.depth, dynamic, packet.labels, camera)
+    return KeyframeSnapshot(k, frame.timestamp, T_wc, frame.rgb, frame.depth, dynamic, labels, camera)
 
 
 def _reference(T_cw: NDArray[np.float64], depth: NDArray[np.float32], dynamic: NDArray[np.bool_] | None

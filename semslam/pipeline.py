@@ -16,11 +16,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
-import numpy as np
 
 from semslam.api import System
 from semslam.config import SystemConfig
-from semslam.core.protocols import FramePacket, SequenceSource as Sequence
+from semslam.core.protocols import SequenceSource as Sequence
 from semslam.core.types import Frame, RunResult, TrackResult
 from semslam.errors import ConfigError, DataError, OutputError, RunInterrupted
 from semslam.runtime import lower_thread_priority, stop_exit_code, stop_requested, tracking_core
@@ -225,11 +224,9 @@ def _open_recorder(path: str | Path | None, spawn: bool, system: System) -> "Rer
         raise
 
 
-def _log_frame(recorder: "RerunRecorder", packet: FramePacket, result: TrackResult, system: System) -> None:
-    frame = packet.frame
-    dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
-    recorder.log_frame(frame.index, frame.timestamp, frame.rgb, dynamic, packet.keypoints_xy, packet.keypoint_static,
-                       result.pose_wc, system.camera)
+def _log_frame(recorder: "RerunRecorder", frame: Frame, result: TrackResult, system: System) -> None:
+    recorder.log_frame(frame.index, frame.timestamp, frame.rgb, result.dynamic, result.keypoints_xy,
+                       result.keypoint_static, result.pose_wc, system.camera)
 
 
 def _log_run_end(recorder: "RerunRecorder", system: System, map_dir: Path) -> None:
@@ -259,7 +256,7 @@ def _track_all(system: System, sequence: Sequence, config: SystemConfig, n_total
                 return True
             result = system.track_frame(packet, t_arrived if realtime else None)
             if recorder is not None:
-                _log_frame(recorder, packet, result, system)
+                _log_frame(recorder, packet.frame, result, system)
             if bar is not None:  # skipped frames count too: the bar ends at the sequence's total
                 bar.update(max(1, packet.frame.index + 1 - bar.n))
                 bar.set_postfix(state=result.state.value, inl=result.n_inliers, kf=system.n_keyframes, refresh=False)

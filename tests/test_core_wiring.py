@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from semslam.api import System
 from semslam.cli.main import main
 from semslam.config import DepthConfig, FeatureConfig, SemanticsConfig, load_config
 from semslam.core import protocols, registry
@@ -29,10 +30,9 @@ from semslam.io.depth import SensorDepth
 from semslam.io.sequence import ImageFolderSequence, open_sequence
 from semslam.reconstruction.keyframe_cloud import KeyframeCloud
 from semslam.slam.keyframe_worker import KeyframeInbox
-from semslam.slam.system import System
 from semslam.synth import SEQUENCES, Renderer, render_sequence
 
-CAM = PinholeCamera(535.4, 539.2, 320.1, 247.6)
+CAM = PinholeCamera(535.4, 539.2, 320.1, 247.6, width=640, height=480)  # sized: the System is built at once
 
 
 @pytest.fixture(scope="module")
@@ -233,7 +233,7 @@ def test_lost_frames_are_left_out_of_the_trajectory(static_seq: Path) -> None:
                    np.zeros_like(frames[0].depth)) for k in range(5)]
     for preset in ("orb", "f2kf"):
         system = System(load_config(preset, ["slam.sequential=true"]), seq.camera)
-        results = [system.track(f) for f in [*frames, *black]]
+        results = [system.track_frame(system.prepare(f)) for f in [*frames, *black]]
         system.close()
         lost = [r for r in results if r.state is TrackingState.LOST]
         assert len(lost) == 5 and all(r.pose_wc is None for r in lost), preset
@@ -295,7 +295,7 @@ def test_keyframe_cloud_leaves_out_dynamic_pixels_and_follows_corrections() -> N
     np.testing.assert_allclose(xyz2, xyz + [1.0, 2.0, 3.0])
 
 
-def test_system_takes_frames_or_packets_and_depth_from_its_source(static_seq: Path) -> None:
+def test_the_tracker_takes_its_depth_from_its_source(static_seq: Path) -> None:
     seq = open_sequence(static_seq)
     calls = []
 
@@ -304,9 +304,9 @@ def test_system_takes_frames_or_packets_and_depth_from_its_source(static_seq: Pa
             calls.append(frame.index)
             return super().depth(frame)
 
-    from semslam.slam.orb_slam_system import OrbSlamSystem
+    from semslam.slam.orb_slam_system import OrbTracker
 
-    tracker = OrbSlamSystem(load_config("orb", ["slam.sequential=true"]), seq.camera, TrackerInputs(CountingDepth()))
+    tracker = OrbTracker(load_config("orb", ["slam.sequential=true"]), seq.camera, TrackerInputs(CountingDepth()))
     frames = list(seq.frames(0, 5))
     for f in frames:
         tracker.track(FramePacket(f))
@@ -331,7 +331,7 @@ def test_tracking_marks_its_frames_and_local_mapping_waits_for_the_gap(static_se
 
         tracker.tracking.extractor.extract = spy  # type: ignore[method-assign]
         for f in seq.frames(0, 3):
-            system.track(f)
+            system.track_frame(system.prepare(f))
         assert seen == [False, False, False] and idle.is_set()
         mapping = tracker.mapper
         idle.clear()
@@ -357,7 +357,7 @@ def test_frames_after_initialisation_track_while_local_mapping_lags(static_seq: 
         frames = list(seq.frames(0, 4))
         with system.tracker.mapper.inbox.paused() as ok:  # the first keyframe waits in the queue
             assert ok
-            results = [system.track(f) for f in frames]
+            results = [system.track_frame(system.prepare(f)) for f in frames]
         assert [r.state for r in results[1:]] == [TrackingState.OK] * 3
     finally:
         system.close()

@@ -19,7 +19,7 @@ from semslam.features import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.core.trajectory import Trajectory
-from semslam.slam.system import System
+from semslam.api import System
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import rendered_frames
 
@@ -94,8 +94,8 @@ def test_walking_ate_with_dynamics_far_below_without() -> None:
     for name, over in (("off", base), ("on", base + ["dynamics.semantic=true"])):
         system = System(load_config("orb", over), cam)
         for f in frames:
-            system.track(f)
-        system.shutdown()
+            system.track_frame(system.prepare(f))
+        system.close()
         errs[name] = ate(gt, system.trajectory(), align="se3").stats["rmse"]
     assert errs["on"] < 0.02
     assert errs["on"] < 0.1 * errs["off"], errs

@@ -1,4 +1,4 @@
-"""The ORB-SLAM2-class core (preset ``orb``) on rendered frames fed straight to System.track:
+"""The ORB-SLAM2-class core (preset ``orb``) on rendered frames fed straight to System.track_frame:
 accuracy against the exact ground truth, relocalisation after a blackout, map save/load,
 localisation-only tracking in a loaded map, and the threaded mode.
 
@@ -16,10 +16,10 @@ from semslam.backend.bundle_adjustment import BAProblem, BAResult
 from semslam.config import load_config
 from semslam.eval.metrics import ate
 from semslam.geometry.camera import PinholeCamera
-from semslam.core.types import Frame
+from semslam.core.types import Frame, TrackResult
 from semslam.core.trajectory import Trajectory
 from semslam.slam.map_io import load_map
-from semslam.slam.system import System
+from semslam.api import System
 from semslam.core.types import TrackingState
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import rendered_frames
@@ -36,7 +36,11 @@ def rendered() -> tuple[list[Frame], np.ndarray, PinholeCamera]:
 
 
 def _system(camera: PinholeCamera, *overrides: str, map_path: Path | None = None) -> System:
-    return System(load_config("orb", ["slam.sequential=true", *overrides]), camera, map_path)
+    return System(load_config("orb", ["slam.sequential=true", *overrides]), camera, load_map=map_path)
+
+
+def _track(system: System, frame: Frame) -> TrackResult:
+    return system.track_frame(system.prepare(frame))
 
 
 def _ate(traj: Trajectory, gt_poses: np.ndarray, times: np.ndarray) -> float:
@@ -68,10 +72,10 @@ def test_static_accuracy_and_map(rendered: tuple[list[Frame], np.ndarray, Pinhol
     frames, gt, cam = rendered
     system = _system(cam)
     bas = _record_bundle_adjustments(system)
-    states = [system.track(f).state for f in frames]
-    system.shutdown()
+    states = [_track(system, f).state for f in frames]
+    system.close()
     assert all(s is TrackingState.OK for s in states)
-    stats = system.stats()
+    stats = system.tracker.stats()
     assert system.n_keyframes >= 3 and stats["map_points"] > 500
     # Local BA ran after every new keyframe but the first (measured 8 on 9 keyframes), each
     # solve lowered the mean chi2 of its inliers (measured to 0.37-0.83 of the start, a
@@ -95,14 +99,14 @@ def test_relocalisation_after_blackout(rendered: tuple[list[Frame], np.ndarray, 
     black = np.zeros_like(frames[0].rgb)
     results = {}
     for f in frames[:50]:
-        system.track(f)
+        _track(system, f)
     for k in range(10):
-        r = system.track(Frame(1000 + k, frames[49].timestamp + 0.001 * (k + 1), black, np.zeros_like(frames[0].depth)))
+        r = _track(system, Frame(1000 + k, frames[49].timestamp + 0.001 * (k + 1), black, np.zeros_like(frames[0].depth)))
         assert r.state is not TrackingState.OK
     for f in frames[62:]:
-        results[f.index] = system.track(f)
-    system.shutdown()
-    assert system.stats()["relocalisations"] >= 1
+        results[f.index] = _track(system, f)
+    system.close()
+    assert system.tracker.stats()["relocalisations"] >= 1
     assert results[62].state is TrackingState.OK
     # Pose right after relocalisation, relative to the first frame's ground truth.
     est = results[62].pose_wc
@@ -115,10 +119,10 @@ def test_save_load_and_localisation_only(rendered: tuple[list[Frame], np.ndarray
     frames, gt, cam = rendered
     system = _system(cam)
     for f in frames[:60]:
-        system.track(f)
-    system.shutdown()
+        _track(system, f)
+    system.close()
     path = tmp_path / "map.npz"
-    system.save_map(path)
+    system.tracker.save_map(path)
     saved = system.tracker.map
     loaded = load_map(path, saved.spec)
     assert sorted(loaded.keyframes) == sorted(saved.keyframes)
@@ -133,10 +137,10 @@ def test_save_load_and_localisation_only(rendered: tuple[list[Frame], np.ndarray
     # Localisation only in the loaded map: relocalise, track, add nothing.
     loc = _system(cam, "slam.localization_only=true", map_path=path)
     n_kf = loc.n_keyframes
-    res = [loc.track(f) for f in frames[60:]]
-    loc.shutdown()
+    res = [_track(loc, f) for f in frames[60:]]
+    loc.close()
     assert loc.n_keyframes == n_kf
-    assert loc.stats()["relocalisations"] >= 1
+    assert loc.tracker.stats()["relocalisations"] >= 1
     ok = [r for r in res if r.state is TrackingState.OK]
     assert len(ok) >= 0.9 * len(res)
     # Poses in the loaded map's frame (the first frame of the mapping run).
@@ -149,9 +153,9 @@ def test_threaded_mode_matches_sequential_accuracy(rendered: tuple[list[Frame], 
     frames, gt, cam = rendered
     system = System(load_config("orb"), cam)  # threads + BA worker process
     for f in frames[:60]:
-        system.track(f)
-    system.shutdown()
-    assert system.stats()["threaded"] is True
+        _track(system, f)
+    system.close()
+    assert system.tracker.stats()["threaded"] is True
     assert _ate(system.trajectory(), gt[:60], _times(frames[:60])) < 0.015
 
 

@@ -26,7 +26,7 @@ from semslam.eval.metrics import ate
 from semslam.geometry.camera import PinholeCamera
 from semslam.core.types import Frame
 from semslam.core.trajectory import Trajectory
-from semslam.slam.system import System
+from semslam.api import System
 from semslam.core.types import TrackingState
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import E2E_FRAMES, evo_ate, rendered_frames, run_cli
@@ -82,9 +82,9 @@ def test_ddl_multiview_culls_points_on_unlabelled_mover(mover_frames: tuple[list
     pytest.importorskip("mediapipe")
     frames, gt, cam = mover_frames
     system = System(load_config("ddl", ["slam.sequential=true"]), cam)
-    states = [system.track(system.prepare(f)).state for f in frames]
-    system.shutdown()
+    states = [system.track_frame(system.prepare(f)).state for f in frames]
+    system.close()
     assert all(s is TrackingState.OK for s in states)
     # Not in stats.json (yet): the tracker's own counter, through the Python API.
-    assert system.stats()["culled_dynamic_points"] > 0
+    assert system.tracker.stats()["culled_dynamic_points"] > 0
     assert ate(gt, system.trajectory(), align="se3").stats["rmse"] < 0.02

@@ -124,16 +124,16 @@ def test_an_interrupted_run_still_closes_the_recording(tum_folder: Path, tmp_pat
     from semslam.config import load_config
     from semslam.io.sequence import open_sequence
     from semslam.pipeline import run_slam
-    from semslam.slam.system import System
+    from semslam.api import System
 
-    track = System.track
+    track = System._track
 
-    def interrupted(self: System, frame: object) -> object:
+    def interrupted(self: System, parts: object, packet: object) -> object:
         if self.n_frames == 3:
             raise KeyboardInterrupt
-        return track(self, frame)  # type: ignore[arg-type]
+        return track(self, parts, packet)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(System, "track", interrupted)
+    monkeypatch.setattr(System, "_track", interrupted)
     path = tmp_path / "run.rrd"
     with pytest.raises(KeyboardInterrupt):
         run_slam(open_sequence(tum_folder), load_config("f2kf"), tmp_path / "out", progress=False, report=False,

@@ -195,7 +195,7 @@ def test_tracking_recovers_after_frames_without_features(small_static: Path) -> 
     from semslam.core.types import Frame, TrackingState
     from semslam.eval.metrics import ate
     from semslam.io.sequence import open_sequence
-    from semslam.slam.system import System
+    from semslam.api import System
 
     # RootSIFT: the tracker's recovery is under test, not the shipped detector's quality.
     cfg = load_config("sdf", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false",
@@ -208,7 +208,7 @@ def test_tracking_recovers_after_frames_without_features(small_static: Path) -> 
         for f in seq.frames(0, 40):
             if 16 <= f.index < 22:
                 f = Frame(f.index, f.timestamp, np.zeros_like(f.rgb), None, f.rgb_path)
-            states.append(system.track(f).state)
+            states.append(system.track_frame(system.prepare(f)).state)
         traj = system.trajectory()
     finally:
         system.close()
@@ -313,7 +313,7 @@ def test_depth_alignment_keeps_the_map_scale_under_drifting_depth(small_static: 
     from semslam.config import load_config
     from semslam.eval.metrics import ate
     from semslam.io.sequence import open_sequence
-    from semslam.slam.system import System
+    from semslam.api import System
 
     seq = open_sequence(small_static, kind="mono")
     gt = read_trajectory(small_static / "groundtruth.txt")
@@ -327,7 +327,7 @@ def test_depth_alignment_keeps_the_map_scale_under_drifting_depth(small_static: 
         try:
             tracker = system.tracker
             tracker.depth = _DriftingDepth(tracker.depth)  # type: ignore[attr-defined]
-            states = [system.track(f).state.name for f in seq.frames(0, 70)]
+            states = [system.track_frame(system.prepare(f)).state.name for f in seq.frames(0, 70)]
             traj = system.trajectory()
             stats = tracker.stats()
         finally:

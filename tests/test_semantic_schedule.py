@@ -14,7 +14,7 @@ import pytest
 
 from semslam.config import SemanticsConfig, load_config
 from semslam.core import registry
-from semslam.core.protocols import FramePacket, MotionPrior
+from semslam.core.protocols import MotionPrior
 from semslam.core.types import Frame, LabelMap
 from semslam.dynamics.masks import dilate
 from semslam.dynamics.semantic_thread import SemanticThread
@@ -162,9 +162,9 @@ def segmenter(monkeypatch: pytest.MonkeyPatch) -> _Blocking:
     return _SEGMENTER
 
 
-def _packets(n: int, depth_m: float = 2.0) -> list[FramePacket]:
+def _frames(n: int, depth_m: float = 2.0) -> list[Frame]:
     rgb = np.zeros((H, W, 3), np.uint8)
-    return [FramePacket(Frame(i, i / 30, rgb, np.full((H, W), depth_m, np.float32))) for i in range(n)]
+    return [Frame(i, i / 30, rgb, np.full((H, W), depth_m, np.float32)) for i in range(n)]
 
 
 def _painted(index: int) -> np.ndarray:
@@ -180,7 +180,7 @@ def _thread(schedule: str = "every", stride: int = 1, threaded: bool = True, mar
 def test_when_behind_skips_a_frame_and_gives_it_the_last_segmented_mask(segmenter: _Blocking) -> None:
     st = _thread("when_behind")
     try:
-        p = _packets(3)
+        p = _frames(3)
         segmenter.go.clear()  # frame 0's segmentation hangs: a backlog
         st.prepare(p[0])
         st.prepare(p[1])  # decoded while 0 is still segmented -> skipped
@@ -202,13 +202,13 @@ def test_latest_does_not_wait_and_uses_the_late_mask_once_finished(segmenter: _B
     frame 2 (skipped: decoded while 1 was segmented) gets frame 1's, finished meanwhile."""
     st = _thread("latest")
     try:
-        p = _packets(3)
+        p = _frames(3)
         st.prepare(p[0])
         m0, _ = st.mask(p[0])
         segmenter.go.clear()
         st.prepare(p[1])
         st.prepare(p[2])
-        late = p[1].dynamic
+        late = st._pending  # frame 1's segmentation (frame 2 was skipped: looking inside)
         m1, _ = st.mask(p[1])
         segmenter.go.set()
         assert late is not None and not isinstance(late, np.ndarray)
@@ -225,7 +225,7 @@ def test_latest_does_not_wait_and_uses_the_late_mask_once_finished(segmenter: _B
 def test_every_waits_through_the_backlog(segmenter: _Blocking) -> None:
     st = _thread("every")
     try:
-        p = _packets(2)
+        p = _frames(2)
         segmenter.go.clear()
         st.prepare(p[0])
         st.prepare(p[1])
@@ -244,7 +244,7 @@ def test_stride_warps_skipped_frames_with_the_motion_model(segmenter: _Blocking,
     st = _thread(stride=2, threaded=threaded, margin=1)
     step = _translation(x=-0.1)  # T_cw(k) = step @ T_cw(k-1)
     try:
-        p = _packets(4)
+        p = _frames(4)
         for q in p:
             st.prepare(q)
         masks, T_cw = [], np.eye(4)
@@ -263,7 +263,7 @@ def test_stride_warps_skipped_frames_with_the_motion_model(segmenter: _Blocking,
     # Lost tracking (no velocity): the mask stays where it was, grown by the margin only.
     st2 = _thread(stride=2, threaded=False)
     try:
-        q = _packets(2)
+        q = _frames(2)
         st2.mask(q[0])
         m1, _ = st2.mask(q[1], MotionPrior(0, np.eye(4), None))
     finally:
@@ -299,7 +299,7 @@ def test_margin_grows_with_the_frames_since_the_segmented_one(segmenter: _Blocki
     """The people's own motion adds up: stride 3, margin 2 px -> frame 1 grown 2 px, frame 2 4 px."""
     st = _thread(stride=3, threaded=False, margin=2)
     try:
-        masks = [st.mask(q)[0] for q in _packets(3)]
+        masks = [st.mask(q)[0] for q in _frames(3)]
     finally:
         st.close()
     assert segmenter.calls == [0]

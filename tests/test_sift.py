@@ -87,11 +87,11 @@ def test_no_vocabulary_for_float_descriptors_is_one_config_error() -> None:
     with pytest.raises(ConfigError, match="slam.vocabulary"):
         vocabulary_for(spec, "some_orb_vocab.npz")
     cfg = load_config("orb", ["features.extractor=sift"])
-    from semslam.slam.system import System
+    from semslam.api import System
     from semslam.synth import SEQUENCES
 
     with pytest.raises(ConfigError, match="slam.loop_closing=false"):
-        System(cfg, _camera(SEQUENCES["static_xyz"]))
+        System(cfg, _camera(SEQUENCES["static_xyz"]), image_size=(640, 480))  # sized: built at once
     cfg = load_config("f2kf", ["features.extractor=sift"])
     from semslam.slam.frame_to_keyframe import FrameToKeyframeTracker
 

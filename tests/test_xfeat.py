@@ -131,7 +131,7 @@ def test_sdf_xfeat_preset_tracks_a_render(tmp_path: Path) -> None:
     from semslam.eval.metrics import ate
     from semslam.io.sequence import open_sequence
     from semslam.io.trajectory import read_tum
-    from semslam.slam.system import System
+    from semslam.api import System
     from semslam.synth import SEQUENCES, render_sequence
 
     root = render_sequence(SEQUENCES["static_xyz"].replace(frames=40, width=320, height=240), tmp_path / "s")
@@ -141,7 +141,7 @@ def test_sdf_xfeat_preset_tracks_a_render(tmp_path: Path) -> None:
     system = System(cfg, seq.camera)
     try:
         for frame in seq.frames():
-            system.track(frame)
+            system.track_frame(system.prepare(frame))
         traj = system.trajectory()
     finally:
         system.close()

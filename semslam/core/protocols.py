@@ -3,15 +3,18 @@
 Every backend implements one of these protocols and is found by name through
 ``semslam.core.registry``; the System and the pipeline call only what is written here.
 
-    SequenceSource ─► Frame ─► FramePacket ─► DynamicStage.prepare (reader thread)
-                                   │
+    SequenceSource ─► Frame ─► System.prepare: DynamicStage.prepare(frame) (reader thread)
+                                   │ FramePacket (frozen: the frame and what was measured ahead)
                                    ▼
     Tracker.track(packet)   uses  Extractor (+ its FeatureSpec) ─► Matcher (chosen by the spec)
                                   DepthSource (sensor depth, or SDFCNN's for monocular runs)
                                   DynamicStage.before_extraction / after_pose
-                                   │ keyframes
+                                   │ TrackResult (pose, dynamic mask, keyframe event, corrections)
                                    ▼
-    MapBuilder.add_keyframe(snapshot) ... correct_poses(...) ... finish(out_dir)
+    System ─► MapStage.add_keyframe(snapshot) / add_frame ... correct_poses(...) ... finish(out_dir)
+
+Data flows one way: nothing downstream writes into a packet; what a stage finds comes
+back as its return value.
 
 Which thread owns what is in ``docs/architecture.md``.
 """
@@ -19,8 +22,7 @@ Which thread owns what is in ``docs/architecture.md``.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -35,26 +37,17 @@ BoolImage = NDArray[np.bool_]
 
 
 # ---------------------------------------------------------------------------- per-frame packet
-@dataclass
+@dataclass(frozen=True)
 class FramePacket:
-    """One frame on its way through the pipeline and what the stages attach to it.
-
-    Owned by the pipeline: the reader creates it, the dynamic stage attaches the dynamic mask
-    (or a Future of it, while segmentation runs ahead in its own thread), the tracker reads it.
+    """One frame on its way to the tracker, with what ``System.prepare`` measured ahead of
+    tracking in the reader thread. Read-only downstream: the dynamic stage keeps what it
+    started for the frame (keyed by its index), the tracker returns what it found.
     """
 
     frame: Frame
-    dynamic: BoolImage | Future[BoolImage] | None = None
-    labels: LabelMap | None = None
-    timings: dict[str, float] = field(default_factory=dict)
-    #: Set by the tracker, for viewers (``viz.rerun_log``): the keypoints extracted (pixels as
-    #: detected) and, per keypoint, False where it was removed as dynamic (moving regions).
-    #: On the packet, not on TrackResult, so a run does not keep them for every frame.
-    keypoints_xy: NDArray[np.float32] | None = None
-    keypoint_static: NDArray[np.bool_] | None = None
-    #: The frame's sharpness (``frontend.sharpness.sharpness``), measured ahead of tracking
-    #: by ``System.prepare`` in the reader thread when the tracker compares frames' sharpness
-    #: (blur coasting, depth odometry); None: the tracker measures it if it needs it.
+    #: The frame's sharpness (``frontend.sharpness.sharpness``), measured ahead when the
+    #: tracker compares frames' sharpness (blur coasting, depth odometry); None: the
+    #: tracker measures it if it needs it.
     sharpness: float | None = None
 
 
@@ -103,12 +96,11 @@ class MovingRegions:
 
 @dataclass
 class TrackerInputs:
-    """What the System builds and hands every tracker: where depth comes from, the dynamic
-    stage (None when dynamics handling is off) and the map builders fed with keyframes."""
+    """What the System builds and hands every tracker: where depth comes from and the
+    dynamic stage (None when dynamics handling is off)."""
 
     depth: "DepthSource"
     dynamics: "DynamicStage | None" = None
-    map_builders: "list[MapBuilder]" = field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------- contracts
@@ -180,18 +172,25 @@ class DepthSource(Protocol):
 class DynamicStage(Protocol):
     """Dynamic-scene handling around tracking (STDC-SLAM, DDL-SLAM).
 
-    ``prepare`` runs in the reader thread as soon as a frame is decoded (segmentation starts);
-    ``before_extraction`` gives the mask of pixels where no keypoint may be extracted (dynamic
-    classes, refined by SRM, grown by the border band) and the ms waited for it; ``prior``
-    carries the motion model, for frames whose mask is warped from an earlier one;
-    ``after_pose`` finds moving regions with the pose just tracked (multi-view geometry).
+    ``prepare`` runs in the reader thread as soon as a frame is decoded (segmentation starts;
+    the stage keeps what it started, keyed by the frame's index); ``before_extraction`` gives
+    the mask of pixels where no keypoint may be extracted (dynamic classes, refined by SRM,
+    grown by the border band) and the ms waited for it; ``prior`` carries the motion model,
+    for frames whose mask is warped from an earlier one; ``labels`` gives the class labels
+    behind that mask; ``after_pose`` finds moving regions with the pose just tracked
+    (multi-view geometry).
     """
 
-    def prepare(self, packet: FramePacket) -> None: ...
+    def prepare(self, frame: Frame) -> None: ...
 
     def before_extraction(self, packet: FramePacket, prior: MotionPrior | None = None
                           ) -> tuple[BoolImage | None, NDArray[np.uint8] | None, float]:
         """(dynamic mask, extractor mask, ms waited)."""
+        ...
+
+    def labels(self, index: int) -> LabelMap | None:
+        """The class labels of frame ``index`` once ``before_extraction`` gave its mask: its
+        own segmentation's (None when its mask was warped from another frame's)."""
         ...
 
     def after_pose(self, T_cw: NDArray[np.float64], depth: NDArray[np.float32],
@@ -215,6 +214,22 @@ class MapBuilder(Protocol):
     def finish(self, out_dir: Path) -> dict[str, Path]: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class MapStage(MapBuilder, Protocol):
+    """What the System feeds: the map builders behind one worker (``maps.builders``).
+
+    Besides the keyframes it takes every other tracked frame when ``wants_frames`` (the
+    inpainted frames of ``--save-inpainted``), and ``stats`` says what the maps cost (empty
+    until ``finish``).
+    """
+
+    wants_frames: bool
+
+    def add_frame(self, snapshot: KeyframeSnapshot) -> None: ...
+
+    def stats(self) -> dict[str, float]: ...
 
 
 @runtime_checkable
@@ -243,5 +258,11 @@ class Tracker(Protocol):
     def save_map(self, path: Path) -> None: ...
 
     def shutdown(self) -> None:
-        """Stop every thread and process the tracker owns; safe to call twice."""
+        """Stop every thread and process the tracker owns (its final optimisation runs
+        first); safe to call twice."""
+        ...
+
+    def final_keyframe_poses(self) -> dict[int, NDArray[np.float64]]:
+        """``T_wc`` of every keyframe announced in a ``TrackResult``, after ``shutdown``'s
+        final optimisation (for the map builders)."""
         ...

@@ -4,7 +4,8 @@ waits only for what it needs, the mask of its own frame.
 
 The mask is the segmenter's a-priori dynamic classes, grown over depth by STDC-SLAM's
 Segmentation Refinement Module (``dynamics/srm.py``) when it is on; both run in this
-thread, ahead of tracking. The mask travels on the pipeline's ``FramePacket``.
+thread, ahead of tracking. What ``prepare`` started is kept here, keyed by the frame's
+index, until tracking asks for the frame's mask.
 
 Scheduling (``semantics.schedule`` / ``stride``): on two cores the segmenter competes with
 tracking. A frame can be skipped - when it is decoded while the previous frame is still
@@ -26,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SemanticsConfig
-from semslam.core.protocols import FramePacket, MotionPrior
+from semslam.core.protocols import MotionPrior
 from semslam.core.types import Frame, LabelMap
 from semslam.dynamics.warp import plane_depth, relative_pose, warp_mask
 from semslam.geometry.camera import PinholeCamera
@@ -56,8 +57,9 @@ _POSE_HISTORY = 32
 
 
 class SemanticThread:
-    """``prepare(packet)`` starts segmenting (or skips the frame); ``mask(packet, prior)``
-    returns (mask, ms tracking spent on it: waiting, or warping a skipped frame's mask)."""
+    """``prepare(frame)`` starts segmenting (or skips the frame); ``mask(frame, prior)``
+    returns (mask, ms tracking spent on it: waiting, or warping a skipped frame's mask);
+    ``labels(index)`` the class labels behind the last mask given, if its own."""
 
     def __init__(self, cfg: SemanticsConfig, threaded: bool = True, camera: PinholeCamera | None = None) -> None:
         from semslam.semantics.base import create_segmenter
@@ -85,6 +87,7 @@ class SemanticThread:
                 self._pool.shutdown(wait=True)
                 raise
         self._pending: Future[NDArray[np.bool_]] | None = None  # the last segmentation submitted
+        self._started: dict[int, Future[NDArray[np.bool_]]] = {}  # submitted, until tracking takes them
         self._skipped: set[int] = set()  # frame indices prepare() decided not to segment
         self._source: _Segmented | None = None  # the newest finished segmentation tracking took
         self._late: list[_Segmented] = []  # ("latest") segmentations tracking went past unfinished
@@ -95,6 +98,7 @@ class SemanticThread:
         self.warp_ms: list[float] = []  # tracking warping a skipped frame's mask
         self.frames_without_own_mask = 0  # ("latest") frames that did not wait for their own mask
         self._labels: dict[int, LabelMap] = {}  # segmented frames' labels until tracking takes them
+        self._taken: tuple[int, LabelMap | None] = (-1, None)  # (frame, labels) of the last mask given
         self.resized_label_maps = 0  # backend answers of another size than the frame
         self._closed = False
 
@@ -137,22 +141,21 @@ class SemanticThread:
         return (self.cfg.schedule != "every" and self._pending is not None
                 and not self._pending.done())
 
-    def prepare(self, packet: FramePacket) -> None:
-        """Start segmenting the packet's frame, or mark it skipped (called from the reader,
-        right after decoding)."""
-        if packet.dynamic is not None:
-            return
-        index = packet.frame.index
+    def prepare(self, frame: Frame) -> None:
+        """Start segmenting the frame, or mark it skipped (called from the reader, right
+        after decoding)."""
+        index = frame.index
         if not self._on_stride(index) or (self._pool is not None and self._behind()):
             self._skipped.add(index)
         elif self._pool is not None:
-            packet.dynamic = self._pending = self._pool.submit(self._compute, packet.frame)
+            self._started[index] = self._pending = self._pool.submit(self._compute, frame)
 
-    def mask(self, packet: FramePacket, prior: MotionPrior | None = None) -> tuple[NDArray[np.bool_], float]:
-        """The packet's mask: its own segmentation, or (skipped frame, or ``latest`` and not
+    def mask(self, frame: Frame, prior: MotionPrior | None = None) -> tuple[NDArray[np.bool_], float]:
+        """The frame's mask: its own segmentation, or (skipped frame, or ``latest`` and not
         finished) the newest finished mask warped to it; called by tracking, frame after frame."""
         t0 = time.perf_counter()
-        frame, m = packet.frame, packet.dynamic
+        m: NDArray[np.bool_] | Future[NDArray[np.bool_]] | None = self._started.pop(frame.index, None)
+        labels: LabelMap | None = None
         self._learn_pose(prior)
         self._promote_late()
         skipped = frame.index in self._skipped or (m is None and not self._on_stride(frame.index))
@@ -173,13 +176,18 @@ class SemanticThread:
                 m = self._compute(frame)
             self._source = _Segmented(frame.index, m, frame.depth)
             self._late.clear()  # all older than this frame
-            packet.labels = self._labels.pop(frame.index, None)
+            labels = self._labels.pop(frame.index, None)
             for old in [i for i in list(self._labels) if i < frame.index]:  # list(): one C-level copy,
                 self._labels.pop(old, None)  # safe while the semantic thread inserts
             ms = (time.perf_counter() - t0) * 1e3
             self.wait_ms.append(ms)
-        packet.dynamic = m
+        self._taken = (frame.index, labels)
         return m, ms
+
+    def labels(self, index: int) -> LabelMap | None:
+        """The class labels of frame ``index`` if ``mask`` last gave its own segmentation."""
+        taken, labels = self._taken
+        return labels if taken == index else None
 
     def _learn_pose(self, prior: MotionPrior | None) -> None:
         """A frame's tracked pose arrives with the prior of the frame after it."""

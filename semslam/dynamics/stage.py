@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from semslam.config import DynamicsConfig, SemanticsConfig
 from semslam.core.protocols import FramePacket, MotionPrior, MovingRegions
+from semslam.core.types import Frame, LabelMap
 from semslam.dynamics.masks import dilate, extractor_mask
 from semslam.dynamics.multiview import multiview_mask
 from semslam.geometry.camera import PinholeCamera
@@ -33,16 +34,19 @@ class SceneDynamics:
         self.semantic = SemanticThread(sem, threaded=threaded, camera=camera) if dyn.semantic else None
         self.multiview = dyn if dyn.multiview else None
 
-    def prepare(self, packet: FramePacket) -> None:
+    def prepare(self, frame: Frame) -> None:
         if self.semantic is not None:
-            self.semantic.prepare(packet)
+            self.semantic.prepare(frame)
 
     def before_extraction(self, packet: FramePacket, prior: MotionPrior | None = None
                           ) -> tuple[NDArray[np.bool_] | None, NDArray[np.uint8] | None, float]:
         if self.semantic is None:
             return None, None, 0.0
-        dynamic, wait_ms = self.semantic.mask(packet, prior)
+        dynamic, wait_ms = self.semantic.mask(packet.frame, prior)
         return dynamic, extractor_mask(dynamic, self.border_px), wait_ms
+
+    def labels(self, index: int) -> LabelMap | None:
+        return self.semantic.labels(index) if self.semantic is not None else None
 
     def after_pose(self, T_cw: NDArray[np.float64], depth: NDArray[np.float32],
                    references: list[Reference]) -> MovingRegions | None:

@@ -13,10 +13,8 @@ import logging
 from dataclasses import dataclass, field
 
 import cv2
-import numpy as np
 
-from semslam.core.protocols import FramePacket
-from semslam.core.types import TrackResult
+from semslam.core.types import Frame, TrackResult
 
 log = logging.getLogger(__name__)
 
@@ -52,9 +50,8 @@ class InputHealth:
 
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_WHY, 0))
 
-    def observe(self, packet: FramePacket, result: TrackResult) -> None:
-        frame = packet.frame
-        dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
+    def observe(self, frame: Frame, result: TrackResult) -> None:
+        dynamic = result.dynamic
         dyn = float(dynamic.mean()) if dynamic is not None and dynamic.size else result.dynamic_ratio
         # On the tracking thread, so cheap: OpenCV's std over the grey image (0.01 ms at
         # 640x480), depth sampled at every 4th pixel of every 4th row.

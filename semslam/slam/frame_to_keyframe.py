@@ -68,7 +68,7 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerI
     if inputs is not None and inputs.dynamics is not None:
         raise ConfigError("dynamics: the frame_to_keyframe tracker has no dynamic-scene handling; "
                           "use tracking.method=orb_slam (e.g. --preset default)")
-    if inputs is not None and inputs.map_builders:
+    if config.maps.builders:
         raise ConfigError("maps.builders: the frame_to_keyframe tracker feeds no map builders; "
                           "use tracking.method=orb_slam (e.g. --preset orb)")
     if map_path is not None:
@@ -128,17 +128,18 @@ class FrameToKeyframeTracker:
         t0 = time.perf_counter()
         kps = self.extractor.extract(frame.gray)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
-        packet.keypoints_xy = kps.xy  # for viewers; this tracker removes nothing as dynamic
 
         if self.keyframe is None:
             pose = np.eye(4)
             _, valid = self._points_with_depth(kps, frame.depth)
             if valid.sum() < max(self.cfg.min_inliers, 50):
-                return TrackResult(frame.timestamp, None, TrackingState.NOT_INITIALIZED, n_keypoints=len(kps), timings=timings)
+                return TrackResult(frame.timestamp, None, TrackingState.NOT_INITIALIZED, n_keypoints=len(kps),
+                                   timings=timings, keypoints_xy=kps.xy)
             self._make_keyframe(frame, kps, pose)
             self._last_pose = pose
             self._poses.append((frame.timestamp, pose))
-            return TrackResult(frame.timestamp, pose, TrackingState.OK, n_keypoints=len(kps), is_keyframe=True, timings=timings)
+            return TrackResult(frame.timestamp, pose, TrackingState.OK, n_keypoints=len(kps), is_keyframe=True,
+                               timings=timings, keypoints_xy=kps.xy)
 
         predicted = self._predict()
         pose, inliers, n_matches = self._estimate_pose(frame, kps, predicted, timings)
@@ -163,8 +164,9 @@ class FrameToKeyframeTracker:
         pose_out = pose if state is TrackingState.OK else None
         if pose_out is not None:
             self._poses.append((frame.timestamp, pose_out))
+        # The keypoints for viewers; this tracker removes nothing as dynamic.
         return TrackResult(frame.timestamp, pose_out, state, n_matches=n_matches, n_inliers=n_inl,
-                           n_keypoints=len(kps), is_keyframe=is_kf, timings=timings)
+                           n_keypoints=len(kps), is_keyframe=is_kf, timings=timings, keypoints_xy=kps.xy)
 
     # -- Tracker contract --------------------------------------------------------------
     def trajectory(self) -> Trajectory:
@@ -185,6 +187,10 @@ class FrameToKeyframeTracker:
 
     def shutdown(self) -> None:
         """Nothing runs in the background."""
+
+    def final_keyframe_poses(self) -> dict[int, NDArray[np.float64]]:
+        """No keyframe is announced: this tracker feeds no maps (``create_tracker`` refuses them)."""
+        return {}
 
     def _estimate_pose(self, frame: Frame, kps: Keypoints, predicted: NDArray[np.float64] | None,
                        timings: dict[str, float]) -> tuple[NDArray[np.float64] | None, NDArray[np.bool_] | None, int]:

@@ -1,5 +1,7 @@
-"""The ORB-SLAM2-class RGB-D system: the one place that wires tracking, local mapping and
-loop closing over one map (as ORB-SLAM3's System constructor does).
+"""The ORB-SLAM2-class RGB-D tracker's assembler: the one place that wires tracking, local
+mapping and loop closing over one map (as ORB-SLAM3's System constructor does), behind the
+``core.protocols.Tracker`` contract. It feeds no map builders: the keyframes it announces
+in its results and their final poses are what the System feeds them from.
 
 Tracking runs in the caller's thread; local mapping and loop closing run in their own
 threads (or inline with ``slam.sequential``); one bundle-adjustment runner (a worker process
@@ -17,6 +19,7 @@ once the maps merged, its own map's first keyframe otherwise (``stats.json`` cou
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +27,8 @@ import numpy as np
 
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
-from semslam.core.protocols import FramePacket, KeyframeSnapshot, TrackerInputs
-from semslam.core.types import TrackResult
+from semslam.core.protocols import FramePacket, TrackerInputs
+from semslam.core.types import KeyframeEvent, TrackResult
 from semslam.errors import ConfigError, WorkerFailed
 from semslam.features import create_extractor, feature_spec
 from semslam.geometry.camera import PinholeCamera
@@ -82,7 +85,7 @@ def _image_size(camera: PinholeCamera) -> tuple[int, int] | None:
 
 
 def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerInputs | None = None,
-                   map_path: Path | None = None) -> "OrbSlamSystem":
+                   map_path: Path | None = None) -> "OrbTracker":
     """The registry's factory: refuses a sensor it cannot run, loads a saved map."""
     if config.sensor == "mono" and config.depth.source == "sensor":  # pseudo-RGB-D needs a depth network
         raise ConfigError("sensor: mono has no sensor depth; tracking.method=orb_slam runs monocular frames on a "
@@ -92,10 +95,10 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerI
         from semslam.slam.map_io import load_map
 
         slam_map = load_map(map_path, feature_spec(config.features, _image_size(camera)))
-    return OrbSlamSystem(config, camera, inputs or TrackerInputs(SensorDepth()), slam_map)
+    return OrbTracker(config, camera, inputs or TrackerInputs(SensorDepth()), slam_map)
 
 
-class OrbSlamSystem:
+class OrbTracker:
     """Tracking + local mapping + loop closing over one map (``core.protocols.Tracker``)."""
 
     has_map = True
@@ -104,10 +107,7 @@ class OrbSlamSystem:
                  slam_map: Map | None = None) -> None:
         self.config = config
         self.camera = camera
-        self.map_builders = inputs.map_builders
-        # Builders that also take every other tracked frame (--save-inpainted).
-        self._frame_sinks = [b for b in self.map_builders if getattr(b, "wants_frames", False)]
-        self._fed_keyframes: list[KeyFrame] = []  # culled ones too: their points stay in the maps
+        self._announced: list[KeyFrame] = []  # culled ones too: their points stay in the maps
         self.threaded = not config.slam.sequential
         # One BA runner shared by local mapping and loop closing; owned (and closed) here.
         self.ba_runner = BundleAdjustmentRunner()
@@ -155,34 +155,18 @@ class OrbSlamSystem:
     def track(self, packet: FramePacket) -> TrackResult:
         self._raise_worker_error()
         result = self.tracking.track(packet)
-        if result.is_keyframe and self.map_builders:
-            self._feed_builders(packet)
-        elif self._frame_sinks and result.pose_wc is not None:
-            snap = self._snapshot(packet, -1, result.timestamp, result.pose_wc)
-            for sink in self._frame_sinks:
-                sink.add_frame(snap)
-        return result
-
-    def _snapshot(self, packet: FramePacket, kf_id: int, timestamp: float, T_wc: np.ndarray) -> KeyframeSnapshot:
-        """A frame, its pose and its final dynamic mask, as the map builders take it."""
-        dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
-        return KeyframeSnapshot(kf_id, timestamp, T_wc, packet.frame.rgb, self.tracking.depth.depth(packet.frame),
-                                dynamic, packet.labels, self.camera)
-
-    def _feed_builders(self, packet: FramePacket) -> None:
-        """A snapshot of the keyframe just made."""
-        kf = self.tracking.ref_kf
+        if not result.is_keyframe:
+            return result
+        kf = self.tracking.ref_kf  # the keyframe just made
         assert kf is not None
-        snap = self._snapshot(packet, kf.id, kf.timestamp, kf.T_wc)
-        for builder in self.map_builders:
-            builder.add_keyframe(snap)
-        self._fed_keyframes.append(kf)
+        self._announced.append(kf)
+        return replace(result, keyframe=KeyframeEvent(kf.id, kf.timestamp, kf.T_wc))
 
     def final_keyframe_poses(self) -> dict[int, np.ndarray]:
-        """``T_wc`` of every keyframe after the final optimisation (culled ones through the
-        spanning tree, as the trajectory does)."""
+        """``T_wc`` of every keyframe announced, after the final optimisation (culled ones
+        through the spanning tree, as the trajectory does)."""
         with self.map.lock:
-            return {kf.id: invert(_pose_cw_through_tree(np.eye(4), kf)) for kf in self._fed_keyframes}
+            return {kf.id: invert(_pose_cw_through_tree(np.eye(4), kf)) for kf in self._announced}
 
     @property
     def n_keyframes(self) -> int:
@@ -205,10 +189,6 @@ class OrbSlamSystem:
                 worker.stop()
         finally:
             self.ba_runner.close()
-        if self.map_builders:
-            poses = self.final_keyframe_poses()
-            for builder in self.map_builders:
-                builder.correct_poses(poses)
         self._raise_worker_error()
 
     def trajectory(self) -> Trajectory:

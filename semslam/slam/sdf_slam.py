@@ -26,10 +26,11 @@ SDFCNN; for tests the ``ground_truth_depth`` oracle), then the pose:
    power in log depth) and its 3D points and depth map take the fitted depth, so the points it
    places keep the map's scale; the last fit serves frames without one.
 6. Keyframe when the inliers fall below ``keyframe_min_inliers`` or the camera moved or
-   turned past the thresholds: its features join the feature tracks (local correction), a
-   snapshot with the predicted depth and the labels goes to the map builders (the semantic
-   cloud), and every ``global_every`` keyframes sampled keyframe pairs are solved and the
-   keyframe poses corrected in a GTSAM pose graph (``sdf_slam_correction``).
+   turned past the thresholds: its features join the feature tracks (local correction), the
+   result announces it with its predicted depth (the System feeds the map builders: the
+   semantic cloud), and every ``global_every`` keyframes sampled keyframe pairs are solved
+   and the keyframe poses corrected in a GTSAM pose graph (``sdf_slam_correction``); the
+   result carries the corrected poses.
 
 Frames are stored relative to their keyframe, so a corrected keyframe moves its frames
 (ORB-SLAM's SaveTrajectoryTUM). Everything runs in the caller's thread; the pose graph is
@@ -49,8 +50,8 @@ from numpy.typing import NDArray
 from semslam.backend.pose_graph import PoseGraphFailed
 from semslam.config import SystemConfig
 from semslam.core import registry
-from semslam.core.protocols import FramePacket, KeyframeSnapshot, MotionPrior, TrackerInputs
-from semslam.core.types import Keypoints, TrackingState, TrackResult
+from semslam.core.protocols import FramePacket, MotionPrior, TrackerInputs
+from semslam.core.types import KeyframeEvent, Keypoints, TrackingState, TrackResult
 from semslam.errors import ConfigError, DataError
 from semslam.features import create_extractor
 from semslam.features.matching import matcher_for, pairs_within_radius
@@ -125,7 +126,6 @@ class SdfSlamTracker:
         self.camera = camera
         self.depth = inputs.depth
         self.dynamics = inputs.dynamics
-        self.map_builders = inputs.map_builders
         size = (camera.width, camera.height) if camera.width > 0 else None
         self.extractor = create_extractor(config.features, size)
         self.spec = self.extractor.spec
@@ -158,6 +158,8 @@ class SdfSlamTracker:
         self._fits: list[tuple[float, float]] = []  # (power, median ratio) of every fit, for stats()
         self._min_points = max(2 * c.min_inliers, 50)  # keypoints with depth to start from (first, re-anchor)
         self._stopped = False
+        self._announced: KeyframeEvent | None = None  # the keyframe this frame made
+        self._corrected: dict[int, Array] | None = None  # keyframe poses this frame corrected
         self.counters = {"reanchors": 0, "fallback_reference": 0, "global_rounds": 0, "global_pairs_tried": 0,
                          "global_constraints": 0, "pose_graph_failed": 0, "alignment_kept": 0}
 
@@ -172,7 +174,7 @@ class SdfSlamTracker:
         t0 = time.perf_counter()
         kps = self.extractor.extract(frame.gray, mask)
         timings["extract"] = (time.perf_counter() - t0) * 1e3
-        packet.keypoints_xy = kps.xy
+        self._announced, self._corrected = None, None
         t0 = time.perf_counter()
         depth = self.depth.depth(frame)
         timings["depth"] = (time.perf_counter() - t0) * 1e3
@@ -184,7 +186,7 @@ class SdfSlamTracker:
                                                        f"for a {frame.rgb.shape[1]}x{frame.rgb.shape[0]} image")
         view = self._view(kps, depth)
         if not self.keyframes:
-            return self._initialise(packet, view, depth, len(kps), timings)
+            return self._initialise(packet, view, depth, kps, dynamic, timings)
 
         predicted = self._predict()
         fit = self._estimate(view, predicted, timings)
@@ -217,13 +219,14 @@ class SdfSlamTracker:
         return TrackResult(frame.timestamp, T_wc, state, n_matches=n_matches,
                            n_inliers=int(inl.sum()) if T_wc is not None else 0, n_keypoints=len(kps),
                            is_keyframe=is_kf, dynamic_ratio=float(dynamic.mean()) if dynamic is not None else 0.0,
-                           timings=timings)
+                           timings=timings, dynamic=dynamic, keypoints_xy=kps.xy, keyframe=self._announced,
+                           corrected_poses=self._corrected)
 
     def _align_depth(self, view: ViewFeatures, fit: _PoseFit) -> ViewFeatures:
         """The frame's 3D points with the predicted depth brought to the map's: fitted on its
         PnP inliers (``sdf_slam.depth_alignment``), else (a lost frame, too few inliers with
         depth, a fit out of bounds) by the last fit. The depth map follows at keyframes only
-        (``_feed_builders``): nothing else reads it."""
+        (``_announce``): nothing else reads it."""
         z = view.pts_c[:, 2]
         fitted: NDArray[np.intp] | None = None  # the inliers' indices into the view, when this frame was fitted
         if fit.T_wc is not None:
@@ -250,20 +253,21 @@ class SdfSlamTracker:
     def _to_world(view: ViewFeatures, T_wc: Array) -> Array:
         return view.pts_c @ T_wc[:3, :3].T + T_wc[:3, 3]
 
-    def _initialise(self, packet: FramePacket, view: ViewFeatures, depth: NDArray[np.float32], n_kps: int,
-                    timings: dict[str, float]) -> TrackResult:
+    def _initialise(self, packet: FramePacket, view: ViewFeatures, depth: NDArray[np.float32], kps: Keypoints,
+                    dynamic: NDArray[np.bool_] | None, timings: dict[str, float]) -> TrackResult:
         frame = packet.frame
         if view.has_depth.sum() < self._min_points:
-            return TrackResult(frame.timestamp, None, TrackingState.NOT_INITIALIZED, n_keypoints=n_kps,
-                               timings=timings)
+            return TrackResult(frame.timestamp, None, TrackingState.NOT_INITIALIZED, n_keypoints=len(kps),
+                               timings=timings, dynamic=dynamic, keypoints_xy=kps.xy)
         pose = np.eye(4)
         self._make_keyframe(packet, view, depth, pose, timings, weight=0.0)
         self._advance(pose)
         self._last_index = frame.index
         self._last_ref = _Reference(view, self._to_world(view, pose), -1)
         self._frames.append((frame.timestamp, 0, np.eye(4)))
-        return TrackResult(frame.timestamp, pose, TrackingState.OK, n_keypoints=n_kps, is_keyframe=True,
-                           timings=timings)
+        return TrackResult(frame.timestamp, pose, TrackingState.OK, n_keypoints=len(kps), is_keyframe=True,
+                           timings=timings, dynamic=dynamic, keypoints_xy=kps.xy, keyframe=self._announced,
+                           corrected_poses=self._corrected)
 
     def _advance(self, T_wc: Array) -> None:
         if self._last_wc is not None:  # after lost frames: from the prediction it was searched from
@@ -353,7 +357,7 @@ class SdfSlamTracker:
         kf = _Keyframe(len(self.keyframes), packet.frame.timestamp, T_wc.copy(), view, tracks)
         self.keyframes.append(kf)
         self._kf_ref = self._keyframe_reference(kf)
-        self._feed_builders(packet, kf, depth)
+        self._announce(kf, depth)
         timings["keyframe"] = (time.perf_counter() - t0) * 1e3
         if self.cfg.global_correction and len(self.keyframes) % self.cfg.global_every == 0:
             t0 = time.perf_counter()
@@ -373,16 +377,11 @@ class SdfSlamTracker:
     def _poses(self) -> Array:
         return np.stack([k.T_wc for k in self.keyframes]) if self.keyframes else np.zeros((0, 4, 4))
 
-    def _feed_builders(self, packet: FramePacket, kf: _Keyframe, depth: NDArray[np.float32]) -> None:
-        if not self.map_builders:
-            return
-        dynamic = packet.dynamic if isinstance(packet.dynamic, np.ndarray) else None
+    def _announce(self, kf: _Keyframe, depth: NDArray[np.float32]) -> None:
+        """The keyframe for the result, with the depth its points took."""
         if self.cfg.depth_alignment != "none":  # the frame's fit, as its points took it
             depth = self._alignment.apply(depth).astype(np.float32, copy=False)
-        snap = KeyframeSnapshot(kf.id, kf.timestamp, kf.T_wc.copy(), packet.frame.rgb, depth, dynamic,
-                                packet.labels, self.camera)
-        for builder in self.map_builders:
-            builder.add_keyframe(snap)
+        self._announced = KeyframeEvent(kf.id, kf.timestamp, kf.T_wc.copy(), depth)
 
     # ------------------------------------------------------------------ global correction
     def _global_correction(self, n_pairs: int) -> None:
@@ -420,8 +419,7 @@ class SdfSlamTracker:
             self._last_wc = last_kf.T_wc @ T_kf_last
         self._kf_ref = self._keyframe_reference(last_kf)
         self._last_ref = None  # its points were placed with the old pose
-        for builder in self.map_builders:
-            builder.correct_poses({kf.id: kf.T_wc.copy() for kf in self.keyframes})
+        self._corrected = {kf.id: kf.T_wc.copy() for kf in self.keyframes}
 
     # ------------------------------------------------------------------ Tracker contract
     @property
@@ -456,14 +454,12 @@ class SdfSlamTracker:
         raise ConfigError("--save-map needs a tracker with a map (tracking.method: orb_slam, e.g. --preset orb)")
 
     def shutdown(self) -> None:
-        """A last global correction round over the pairs not tried yet, then the final
-        keyframe poses to the map builders; safe to call twice."""
+        """A last global correction round over the pairs not tried yet; safe to call twice."""
         if self._stopped:
             return
         self._stopped = True
         if self.cfg.global_correction and len(self.keyframes) >= 3:
             self._global_correction(2 * self.cfg.global_pairs)
-        if self.map_builders and self.keyframes:
-            poses = {kf.id: kf.T_wc.copy() for kf in self.keyframes}
-            for builder in self.map_builders:
-                builder.correct_poses(poses)
+
+    def final_keyframe_poses(self) -> dict[int, Array]:
+        return {kf.id: kf.T_wc.copy() for kf in self.keyframes}

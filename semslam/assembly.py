@@ -1,0 +1,68 @@
+"""What a run is made of, built from its config: the depth source, the dynamic stage, the
+maps' worker and the tracker named by ``tracking.method`` (through the registry).
+
+``semslam.System`` builds these parts here and runs them; which tracker runs is
+configuration (adding one is a module with a ``create_tracker`` factory plus a registry
+line). The tracker is handed only what ``core.protocols.TrackerInputs`` holds: it never sees
+the map builders, the System feeds them from the tracker's results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from semslam.config import SystemConfig
+from semslam.core import registry
+from semslam.core.protocols import DepthSource, DynamicStage, MapStage, Tracker, TrackerInputs
+from semslam.dynamics.stage import create_dynamic_stage
+from semslam.features.jit import warm_up as warm_up_kernels
+from semslam.geometry.camera import PinholeCamera
+
+
+@dataclass
+class RunParts:
+    """The parts of one run; ``semslam.System`` owns them (and closes them)."""
+
+    depth: DepthSource
+    dynamics: DynamicStage | None
+    maps: MapStage | None
+    tracker: Tracker
+    #: Seconds spent building (or loading) the compiled kernels before the first frame.
+    jit_warmup_s: float
+
+
+def create_map_stage(config: SystemConfig) -> MapStage | None:
+    """Inpainting and every builder of ``maps.builders`` in the maps' own worker; None without maps."""
+    if not config.maps.builders:
+        return None
+    from semslam.reconstruction.mapping_worker import MappingWorker
+
+    # The worker segments keyframes tracking did not (a backend that reads its labels from the
+    # sequence, ground_truth, needs the frame's files: not from a snapshot).
+    segment = (config.maps.segment_keyframes and config.dynamics.semantic
+               and config.semantics.backend != "ground_truth")
+    return MappingWorker(config.maps.builders, config.maps, threaded=not config.slam.sequential,
+                         inpainted_dir=Path(config.maps.save_inpainted) if config.maps.save_inpainted else None,
+                         semantics=config.semantics if segment else None)
+
+
+def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None) -> RunParts:
+    """Every part of the run; what was built is closed again when a later part fails."""
+    create_tracker = registry.load("tracker", config.tracking.method)
+    # Compiled kernels are built (or loaded from disk) now, not inside the first frames.
+    jit_warmup_s = warm_up_kernels(("semslam.dynamics.multiview_kernels", "semslam.slam.row_kernels"))
+    depth: DepthSource = registry.create("depth_source", config.depth.source, config.depth.resolved(config.semantics))
+    maps = create_map_stage(config)
+    dynamics = None
+    try:
+        dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
+                                        threaded=not config.slam.sequential)
+        tracker: Tracker = create_tracker(config, camera, TrackerInputs(depth, dynamics), map_path)
+    except BaseException:
+        if maps is not None:
+            maps.close()
+        if dynamics is not None:
+            dynamics.close()
+        raise
+    return RunParts(depth, dynamics, maps, tracker, jit_warmup_s)
