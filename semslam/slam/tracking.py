@@ -2,6 +2,10 @@
 pose-only optimisation after each matching step, keyframe decision, relocalisation.
 
 The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comment says so.
+What predicts or corrects a pose besides the features (the constant velocity, blur
+coasting, depth odometry, a rolling shutter) are pose priors (``slam/motion_priors/``),
+asked at fixed points of the flow; the sensor's frames become ``FrameState`` through a
+frame builder (``slam/frame_builders.py``); the atlas's side is ``atlas.AtlasFollower``.
 """
 
 from __future__ import annotations
@@ -114,8 +118,16 @@ class Tracking:
         self.new_map_pending = False
 
     # ------------------------------------------------------------------ the priors' counters
+    def prior_counters(self) -> dict[str, int]:
+        """Every prior's counters (0 for a prior that is off)."""
+        counters = dict.fromkeys(("n_depth_odometry_frames", "n_depth_odometry_runs", "n_coasted_frames",
+                                  "n_coast_keyframes", "n_coast_shift_only"), 0)
+        for prior in self.priors:
+            counters.update(prior.counters())
+        return counters
+
     def _counter(self, name: str) -> int:
-        return sum(getattr(p, name, 0) for p in self.priors)
+        return self.prior_counters()[name]
 
     @property
     def n_depth_odometry_frames(self) -> int:

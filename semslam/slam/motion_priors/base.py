@@ -16,7 +16,8 @@ local map -> relocalisation -> keyframe decision) and asks its priors at fixed p
   pose is now the prior's own); once one prior has posed the frame the later ones leave it;
 * ``keyframe_wanted(...)``: asked of the prior that posed the frame, instead of ORB-SLAM's
   decision;
-* ``update(outcome)``: once per frame, with what tracking made of it.
+* ``update(outcome)``: once per frame, with what tracking made of it;
+* ``counters()``: what it did so far, for the run's stats.
 
 ``MotionState`` is the state the priors predict from: the last frame, whether it was
 tracked, and the velocity (``T_cw`` of this frame = ``velocity @ T_cw`` of the last) over
@@ -144,3 +145,7 @@ class PosePrior(Protocol):
         ...
 
     def update(self, outcome: FrameOutcome) -> None: ...
+
+    def counters(self) -> dict[str, int]:
+        """What the prior did so far, for the run's stats (names unique across priors)."""
+        ...

@@ -30,5 +30,8 @@ class ConstantVelocity:
                         orb_slam_wants: Callable[[], bool]) -> bool:
         return orb_slam_wants()
 
+    def counters(self) -> dict[str, int]:
+        return {}
+
     def update(self, outcome: FrameOutcome) -> None:
         """The velocity is tracking's motion state (``MotionState``), measured there."""

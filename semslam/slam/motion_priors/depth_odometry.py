@@ -135,6 +135,10 @@ class DepthOdometry:
             return False
         return orb_slam_wants() or ops.n_matches_inliers <= 15
 
+    def counters(self) -> dict[str, int]:
+        return {"n_depth_odometry_frames": self.n_depth_odometry_frames,
+                "n_depth_odometry_runs": self.n_depth_odometry_runs}
+
     def update(self, outcome: FrameOutcome) -> None:
         if outcome.tracked and not outcome.started_map and outcome.posed_by is not self \
                 and outcome.n_inliers >= self.cfg.depth_odometry_below:

@@ -55,6 +55,9 @@ class RollingShutter:
                         orb_slam_wants: Callable[[], bool]) -> bool:
         return orb_slam_wants()
 
+    def counters(self) -> dict[str, int]:
+        return {}
+
     def update(self, outcome: FrameOutcome) -> None:
         """Nothing kept: each frame starts from the motion state's velocity."""
 
