@@ -136,7 +136,7 @@ def test_save_load_and_localisation_only(rendered: tuple[list[Frame], np.ndarray
 
     # Localisation only in the loaded map: relocalise, track, add nothing.
     loc = _system(cam, "slam.localization_only=true", map_path=path)
-    n_kf = loc.n_keyframes
+    n_kf = loc.tracker.n_keyframes  # built now: the camera has no image size
     res = [_track(loc, f) for f in frames[60:]]
     loc.close()
     assert loc.n_keyframes == n_kf
