@@ -162,8 +162,8 @@ def _enospc(path: str) -> OSError:
 
 
 FAILURES = {
-    "save_map": ("semslam.slam.system.System.save_map", "map.npz"),
-    "maps": ("semslam.slam.system.System.write_maps", "map"),
+    "save_map": ("semslam.slam.orb_slam_system.OrbTracker.save_map", "map.npz"),
+    "maps": ("semslam.reconstruction.mapping_worker.MappingWorker.finish", "map"),
     "report": ("semslam.eval.report.write_report", "report.html"),
 }
 

@@ -22,7 +22,7 @@ from semslam.errors import DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam import map_io
 from semslam.slam.map_io import load_map, save_map
-from semslam.slam.system import System
+from semslam.api import System
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import rendered_frames
 
@@ -37,12 +37,12 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Frame], System
     r = Renderer(cfg)
     frames = rendered_frames(r, range(N_FRAMES))
     cam = PinholeCamera(*cfg.intrinsics(), width=cfg.width, height=cfg.height)
-    system = System(load_config("orb", ["slam.sequential=true"]), cam)
+    system = System(load_config("orb", ["slam.sequential=true"]), camera=cam)
     for f in frames:
-        system.track(f)
-    system.shutdown()
+        system.track_frame(system.prepare(f))
+    system.close()  # the final optimisation
     path = tmp_path_factory.mktemp("map") / "map.npz"
-    system.save_map(path)
+    system.tracker.save_map(path)
     return frames, system, path, cam, np.linalg.inv(r.poses[0]) @ r.poses
 
 
@@ -74,7 +74,7 @@ def test_save_load_save_gives_the_same_bytes(built: tuple[list[Frame], System, P
                                              tmp_path: Path) -> None:
     _, system, path, _, _ = built
     again = tmp_path / "again.npz"
-    system.save_map(again)  # the same map saved twice
+    system.tracker.save_map(again)  # the same map saved twice
     assert again.read_bytes() == path.read_bytes()
     loaded = load_map(path, system.tracker.map.spec)
     resaved = save_map(loaded, tmp_path / "resaved.npz")
@@ -121,10 +121,11 @@ def test_localising_in_the_loaded_map_gives_the_building_runs_poses(
     reference = system.trajectory()
     ref = {round(t, 6): T for t, T in zip(reference.timestamps, reference.poses)}
     last_kf_frame = max(k.frame_index for k in system.tracker.map.keyframes.values())
-    loc = System(load_config("orb", ["slam.sequential=true", "slam.localization_only=true"]), cam, path)
+    loc = System(load_config("orb", ["slam.sequential=true", "slam.localization_only=true"]), camera=cam,
+                 load_map=path)
     n_kf = loc.n_keyframes
-    results = [loc.track(f) for f in frames]
-    loc.shutdown()
+    results = [loc.track_frame(loc.prepare(f)) for f in frames]
+    loc.close()
     assert loc.n_keyframes == n_kf
     assert all(r.state is TrackingState.OK for r in results)
     to_build, build_to_truth, after_last_kf, rot = [], [], [], []

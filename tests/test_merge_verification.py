@@ -99,7 +99,7 @@ def renders(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def two_maps(renders: dict[str, Path]) -> Iterator[tuple[object, Path]]:
-    """A sequential run of jump_back that never merges: the OrbSlamSystem with its two maps."""
+    """A sequential run of jump_back that never merges: the OrbTracker with its two maps."""
     from semslam.api import System
     from semslam.slam.loop_closing import LoopClosing
 
@@ -109,7 +109,7 @@ def two_maps(renders: dict[str, Path]) -> Iterator[tuple[object, Path]]:
         slam = System("orb", camera=seq / "calib.txt", bgr=True, overrides=OVERRIDES)
         for bgr, depth, t in _frames(seq):
             slam.track(bgr, depth, t)
-    core = slam._slam.tracker  # the OrbSlamSystem (tests may look inside)
+    core = slam.tracker  # the OrbTracker (tests may look inside)
     assert len(core.atlas.live_maps()) == 2
     yield core, seq
     slam.close()

@@ -4,7 +4,7 @@ counted in a frame's time.
 
 Each kernel module exposes ``warm_up()``, which calls its kernels on tiny inputs of the
 types the pipeline uses; add new kernel modules of this layer or below to ``KERNEL_MODULES``,
-those of higher layers to the caller's ``more`` (``slam.system``).
+those of higher layers to the caller's ``more`` (``assembly``).
 """
 
 from __future__ import annotations
