@@ -199,13 +199,7 @@ class Tracking:
             else:
                 ok, posed_by = self._track_in_map(cur, images, timings)
                 if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
-                    t0 = time.perf_counter()
-                    T_posed = cur.T_cw.copy() if posed_by is not None else None
-                    dynamic = self._remove_moving(cur, depth, dynamic)
-                    if T_posed is not None:  # its refit on the few matches left would undo the prior's pose
-                        cur.T_cw = T_posed
-                        self.keep_matches_consistent(cur)
-                    timings["multiview"] = (time.perf_counter() - t0) * 1e3
+                    dynamic = self._check_moving(cur, depth, dynamic, posed_by, timings)
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
                     assert cur.T_cw is not None
@@ -305,6 +299,19 @@ class Tracking:
             return None
         velocity = self.velocity if self.state is TrackingState.OK else None
         return MotionPrior(last.index, last.T_cw, velocity)
+
+    def _check_moving(self, cur: FrameState, depth: NDArray[np.float32], dynamic: NDArray[np.bool_] | None,
+                      posed_by: PosePrior | None, timings: dict[str, float]) -> NDArray[np.bool_] | None:
+        """DDL-SLAM's multi-view check on a tracked frame (``_remove_moving``); a pose a prior
+        gave the frame stays, since a refit on the few matches left would undo it."""
+        t0 = time.perf_counter()
+        T_posed = cur.T_cw.copy() if posed_by is not None and cur.T_cw is not None else None
+        dynamic = self._remove_moving(cur, depth, dynamic)
+        if T_posed is not None:
+            cur.T_cw = T_posed
+            self.keep_matches_consistent(cur)
+        timings["multiview"] = (time.perf_counter() - t0) * 1e3
+        return dynamic
 
     def _remove_moving(self, cur: FrameState, depth: NDArray[np.float32],
                        dynamic: NDArray[np.bool_] | None) -> NDArray[np.bool_] | None:
