@@ -403,7 +403,7 @@ class System:
         # Interrupted: no report (its plots take a second or more) and no maps (`semslam map OUT`).
         failure = self._write_extras(parts, out, result, save_map if error is None else None,
                                      evaluation if report and not interrupted else None, interrupted)
-        result.tracker = self._tracker_stats(parts)  # now with the maps' counters
+        result.set_counters(self._tracker_stats(parts))  # now with the maps' counters
         if failure is not None:
             result.error = result.error or f"{type(failure).__name__}: {failure}"
         (out / "stats.json").write_text(json.dumps(result.to_dict(), indent=2))
@@ -453,7 +453,7 @@ class System:
         n = len(timing.frame_ms)
         counts = self._counts() if self._parts is not None else {}
         given = counts.get("frames", 0) + len(skipped)
-        return RunResult(
+        result = RunResult(
             sequence=self.name, preset=self.config.preset, out_dir=out, **counts,
             skipped_frames=len(skipped), skipped=list(skipped),
             frames_total=max(given, total or 0), frames_not_reached=max(0, (total or 0) - given),
@@ -469,10 +469,12 @@ class System:
             tracking_fps=1000.0 / float(np.mean(timing.frame_ms)) if n else 0.0,
             camera={"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width,
                     "height": cam.height, "dist": list(cam.dist), "source": cam.source},
-            tracker=self._tracker_stats(self._parts) if self._parts is not None else {}, paths=paths,
-            interrupted=timing.interrupted or isinstance(error, KeyboardInterrupt),
+            paths=paths, interrupted=timing.interrupted or isinstance(error, KeyboardInterrupt),
             error=None if error is None else f"{type(error).__name__}: {error}",
         )
+        if self._parts is not None:
+            result.set_counters(self._tracker_stats(self._parts))
+        return result
 
 
 def _attempt(failures: list[BaseException], path: Path, write: Callable[[], object]) -> None:

@@ -49,11 +49,17 @@ SYSTEM = {"jit_warmup_s": "tracking"}  # the numba warm-up before the first fram
 AFTER_TRACKER = {**SEMANTIC_THREAD, **MAPPING_WORKER, **INPUT_HEALTH, **SYSTEM}
 
 
+
+def _run_with(counters: dict[str, object]) -> RunResult:
+    result = RunResult("seq", "p", Path("out"))
+    result.set_counters(counters)
+    return result
+
 @pytest.mark.parametrize("reported", [{**ORB_TRACKER, **ATLAS, **AFTER_TRACKER}, {**SDF_TRACKER, **AFTER_TRACKER}],
                          ids=["orb", "sdf"])
 def test_every_reported_counter_lands_in_its_block_in_the_layout_order(reported: dict[str, str]) -> None:
     counters = {key: i for i, key in enumerate(reported)}  # distinct values: each must land in its own field
-    result = RunResult("seq", "p", Path("out"), tracker=counters)
+    result = _run_with(counters)
     assert result.other_counters == {}
     for key, block in reported.items():
         assert getattr(getattr(result, block), key) == counters[key], key
@@ -71,7 +77,7 @@ def test_layout_names_each_block_field_once_and_none_shadows_a_run_field() -> No
 
 
 def test_unknown_counters_are_kept_in_place_of_dropped() -> None:
-    result = RunResult("seq", "p", Path("out"), tracker={"loops": 2, "new_counter": [1, 2]})
+    result = _run_with({"loops": 2, "new_counter": [1, 2]})
     assert result.loop_closing.loops == 2 and result.other_counters == {"new_counter": [1, 2]}
     again = RunResult.from_dict(json.loads(json.dumps(result.to_dict())))
     assert again.other_counters == {"new_counter": [1, 2]} and again.to_dict() == result.to_dict()
@@ -85,16 +91,12 @@ def test_blocks_are_values() -> None:
     assert MapBuildingCounters().to_dict() == {}
 
 
-@pytest.mark.parametrize("how", ["set_counters", "tracker"])
-def test_counters_set_after_the_run_replace_every_block(how: str) -> None:
+def test_counters_set_after_the_run_replace_every_block() -> None:
     """The maps' counters come once the maps are written: setting the counters again
     replaces every block, and a counter not reported again is gone."""
-    result = RunResult("seq", "p", Path("out"), tracker={"map_points": 5, "coasted_frames": 1})
+    result = _run_with({"map_points": 5, "coasted_frames": 1})
     later = {"map_points": 6, "map_keyframes": 3}
-    if how == "tracker":
-        result.tracker = later
-    else:
-        result.set_counters(later)
+    result.set_counters(later)
     assert result.mapping.map_points == 6 and result.map_building.map_keyframes == 3
     assert result.tracking.coasted_frames is None
     assert result.to_dict()["map_keyframes"] == 3 and "coasted_frames" not in result.to_dict()

@@ -5,7 +5,7 @@ labels, tracking results. Plain data with no behaviour beyond small derived prop
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import InitVar, asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields
 from enum import Enum
 from functools import cached_property
 from pathlib import Path
@@ -221,7 +221,7 @@ class RunResult:
 
     The components' counters are one typed block each (``tracking``, ``mapping``,
     ``loop_closing``, ``atlas``, ``dynamics``, ``map_building``, ``input_health``;
-    ``core.results``), at the top level of ``stats.json``; ``tracker=`` takes them as the
+    ``core.results``), at the top level of ``stats.json``; ``set_counters`` takes them as the
     one flat dict the components report. ``ate`` / ``rpe_*`` hold evo-style statistics
     (rmse, mean, median, std, min, max) in metres / degrees when the sequence has ground truth.
     """
@@ -282,12 +282,6 @@ class RunResult:
     input_health: InputHealthCounters = field(default_factory=InputHealthCounters)
     #: Counters no block knows (a component's new counter): kept and written as reported.
     other_counters: dict[str, object] = field(default_factory=dict)
-    #: The components' counters as one flat dict (``stats.json`` names), into the blocks.
-    tracker: InitVar[Mapping[str, object] | None] = None
-
-    def __post_init__(self, tracker: Mapping[str, object] | None) -> None:
-        if tracker:
-            self.set_counters(tracker)
 
     @property
     def ate_rmse(self) -> float | None:
@@ -325,13 +319,3 @@ class RunResult:
         result = cls(**known)  # type: ignore[arg-type]
         result.set_counters({k: v for k, v in d.items() if k not in names})
         return result
-
-    def get(self, key: str, default: object = None) -> object:
-        """A field or a counter by its ``stats.json`` name (``loops``, ``map_points``, ...)."""
-        return self.to_dict().get(key, default)
-
-
-# ``result.tracker = counters`` (the API's System, once the maps are written and report
-# theirs) is ``set_counters``: assigning to the init-only field would otherwise change nothing.
-# Read, it gives the counters (``dataclasses.replace`` passes them on to the copy).
-RunResult.tracker = property(RunResult.counters, RunResult.set_counters)  # type: ignore[assignment]
