@@ -282,7 +282,7 @@ def test_depth_alignment_recovers_scale_and_power_among_outliers() -> None:
     from semslam.errors import ConfigError
 
     with pytest.raises(ConfigError, match="sdf_slam.depth_alignment"):
-        load_config("sdf", ["sdf_slam.depth_alignment=affine"]).sdf_slam.check()
+        load_config("sdf", ["sdf_slam.depth_alignment=affine"])
 
 
 class _DriftingDepth:

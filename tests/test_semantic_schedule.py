@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from semslam.config import SemanticsConfig, load_config
+from semslam.config.checks import check_values
 from semslam.core import registry
 from semslam.core.protocols import MotionPrior
 from semslam.core.types import Frame, LabelMap
@@ -276,13 +277,13 @@ def test_stride_warps_skipped_frames_with_the_motion_model(segmenter: _Blocking,
 
 @pytest.mark.parametrize(("field", "value", "message"), [
     ("schedule", "sometimes", "semantics.schedule: expected one of every, when_behind, latest, got 'sometimes'"),
-    ("stride", 0, "semantics.stride: expected 1 .* or more, got 0"),
+    ("stride", 0, "semantics.stride: expected an integer >= 1, got 0"),
     ("warp", "flow", "semantics.warp: expected one of pose, none, got 'flow'"),
-    ("warp_margin_px", -2, "semantics.warp_margin_px: expected a margin >= 0 px, got -2"),
+    ("warp_margin_px", -2, r"semantics.warp_margin_px: expected an integer in \[0, 10000\], got -2"),
 ])
 def test_schedule_config_errors(field: str, value: object, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
-        SemanticsConfig(**{field: value}).check()  # type: ignore[arg-type]
+        check_values(SemanticsConfig(**{field: value}), "semantics")  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match=message):
         load_config("default", [f"semantics.{field}={value}"])
 

@@ -77,7 +77,7 @@ def test_config_defaults_and_checks() -> None:
     for bad in (dict(srm_window=16), dict(srm_window=0), dict(srm_tau_m=0.0), dict(threshold=1.5),
                 dict(input_width=-1), dict(dynamic_classes="person")):
         with pytest.raises(ConfigError):
-            SemanticsConfig(**bad).check()  # type: ignore[arg-type]
+            create_segmenter(SemanticsConfig(**bad))  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------- dynamic_mask and registry

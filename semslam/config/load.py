@@ -122,8 +122,6 @@ def _check(cfg: SystemConfig) -> None:
         raise ConfigError(f"sensor: unknown sensor {cfg.sensor!r} (known: {', '.join(SENSORS)})")
     cfg.features.check()
     cfg.semantics.check()
-    cfg.slam.check()
-    cfg.sdf_slam.check()
     check_values(cfg)
 
 

@@ -131,28 +131,6 @@ class SdfSlamConfig:
     depth_alignment: str = "none"
     alignment_min_points: int = 50
 
-    def check(self) -> None:
-        """Raise ConfigError on values the tracker cannot use."""
-        if self.reference not in ("keyframe", "frame"):
-            raise ConfigError(f"sdf_slam.reference: expected keyframe or frame, got {self.reference!r}")
-        if not 0.0 < self.ratio <= 1.0:
-            raise ConfigError(f"sdf_slam.ratio: expected a ratio in (0, 1], got {self.ratio}")
-        if self.min_inliers < 6:
-            raise ConfigError(f"sdf_slam.min_inliers: PnP needs at least 6, got {self.min_inliers}")
-        if not 0.0 < self.min_depth_m < self.max_depth_m:
-            raise ConfigError(f"sdf_slam.min_depth_m / sdf_slam.max_depth_m: expected 0 < min < max, "
-                              f"got {self.min_depth_m} / {self.max_depth_m}")
-        if self.depth_alignment not in ("none", "scale", "power"):
-            raise ConfigError(f"sdf_slam.depth_alignment: expected none, scale or power, got {self.depth_alignment!r}")
-        if self.min_parallax_deg < 0:
-            raise ConfigError(f"sdf_slam.min_parallax_deg: expected >= 0 (0 = off), got {self.min_parallax_deg}")
-        if self.alignment_min_points < 3:
-            raise ConfigError(f"sdf_slam.alignment_min_points: expected >= 3, got {self.alignment_min_points}")
-        if self.global_every < 1:
-            raise ConfigError(f"sdf_slam.global_every: expected >= 1, got {self.global_every}")
-        if self.global_pairs < 0:
-            raise ConfigError(f"sdf_slam.global_pairs: expected >= 0, got {self.global_pairs}")
-
 
 @dataclass
 class SlamConfig:
@@ -266,15 +244,6 @@ class SlamConfig:
     # merge when one sees a place of another. 0 or negative: ORB-SLAM2, stay lost.
     new_map_after_s: float = 1.0
 
-    def check(self) -> None:
-        """Raise ConfigError on values the core cannot use (the config loader checks types only)."""
-        if self.depth_odometry != "none" and self.depth_odometry not in DEPTH_ODOMETRY_METHODS:
-            raise ConfigError(f"slam.depth_odometry: expected none, {', '.join(DEPTH_ODOMETRY_METHODS)}, "
-                              f"got {self.depth_odometry!r}")
-        if not 0.0 <= self.yield_to_tracking_ms <= 1000.0:
-            raise ConfigError(f"slam.yield_to_tracking_ms: expected 0 (never wait) to 1000 ms, "
-                              f"got {self.yield_to_tracking_ms}")
-
 
 @dataclass
 class DynamicsConfig:
@@ -351,30 +320,14 @@ class SemanticsConfig:
     warp_margin_px: int = 8
 
     def check(self) -> None:
-        """Raise ConfigError on values no backend can use (the config loader checks types only)."""
-        if not self.backend:
-            raise ConfigError("semantics.backend: empty backend name")
+        """What the per-field rules (``config/checks.py``) cannot say: a list of names, an
+        odd window."""
         if not isinstance(self.dynamic_classes, list) or not all(isinstance(c, str) for c in self.dynamic_classes):
             raise ConfigError(
                 f"semantics.dynamic_classes: expected a list of class names, got {self.dynamic_classes!r}"
             )
-        if not 0.0 <= self.threshold < 1.0:
-            raise ConfigError(f"semantics.threshold: expected a value in [0, 1), got {self.threshold}")
-        if self.srm_window < 1 or self.srm_window % 2 == 0:
+        if self.srm_window % 2 == 0:
             raise ConfigError(f"semantics.srm_window: expected an odd window size >= 1, got {self.srm_window}")
-        if not self.srm_tau_m > 0.0:
-            raise ConfigError(f"semantics.srm_tau_m: expected a positive depth step in metres, got {self.srm_tau_m}")
-        if self.input_width < 0:
-            raise ConfigError(f"semantics.input_width: expected 0 (native) or a width in px, got {self.input_width}")
-        if self.schedule not in SEMANTIC_SCHEDULES:
-            raise ConfigError(f"semantics.schedule: expected one of {', '.join(SEMANTIC_SCHEDULES)}, "
-                              f"got {self.schedule!r}")
-        if self.stride < 1:
-            raise ConfigError(f"semantics.stride: expected 1 (segment every frame) or more, got {self.stride}")
-        if self.warp not in MASK_WARPS:
-            raise ConfigError(f"semantics.warp: expected one of {', '.join(MASK_WARPS)}, got {self.warp!r}")
-        if self.warp_margin_px < 0:
-            raise ConfigError(f"semantics.warp_margin_px: expected a margin >= 0 px, got {self.warp_margin_px}")
 
 
 @dataclass

@@ -19,6 +19,7 @@ from semslam.core import registry
 from semslam.core.protocols import Segmenter
 from semslam.core.types import LabelMap
 from semslam.errors import ConfigError
+from semslam.config.checks import check_values
 from semslam.config import SemanticsConfig
 from semslam.core.labels import KNOWN_CLASS_NAMES
 from semslam.core.map_classes import possible_class_names
@@ -54,6 +55,7 @@ def missing_package_error(backend: str, package: str) -> ConfigError:
 
 def create_segmenter(cfg: SemanticsConfig) -> Segmenter:
     """Build the configured backend; ConfigError for unknown names, bad settings or missing packages."""
+    check_values(cfg, "semantics")
     cfg.check()
     name = registry.resolve("segmenter", cfg.backend)
     try:

@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 
 from semslam.backend.pose_graph import PoseGraphFailed
 from semslam.config import SystemConfig
+from semslam.config.checks import check_values
 from semslam.core import registry
 from semslam.core.protocols import FramePacket, MotionPrior, TrackerInputs
 from semslam.core.types import KeyframeEvent, Keypoints, TrackingState, TrackResult
@@ -83,7 +84,7 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerI
     if config.sensor == "mono" and config.depth.source == "sensor":
         raise ConfigError("depth.source: a monocular sequence has no sensor depth; tracking.method=sdf_slam needs "
                           "a depth network (depth.source: sdfcnn) or, to test the tracker, ground_truth_depth")
-    config.sdf_slam.check()
+    check_values(config.sdf_slam, "sdf_slam")
     return SdfSlamTracker(config, camera, inputs)
 
 
