@@ -18,9 +18,11 @@ import pytest
 
 from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
 from semslam.frontend.sharpness import sharpness
+from semslam.api import System
 from semslam.cli.main import main
 from semslam.cli.run_cmd import rolling_shutter_flags
 from semslam.config import load_config
+from semslam.core.protocols import FramePacket
 from semslam.core.types import Frame, TrackingState
 from semslam.errors import ConfigError, DataError
 from semslam.eval.metrics import ate
@@ -31,7 +33,6 @@ from semslam.io.calibration import rolling_shutter_ms_from_folder
 from semslam.core.trajectory import Trajectory
 from semslam.slam.motion_priors import blur_coast, sharpness_history
 from semslam.slam.motion_priors.blur_coast import BlurCoast
-from semslam.slam.system import System
 from semslam.slam.tracking import Tracking
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import rendered_frames, write_tum_folder
@@ -49,11 +50,11 @@ def blurred() -> tuple[list[Frame], np.ndarray, PinholeCamera]:
 
 def _ate_cm(frames: list[Frame], poses: np.ndarray, cam: PinholeCamera, *overrides: str) -> tuple[float, int, dict]:
     system = System(load_config("orb", ["slam.sequential=true", *overrides]), cam)
-    states = [system.track(f).state for f in frames]
-    system.shutdown()
+    states = [system.track_frame(system.prepare(f)).state for f in frames]
+    system.close()
     times = np.array([f.timestamp for f in frames])
     e = ate(Trajectory(times, poses[[f.index for f in frames]]), system.trajectory(), align="se3").stats["rmse"]
-    return e * 100, states.count(TrackingState.OK), system.stats()
+    return e * 100, states.count(TrackingState.OK), system.tracker.stats()
 
 
 @pytest.mark.slow
@@ -169,7 +170,7 @@ def test_sharpness_measured_ahead_by_the_reader_tracks_the_same(
     frames, _poses, cam = blurred
     off = System(load_config("orb", ["slam.sequential=true"]), cam)
     assert off.prepare(frames[0]).sharpness is None  # nothing compares it: not measured
-    off.shutdown()
+    off.close()
     runs = []
     for ahead in (False, True):
         system = System(load_config("orb", ["slam.sequential=true", "slam.blur_coast_sharp_ratio=0.6"]), cam)
@@ -180,11 +181,11 @@ def test_sharpness_measured_ahead_by_the_reader_tracks_the_same(
                 assert packet.sharpness == sharpness(f.gray)
                 with monkeypatch.context() as m:  # tracking takes the packet's value
                     m.setattr(sharpness_history, "sharpness", _not_again)
-                    system.track(packet)
+                    system.tracker.track(packet)
             else:
-                system.track(f)
-        system.shutdown()
-        runs.append((system.trajectory().poses, system.stats()["coasted_frames"]))
+                system.tracker.track(FramePacket(f))
+        system.close()
+        runs.append((system.trajectory().poses, system.tracker.stats()["coasted_frames"]))
     assert runs[0][1] >= 3 and runs[1][1] == runs[0][1]
     assert np.array_equal(runs[0][0], runs[1][0])
 
@@ -200,9 +201,9 @@ def test_coasting_leaves_a_sharp_glance_to_the_byte() -> None:
     for overrides in ([], ["slam.blur_coast_sharp_ratio=0.6"]):
         system = System(load_config("orb", ["slam.sequential=true", *overrides]), cam)
         for f in frames:
-            system.track(f)
-        system.shutdown()
-        assert system.stats()["coasted_frames"] == 0
+            system.track_frame(system.prepare(f))
+        system.close()
+        assert system.tracker.stats()["coasted_frames"] == 0
         trajectories.append(system.trajectory().poses)
     assert len(trajectories[0]) == len(frames)
     assert np.array_equal(trajectories[0], trajectories[1])
@@ -266,12 +267,12 @@ def test_coast_whose_matches_run_out_keeps_the_shifts_rotation(
 
     def run() -> tuple[list[TrackingState], dict, list[float]]:
         system = System(load_config("orb", ["slam.sequential=true", "slam.blur_coast_sharp_ratio=0.6"]), cam)
-        states = [system.track(f).state for f in frames]
-        system.shutdown()
+        states = [system.track_frame(system.prepare(f)).state for f in frames]
+        system.close()
         R0 = poses[frames[0].index][:3, :3]
         err = [rotation_angle_deg(T[:3, :3].T @ (R0.T @ poses[f.index][:3, :3]))
                for T, f in zip(system.trajectory().poses, frames)]
-        return states, system.stats(), err
+        return states, system.tracker.stats(), err
 
     _, _, err_fitted = run()
     monkeypatch.setattr(blur_coast, "fit_rotation_about_centre", none_left_when_continuing)

@@ -114,7 +114,7 @@ class Tracking:
         # Lost frames have no pose and are not recorded (ORB-SLAM's SaveTrajectoryTUM skips them).
         self.trajectory_refs: list[tuple[float, KeyFrame, NDArray[np.float64]]] = []
         # Multi-map atlas (ORB-SLAM3): a new map is wanted once lost long enough.
-        self.atlas = AtlasFollower(atlas) if atlas is not None else None
+        self.atlas_follower = AtlasFollower(atlas) if atlas is not None else None
         self.new_map_pending = False
 
     # ------------------------------------------------------------------ the priors' counters
@@ -211,8 +211,8 @@ class Tracking:
                         cur.T_cw = self.last.T_cw.copy() if self.last is not None and self.last.T_cw is not None else np.eye(4)
             if cur.ref_kf is None:
                 cur.ref_kf = self.ref_kf
-            if self.atlas is not None:
-                self.atlas.apply_world_change(cur)  # a merge inside this frame's keyframe (sequential)
+            if self.atlas_follower is not None:
+                self.atlas_follower.apply_world_change(cur)  # a merge inside this frame's keyframe (sequential)
             recorded_at = self._record(cur) if self.state is TrackingState.OK else None
             self.last = cur
             outcome = FrameOutcome(cur, images, self.state is TrackingState.OK, started_map, posed_by, is_kf,
@@ -271,8 +271,8 @@ class Tracking:
         last = self.last
         self.velocity = cur.T_cw @ invert(last.T_cw) if last is not None and last.T_cw is not None else None
         self.velocity_dt = cur.timestamp - last.timestamp if last is not None else 0.0
-        if self.atlas is not None:
-            self.atlas.tracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt)
+        if self.atlas_follower is not None:
+            self.atlas_follower.tracked(cur.timestamp, cur.T_cw.copy(), self.velocity, self.velocity_dt)
         is_kf = False
         if not self.cfg.localization_only and self._keyframe_wanted(cur, posed_by):
             t0 = time.perf_counter()
@@ -352,9 +352,9 @@ class Tracking:
     def _follow_atlas(self, timestamp: float) -> None:
         """Under the map lock before a frame: the last frame into its map's new world after
         a merge; a new map once lost long enough, which the next frame starts."""
-        if self.atlas is None:
+        if self.atlas_follower is None:
             return
-        if self.atlas.new_map_wanted(self.last, self.state is TrackingState.LOST, self.new_map_pending, timestamp):
+        if self.atlas_follower.new_map_wanted(self.last, self.state is TrackingState.LOST, self.new_map_pending, timestamp):
             self.new_map_pending = True
             self.velocity = None
             self.local_kfs = []
@@ -712,8 +712,8 @@ class Tracking:
             if n_good >= 50:
                 self.ref_kf = kf
                 cur.ref_kf = kf
-                if self.atlas is not None:
-                    self.atlas.relocalised(kf, cur)  # in another map's keyframe: tracking goes on there
+                if self.atlas_follower is not None:
+                    self.atlas_follower.relocalised(kf, cur)  # in another map's keyframe: tracking goes on there
                 return True
         cur.clear_points()
         cur.T_cw = None
