@@ -184,7 +184,7 @@ class SlamConfig:
     # only its rotation from its matches (geometry/rotation_about_centre.py: on a blurred
     # frame a 6-DoF fit slides along a far wall). It is not lost and makes no keyframe (its
     # keypoints, smeared along the streak, would put points centimetres off; the third sharp,
-    # slowly turning coasted frame in a row does, slam/tracking.py COAST_SETTLED_FRAMES), for at most
+    # slowly turning coasted frame in a row does, slam/motion_priors/blur_coast.py COAST_SETTLED_FRAMES), for at most
     # blur_coast_max_frames in a row; once features track again the coasted centres are
     # re-interpolated between the steady frames either side. Until a frame is blurred nothing
     # changes (a sequence without blur gives the same bytes). 0 = off (ORB-SLAM2); `default`

@@ -195,7 +195,7 @@ class Tracking:
                 timings["track"] = (time.perf_counter() - t0) * 1e3
                 if not ok:
                     return TrackResult(frame.timestamp, None, self.state, n_keypoints=len(kps), timings=timings,
-                                       keypoints_xy=kps.xy)
+                                       dynamic=dynamic, keypoints_xy=kps.xy)
             else:
                 ok, posed_by = self._track_in_map(cur, images, timings)
                 if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
