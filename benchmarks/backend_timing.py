@@ -381,7 +381,7 @@ def slam_run(seq: Path, preset: str, frames: int | None, out_dir: Path,
     from semslam.config import load_config
     from semslam.io.sequence import open_sequence
     from semslam.pipeline import run_slam
-    from semslam.slam import local_mapping, map as map_mod
+    from semslam.slam.orb import local_mapping, map as map_mod
 
     locks: list[TimedLock] = []
     mappers: list[Any] = []

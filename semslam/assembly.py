@@ -51,7 +51,7 @@ def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None 
     """Every part of the run; what was built is closed again when a later part fails."""
     create_tracker = registry.load("tracker", config.tracking.method)
     # Compiled kernels are built (or loaded from disk) now, not inside the first frames.
-    jit_warmup_s = warm_up_kernels(("semslam.dynamics.multiview_kernels", "semslam.slam.row_kernels"))
+    jit_warmup_s = warm_up_kernels(("semslam.dynamics.multiview_kernels", "semslam.slam.orb.row_kernels"))
     depth: DepthSource = registry.create("depth_source", config.depth.source, config.depth.resolved(config.semantics))
     maps = create_map_stage(config)
     dynamics = None

@@ -7,8 +7,8 @@ import numpy as np
 
 from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
 from semslam.geometry.se3 import invert
-from semslam.slam.map import KeyFrame, Map
-from semslam.slam.point_store import MapPoint
+from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.point_store import MapPoint
 
 
 def random_map(rng: np.random.Generator, spec: FeatureSpec, n_kf: int = 12, n_kp: int = 60,

@@ -62,7 +62,7 @@ def test_threaded_jump_back_merges_right_or_not_at_all(renders: dict[str, Path],
     """Threaded, tracking runs ahead of local mapping and loses the young second map on the
     turn back, then relocalises in the first map; loop closing's merge hint (the left map's
     last keyframes against the keyframes where tracking went on, bridged by the motion
-    model) tries the merge, through the same checks as any (slam/merge_check.py). Not
+    model) tries the merge, through the same checks as any (slam/orb/merge_check.py). Not
     deterministic: with the final checks merged in 1 of 6 runs on 2026-12-04 (within 2 cm
     at the weld); the others kept the maps apart, some candidates 15-24 cm / 6-8 deg off the
     truth (the left map's last keyframes, placed before local mapping caught up on the fast
@@ -89,7 +89,7 @@ def test_bridge_is_the_map_change_the_motion_model_implies() -> None:
     frame; ``S`` (new world <- left world) follows exactly for an exact motion."""
     from types import SimpleNamespace
 
-    from semslam.slam.atlas import AtlasFollower, LastTracked
+    from semslam.slam.orb.atlas import AtlasFollower, LastTracked
 
     rng = np.random.default_rng(5)
     S = make_pose(so3_exp(rng.normal(size=3)), rng.normal(size=3))
@@ -139,7 +139,7 @@ def test_merge_transform_puts_the_weld_keyframe_where_the_match_says() -> None:
     other way round when cand's map is the one moved."""
     from types import SimpleNamespace
 
-    from semslam.slam.map_merging import merge_transform
+    from semslam.slam.orb.map_merging import merge_transform
 
     rng = np.random.default_rng(3)
 
@@ -157,7 +157,7 @@ def test_merge_transform_puts_the_weld_keyframe_where_the_match_says() -> None:
 def test_reroot_hangs_the_moved_tree_under_the_anchor() -> None:
     """The parent chain from the weld keyframe to its map's root is reversed (ORB-SLAM3):
     one tree, no cycle, children sets consistent with parents."""
-    from semslam.slam.map_merging import _reroot
+    from semslam.slam.orb.map_merging import _reroot
 
     class Node:
         def __init__(self, name: str) -> None:

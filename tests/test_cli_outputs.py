@@ -162,7 +162,7 @@ def _enospc(path: str) -> OSError:
 
 
 FAILURES = {
-    "save_map": ("semslam.slam.orb_slam_system.OrbTracker.save_map", "map.npz"),
+    "save_map": ("semslam.slam.orb.tracker.OrbTracker.save_map", "map.npz"),
     "maps": ("semslam.reconstruction.mapping_worker.MappingWorker.finish", "map"),
     "report": ("semslam.eval.report.write_report", "report.html"),
 }

@@ -29,7 +29,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.io.depth import SensorDepth
 from semslam.io.sequence import ImageFolderSequence, open_sequence
 from semslam.reconstruction.keyframe_cloud import KeyframeCloud
-from semslam.slam.keyframe_worker import KeyframeInbox
+from semslam.slam.orb.keyframe_worker import KeyframeInbox
 from semslam.synth import SEQUENCES, Renderer, render_sequence
 
 CAM = PinholeCamera(535.4, 539.2, 320.1, 247.6, width=640, height=480)  # sized: the System is built at once
@@ -172,7 +172,7 @@ def test_inbox_pause_waits_for_the_keyframe_in_hand_and_holds_the_queue() -> Non
 # ---------------------------------------------------------------- failures
 def test_worker_exception_ends_the_run_with_one_line_after_writing(
         static_seq: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    from semslam.slam.local_mapping import LocalMapping
+    from semslam.slam.orb.local_mapping import LocalMapping
 
     def boom(self: LocalMapping, kf: object) -> None:
         raise RuntimeError("injected failure")
@@ -304,7 +304,7 @@ def test_the_tracker_takes_its_depth_from_its_source(static_seq: Path) -> None:
             calls.append(frame.index)
             return super().depth(frame)
 
-    from semslam.slam.orb_slam_system import OrbTracker
+    from semslam.slam.orb.tracker import OrbTracker
 
     tracker = OrbTracker(load_config("orb", ["slam.sequential=true"]), seq.camera, TrackerInputs(CountingDepth()))
     frames = list(seq.frames(0, 5))

@@ -1,4 +1,4 @@
-"""Frame builders (``slam/frame_builders.py``): RGB-D frames carry each keypoint's depth and
+"""Frame builders (``slam/orb/frame_builders.py``): RGB-D frames carry each keypoint's depth and
 virtual right coordinate; monocular frames carry none."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import numpy as np
 from semslam.config import load_config
 from semslam.core.types import Keypoints
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.frame_builders import MonocularFrameBuilder, RgbdFrameBuilder, frame_builder
-from semslam.slam.frame_to_keyframe import sample_depth
+from semslam.slam.orb.frame_builders import MonocularFrameBuilder, RgbdFrameBuilder, frame_builder
+from semslam.frontend.keypoint_depth import sample_depth
 
 CAM = PinholeCamera(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
 BF = 40.0

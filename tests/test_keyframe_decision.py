@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from semslam.config.schema import SlamConfig
-from semslam.slam.tracking import Tracking
+from semslam.slam.orb.tracking import Tracking
 
 
 def _tracker(inliers: int, queued: int, **cfg: object) -> tuple[SimpleNamespace, SimpleNamespace]:

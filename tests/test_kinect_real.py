@@ -29,7 +29,7 @@ from semslam.geometry.se3 import invert, pose_from_tum, rotation_angle
 from semslam.io.images import read_depth, read_rgb
 from semslam.core.protocols import FramePacket
 from semslam.core.types import Frame
-from semslam.slam.frame_to_keyframe import FrameToKeyframeTracker
+from semslam.slam.trackers.frame_to_keyframe import FrameToKeyframeTracker
 from semslam.core.types import TrackingState
 
 CAMERA = PinholeCamera(518.0, 519.0, 325.5, 253.5)  # from the data's README

@@ -21,15 +21,15 @@ import pytest
 from semslam.config import load_config
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.core.types import Keypoints, orb_spec
-from semslam.slam.fusion import PointFusion
-from semslam.slam.keyframe_worker import KeyframeInbox
+from semslam.slam.orb.fusion import PointFusion
+from semslam.slam.orb.keyframe_worker import KeyframeInbox
 from semslam.geometry.alignment import AlignmentError
 from semslam.geometry.camera import PinholeCamera
 from semslam.place.database import KeyframeDatabase
 from semslam.place.vocabulary import BowVector
-from semslam.slam.loop_closing import LoopClosing, ransac_se3
-from semslam.slam.loop_consistency import Candidate, ConsistentGroup, LoopConsistency
-from semslam.slam.map import KeyFrame, Map
+from semslam.slam.orb.loop_closing import LoopClosing, ransac_se3
+from semslam.slam.orb.loop_consistency import Candidate, ConsistentGroup, LoopConsistency
+from semslam.slam.orb.map import KeyFrame, Map
 
 
 def _cand(kf_id: int, *covisibles: int) -> Candidate:
@@ -223,7 +223,7 @@ def test_ransac_se3_skips_degenerate_samples() -> None:
 
 def test_ransac_se3_lets_other_errors_through(monkeypatch: pytest.MonkeyPatch) -> None:
     """Only a degenerate sample is swallowed; a bug in the solver must surface."""
-    import semslam.slam.loop_closing as lc
+    import semslam.slam.orb.loop_closing as lc
 
     def broken(*_: Any, **__: Any) -> Any:
         raise IndexError("bug")

@@ -8,9 +8,9 @@ import pytest
 
 from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints, orb_spec
 from semslam.features.matching import matcher_for
-from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
-from semslam.slam.map_batch import compute_distinctive_descriptors
-from semslam.slam.point_store import MapPoint
+from semslam.slam.orb.map import KeyFrame, Map, update_normals_and_depths
+from semslam.slam.orb.map_batch import compute_distinctive_descriptors
+from semslam.slam.orb.point_store import MapPoint
 from tests.map_world import random_map
 
 
@@ -119,7 +119,7 @@ def test_update_normals_and_depths_equals_per_point() -> None:
 def test_hamming_kernel_equals_generic_path() -> None:
     """The compiled Hamming choice and the matcher-based one agree (odd and even counts,
     ties included: descriptors drawn from few distinct values)."""
-    from semslam.slam.map_batch import _POPCOUNT, _generic_choice, _hamming_choice
+    from semslam.slam.orb.map_batch import _POPCOUNT, _generic_choice, _hamming_choice
 
     rng = np.random.default_rng(4)
     cnt = rng.integers(1, 12, 400).astype(np.intp)
@@ -136,8 +136,8 @@ def test_ba_problem_from_an_observation_table_equals_the_direct_one() -> None:
     """build_ba_problem gives the same arrays whether it walks the observations itself or
     gets local mapping's one-pass table of every observer."""
     from semslam.geometry.camera import PinholeCamera
-    from semslam.slam.local_mapping import build_ba_problem
-    from semslam.slam.map_batch import observation_table
+    from semslam.slam.orb.local_mapping import build_ba_problem
+    from semslam.slam.orb.map_batch import observation_table
 
     rng = np.random.default_rng(5)
     m, points = _world(rng, orb_spec(1.2, 8))
@@ -164,7 +164,7 @@ def _fusion_world() -> tuple[Map, list[KeyFrame], list[MapPoint], list[MapPoint]
     """Three keyframes looking at 30 points; keyframes 0 and 1 share points ``a`` (also seen
     by keyframe 2), keyframe 2 has its own duplicates ``b`` of the same 3D points at the same
     keypoints."""
-    from semslam.slam.map import update_normals_and_depths
+    from semslam.slam.orb.map import update_normals_and_depths
 
     rng = np.random.default_rng(6)
     m = Map(orb_spec(1.2, 8))
@@ -203,7 +203,7 @@ def test_fusion_plan_reads_only_and_apply_merges_duplicates() -> None:
     keyframe 2 find b's duplicates and replace them (a has more observations); points
     keyframe 2 already observes are not planned; matches gone stale are dropped."""
     from semslam.geometry.camera import PinholeCamera
-    from semslam.slam.fusion import PointArrays, PointFusion
+    from semslam.slam.orb.fusion import PointArrays, PointFusion
 
     m, kfs, a, b = _fusion_world()
     fusion = PointFusion(m, PinholeCamera(525.0, 525.0, 319.5, 239.5, width=640, height=480), 40.0)
@@ -229,7 +229,7 @@ def test_normals_of_a_pending_change_equal_those_after_it() -> None:
     (local BA computes them before taking the lock) equals it computed after the change:
     reference keyframes that go take the first remaining one, points left with <= 1
     observation go bad and are left out."""
-    from semslam.slam.map_batch import normals_and_depths
+    from semslam.slam.orb.map_batch import normals_and_depths
 
     rng = np.random.default_rng(7)
     m, points = _world(rng, orb_spec(1.2, 8), max_obs=6)
@@ -265,7 +265,7 @@ def test_normals_of_a_pending_change_equal_those_after_it() -> None:
 def test_observation_table_lists_every_observation_in_order() -> None:
     """The flattened table equals walking each point's observations in order, with every
     keyframe numbered first-seen, or by a given index (observers outside it left out)."""
-    from semslam.slam.map_batch import observation_table
+    from semslam.slam.orb.map_batch import observation_table
 
     rng = np.random.default_rng(11)
     m, points = _world(rng, orb_spec(1.2, 8))
@@ -287,7 +287,7 @@ def test_store_gathers_equal_the_per_point_attributes() -> None:
     """The point store's flags and rows give what the objects say: a keyframe's good points
     and free slots, and ``PointArrays`` (gathered by rows, and point by point for points
     in stores of their own)."""
-    from semslam.slam.fusion import PointArrays
+    from semslam.slam.orb.fusion import PointArrays
 
     rng = np.random.default_rng(8)
     m, points = _world(rng, orb_spec(1.2, 8))
@@ -313,7 +313,7 @@ def test_fusion_apply_leaves_each_merged_point_its_distinctive_descriptor() -> N
     """apply computes the merged points' descriptors in one batch at its end: each equals
     the per-point original over the point's final observations, as replace_point leaves it."""
     from semslam.geometry.camera import PinholeCamera
-    from semslam.slam.fusion import PointFusion
+    from semslam.slam.orb.fusion import PointFusion
 
     m, kfs, a, b = _fusion_world()
     rng = np.random.default_rng(9)
@@ -335,7 +335,7 @@ def test_fusion_apply_leaves_each_merged_point_its_distinctive_descriptor() -> N
 
 def test_point_slots_put_equals_item_assignment() -> None:
     """put() sets many slots (and their store rows) as item assignment does one by one."""
-    from semslam.slam.point_store import PointSlots
+    from semslam.slam.orb.point_store import PointSlots
 
     rng = np.random.default_rng(10)
     _, points = _world(rng, orb_spec(1.2, 8), n_pts=20)

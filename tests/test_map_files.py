@@ -20,8 +20,8 @@ from semslam.config import load_config
 from semslam.core.types import Frame, TrackingState
 from semslam.errors import DataError
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam import map_io
-from semslam.slam.map_io import load_map, save_map
+from semslam.slam.orb import map_io
+from semslam.slam.orb.map_io import load_map, save_map
 from semslam.api import System
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import rendered_frames

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 from semslam.core.types import Keypoints, orb_spec
 from semslam.features.keypoint_grid import KeypointGrid
 from semslam.features.matching_kernels import hamming_rows, select_best
-from semslam.slam.map import KeyFrame, Map
+from semslam.slam.orb.map import KeyFrame, Map
 
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
 

@@ -1,4 +1,4 @@
-"""Map merges are verified against ground truth (issue 38 item 1, slam/merge_check.py).
+"""Map merges are verified against ground truth (issue 38 item 1, slam/orb/merge_check.py).
 
 Two levels, on small renders (320x240, sequential runs, as test_atlas.py):
 
@@ -28,7 +28,7 @@ from semslam.experiments.merge_error import WRONG_DEG, WRONG_M, merge_errors, tr
 from semslam.io.sequence import read_file_list
 from semslam.core.trajectory import Trajectory
 from semslam.io.trajectory import read_tum
-from semslam.slam.merge_check import (
+from semslam.slam.orb.merge_check import (
     MAX_DEPTH_ERROR, depth_error, enough, depth_spread, grid_cells, pose_difference, scene_shift,
 )
 from semslam.synth import SEQUENCES, SynthConfig, render_sequence
@@ -101,7 +101,7 @@ def renders(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def two_maps(renders: dict[str, Path]) -> Iterator[tuple[object, Path]]:
     """A sequential run of jump_back that never merges: the OrbTracker with its two maps."""
     from semslam.api import System
-    from semslam.slam.loop_closing import LoopClosing
+    from semslam.slam.orb.loop_closing import LoopClosing
 
     seq = renders["jump_back"]
     with pytest.MonkeyPatch.context() as mp:
@@ -183,7 +183,7 @@ def test_every_merge_made_is_right(renders: dict[str, Path], name: str, tmp_path
     """The maps merge (sequential runs are deterministic); every merge is within 5 cm / 2 deg
     of the truth at its keyframes and is followed by a global BA over both maps' keyframes;
     the trajectory says which rows are in which map's frame."""
-    import semslam.slam.loop_closing as lc
+    import semslam.slam.orb.loop_closing as lc
     from semslam.cli.main import main
 
     global_ba: list[set[float]] = []  # the keyframes' timestamps of each global BA problem

@@ -31,9 +31,9 @@ from semslam.geometry.rotation_about_centre import RotationFit
 from semslam.geometry.se3 import invert
 from semslam.io.calibration import rolling_shutter_ms_from_folder
 from semslam.core.trajectory import Trajectory
-from semslam.slam.motion_priors import blur_coast, sharpness_history
-from semslam.slam.motion_priors.blur_coast import BlurCoast
-from semslam.slam.tracking import Tracking
+from semslam.slam.orb.motion_priors import blur_coast, sharpness_history
+from semslam.slam.orb.motion_priors.blur_coast import BlurCoast
+from semslam.slam.orb.tracking import Tracking
 from semslam.synth import SEQUENCES, Renderer
 from tests.conftest import rendered_frames, write_tum_folder
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from semslam.slam.search import node_pairs
+from semslam.slam.orb.search import node_pairs
 
 
 def _per_node_loop(fa: dict, fb: dict, keep_a: np.ndarray, keep_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -18,7 +18,7 @@ from semslam.eval.metrics import ate
 from semslam.geometry.camera import PinholeCamera
 from semslam.core.types import Frame, TrackResult
 from semslam.core.trajectory import Trajectory
-from semslam.slam.map_io import load_map
+from semslam.slam.orb.map_io import load_map
 from semslam.api import System
 from semslam.core.types import TrackingState
 from semslam.synth import SEQUENCES, Renderer

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from semslam.core.types import orb_spec
-from semslam.slam.map import KeyFrame, Map
-from semslam.slam.point_store import MapPoint
+from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.point_store import MapPoint
 from tests.map_world import random_map
 
 

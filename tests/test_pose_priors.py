@@ -11,11 +11,11 @@ from semslam.config.schema import SlamConfig
 from semslam.core.types import Frame
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import make_pose, so3_exp
-from semslam.slam.motion_priors.base import FrameImages, MotionState, PosePrior, Stage
-from semslam.slam.motion_priors.blur_coast import BlurCoast
-from semslam.slam.motion_priors.constant_velocity import ConstantVelocity
-from semslam.slam.motion_priors.depth_odometry import DepthOdometry
-from semslam.slam.motion_priors.sharpness_history import SharpnessHistory
+from semslam.slam.orb.motion_priors.base import FrameImages, MotionState, PosePrior, Stage
+from semslam.slam.orb.motion_priors.blur_coast import BlurCoast
+from semslam.slam.orb.motion_priors.constant_velocity import ConstantVelocity
+from semslam.slam.orb.motion_priors.depth_odometry import DepthOdometry
+from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 
 CAM = PinholeCamera(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
 

@@ -14,15 +14,15 @@ from semslam.experiments.profile import parse_raw
 
 RAW = "\n".join([
     # tracking: 30 samples in extraction, 10 in the local map, 5 in importing
-    'process 1:"";thread (1): MainThread;run_slam (semslam/pipeline.py:81);track (semslam/slam/tracking.py:90);'
+    'process 1:"";thread (1): MainThread;run_slam (semslam/pipeline.py:81);track (semslam/slam/orb/tracking.py:90);'
     'extract (semslam/features/orb_slam2.py:120);fast_points (semslam/features/orb/detection.py:40) 30',
-    'process 1:"";thread (1): MainThread;run_slam (semslam/pipeline.py:81);track (semslam/slam/tracking.py:90);'
-    '_track_local_map (semslam/slam/tracking.py:300);search_by_projection (semslam/slam/search.py:50) 10',
+    'process 1:"";thread (1): MainThread;run_slam (semslam/pipeline.py:81);track (semslam/slam/orb/tracking.py:90);'
+    '_track_local_map (semslam/slam/orb/tracking.py:300);search_by_projection (semslam/slam/orb/search.py:50) 10',
     'process 1:"";thread (1): MainThread;<module> (semslam:6);_find_and_load (<frozen importlib._bootstrap>:1176);'
     'exec_module (<frozen importlib._bootstrap_external>:940) 5',
     # local mapping: 20 samples fusing
-    'process 1:"";thread (7): local-mapping;_run (semslam/slam/keyframe_worker.py:110);'
-    '_search_in_neighbours (semslam/slam/local_mapping.py:230);fuse (semslam/slam/fusion.py:40) 20',
+    'process 1:"";thread (7): local-mapping;_run (semslam/slam/orb/keyframe_worker.py:110);'
+    '_search_in_neighbours (semslam/slam/orb/local_mapping.py:230);fuse (semslam/slam/orb/fusion.py:40) 20',
     # the BA worker process (its command line has a ';' inside the quotes): 25 samples in GTSAM
     'process 1:"";process 9:"python -c from multiprocessing.spawn import spawn_main; spawn_main(tracker_fd=8)";'
     'thread (9): MainThread;bundle_adjust (semslam/backend/bundle_adjustment.py:270);'

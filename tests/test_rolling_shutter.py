@@ -90,7 +90,7 @@ def test_depth_is_read_where_the_keypoint_lands_not_under_its_raw_pixel() -> Non
 
 def test_frame_state_redoes_the_move_from_the_raw_keypoints() -> None:
     from semslam.core.types import Keypoints
-    from semslam.slam.frame_builders import RgbdFrameBuilder
+    from semslam.slam.orb.frame_builders import RgbdFrameBuilder
 
     rng = np.random.default_rng(2)
     uv = rng.uniform([40, 20], [600, 460], (50, 2))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from semslam.slam.search import HISTO_LENGTH, rotation_consistent
+from semslam.slam.orb.search import HISTO_LENGTH, rotation_consistent
 
 
 def _three_maxima_reference(angle_a: np.ndarray, angle_b: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from semslam.core.types import RunResult
 
 # The counters each component reports, in the order it reports them, and the block each
 # belongs to (read from the components' ``stats()``).
-ORB_TRACKER = {  # slam/orb_slam_system.py OrbSlamSystem.stats
+ORB_TRACKER = {  # slam/orb/tracker.py OrbTracker.stats
     "map_points": "mapping", "loops": "loop_closing", "loop_pairs": "loop_closing", "relocalisations": "tracking",
     "depth_odometry_frames": "tracking", "coasted_frames": "tracking", "coast_keyframes": "tracking",
     "coasted_on_shift_only": "tracking", "depth_odometry_runs": "tracking", "local_ba": "mapping",
@@ -24,12 +24,12 @@ ORB_TRACKER = {  # slam/orb_slam_system.py OrbSlamSystem.stats
     "loops_dropped": "loop_closing", "ba_worker_restarts": "mapping", "culled_keyframes": "mapping",
     "triangulated_points": "mapping", "culled_dynamic_points": "tracking", "threaded": "mapping",
 }
-ATLAS = {  # slam/atlas.py Atlas.stats, at the end of the ORB tracker's
+ATLAS = {  # slam/orb/atlas.py Atlas.stats, at the end of the ORB tracker's
     "maps": "atlas", "merges": "atlas", "maps_unmerged": "atlas", "trajectory_frames_by_map": "atlas",
     "frames_outside_first_map": "atlas", "trajectory_map_runs": "atlas", "merges_rejected": "atlas",
     "merge_checks": "atlas",
 }
-SDF_TRACKER = {  # slam/sdf_slam.py SdfSlamTracker.stats
+SDF_TRACKER = {  # slam/trackers/sdf_slam.py SdfSlamTracker.stats
     "map_points": "mapping", "tracking_edges": "tracking", "reanchors": "tracking", "fallback_reference": "tracking",
     "global_rounds": "loop_closing", "global_pairs_tried": "loop_closing", "global_constraints": "loop_closing",
     "pose_graph_failed": "loop_closing", "alignment_kept": "tracking", "depth_alignment_fits": "tracking",

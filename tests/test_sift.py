@@ -28,8 +28,8 @@ from semslam.features.matching import L2Matcher, matcher_for
 from semslam.features.sift import N_LEVELS, SCALE_FACTOR, SiftExtractor, sift_levels
 from semslam.io.trajectory import read_tum
 from semslam.place.flat import FlatVocabulary, vocabulary_for
-from semslam.slam.map_io import load_map
-from semslam.slam.search import search_by_bow
+from semslam.slam.orb.map_io import load_map
+from semslam.slam.orb.search import search_by_bow
 from semslam.synth import SynthConfig, render_sequence
 
 
@@ -93,7 +93,7 @@ def test_no_vocabulary_for_float_descriptors_is_one_config_error() -> None:
     with pytest.raises(ConfigError, match="slam.loop_closing=false"):
         System(cfg, _camera(SEQUENCES["static_xyz"]), image_size=(640, 480))  # sized: built at once
     cfg = load_config("f2kf", ["features.extractor=sift"])
-    from semslam.slam.frame_to_keyframe import FrameToKeyframeTracker
+    from semslam.slam.trackers.frame_to_keyframe import FrameToKeyframeTracker
 
     with pytest.raises(ConfigError, match="frame_to_keyframe"):
         FrameToKeyframeTracker(cfg, _camera(SEQUENCES["static_xyz"]))

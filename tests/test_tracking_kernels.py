@@ -85,7 +85,7 @@ def test_compiled_occluder_sampling_equals_the_numpy_reference(seed: int) -> Non
 def test_first_seen_unique_equals_the_numpy_reference(seed: int) -> None:
     """Tracking's local map rows: the distinct rows >= 0 in first-seen order, as the sort-based
     numpy version gives them (empty, all -1, duplicates far apart, large rows)."""
-    from semslam.slam.row_kernels import first_seen_unique, first_seen_unique_reference
+    from semslam.slam.orb.row_kernels import first_seen_unique, first_seen_unique_reference
 
     rng = np.random.default_rng(seed)
     n = [0, 5, 100, 5000, 40000, 3][seed]

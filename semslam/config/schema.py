@@ -85,7 +85,7 @@ class FrameToKeyframeConfig:
 
 @dataclass
 class SdfSlamConfig:
-    """The monocular SDF-SLAM tracker (tracking.method = sdf_slam, ``slam/sdf_slam.py``):
+    """The monocular SDF-SLAM tracker (tracking.method = sdf_slam, ``slam/trackers/sdf_slam.py``):
     PnP-RANSAC on the depth source's depth of a reference, global and local data correction."""
 
     # What a frame is matched to: the last keyframe ("keyframe": less drift) or the previous
@@ -184,7 +184,7 @@ class SlamConfig:
     # only its rotation from its matches (geometry/rotation_about_centre.py: on a blurred
     # frame a 6-DoF fit slides along a far wall). It is not lost and makes no keyframe (its
     # keypoints, smeared along the streak, would put points centimetres off; the third sharp,
-    # slowly turning coasted frame in a row does, slam/motion_priors/blur_coast.py COAST_SETTLED_FRAMES), for at most
+    # slowly turning coasted frame in a row does, slam/orb/motion_priors/blur_coast.py COAST_SETTLED_FRAMES), for at most
     # blur_coast_max_frames in a row; once features track again the coasted centres are
     # re-interpolated between the steady frames either side. Until a frame is blurred nothing
     # changes (a sequence without blur gives the same bytes). 0 = off (ORB-SLAM2); `default`

@@ -17,9 +17,9 @@ from semslam.errors import ConfigError
 #: Segmenter factories take the SemanticsConfig, depth sources the DepthConfig (``weights`` resolved).
 PLUGINS: dict[str, dict[str, str]] = {
     "tracker": {
-        "frame_to_keyframe": "semslam.slam.frame_to_keyframe:create_tracker",
-        "orb_slam": "semslam.slam.orb_slam_system:create_tracker",
-        "sdf_slam": "semslam.slam.sdf_slam:create_tracker",
+        "frame_to_keyframe": "semslam.slam.trackers.frame_to_keyframe:create_tracker",
+        "orb_slam": "semslam.slam.orb.tracker:create_tracker",
+        "sdf_slam": "semslam.slam.trackers.sdf_slam:create_tracker",
     },
     "extractor": {
         "orb_opencv": "semslam.features.orb_opencv:create_extractor",

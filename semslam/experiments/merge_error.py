@@ -23,7 +23,7 @@ from semslam.io.images import read_depth
 from semslam.io.sequence import read_file_list
 from semslam.core.trajectory import Trajectory
 from semslam.io.trajectory import read_tum
-from semslam.slam.merge_check import pose_difference, scene_shift
+from semslam.slam.orb.merge_check import pose_difference, scene_shift
 
 #: A merge further off than this at the weld is wrong (issue 38).
 WRONG_M, WRONG_DEG = 0.05, 2.0

@@ -63,7 +63,7 @@ _STAGE_OF = {fn: stage for stage, fns in STAGES.items() for fn in fns}
 #: the pools' idle workers showed up as "active"): waiting, not CPU.
 _WAIT_LEAVES = ("_worker (concurrent/futures/thread.py",)
 #: The entry chain every tracking sample passes through: left out of "top by total".
-_ENTRY = ("<module>", "cli/", "pipeline.py)", "api.py)", "assembly.py)", "orb_slam_system.py)")
+_ENTRY = ("<module>", "cli/", "pipeline.py)", "api.py)", "assembly.py)", "orb/tracker.py)")
 _FRAME = re.compile(r"^(?P<func>[^ ]+) \((?P<file>[^:]*)(?::(?P<line>\d+))?\)$")
 _TOKEN = re.compile(r'(?:[^;"]|"[^"]*")+')
 

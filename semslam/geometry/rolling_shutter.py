@@ -16,7 +16,7 @@ of one frame). Points without depth are moved by the rotation only (their ray).
 ``to_middle_row_with_depth_image`` is the RGB-D case: the depth frame is global, so depths
 are read where the keypoints land, not under their raw pixels. The velocity comes from the
 motion model, then from the tracked pose, then from ``backend/rolling_shutter_pose.py``
-(``slam.rolling_shutter_refine`` / ``rolling_shutter_solve``; ``slam/motion_priors/rolling_shutter.py``).
+(``slam.rolling_shutter_refine`` / ``rolling_shutter_solve``; ``slam/orb/motion_priors/rolling_shutter.py``).
 """
 
 from __future__ import annotations

@@ -26,8 +26,8 @@ from numpy.typing import NDArray
 
 from semslam.core.protocols import Matcher
 from semslam.features.matching import HammingMatcher
-from semslam.slam.point_store import MapPoint, Observer, PointStore
-from semslam.slam.row_kernels import first_seen_unique
+from semslam.slam.orb.point_store import MapPoint, Observer, PointStore
+from semslam.slam.orb.row_kernels import first_seen_unique
 
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int32)
 

@@ -3,9 +3,9 @@ pose-only optimisation after each matching step, keyframe decision, relocalisati
 
 The thresholds are ORB-SLAM2's (Tracking.cc); where this code simplifies, a comment says so.
 What predicts or corrects a pose besides the features (the constant velocity, blur
-coasting, depth odometry, a rolling shutter) are pose priors (``slam/motion_priors/``),
+coasting, depth odometry, a rolling shutter) are pose priors (``slam/orb/motion_priors/``),
 asked at fixed points of the flow; the sensor's frames become ``FrameState`` through a
-frame builder (``slam/frame_builders.py``); the atlas's side is ``atlas.AtlasFollower``.
+frame builder (``slam/orb/frame_builders.py``); the atlas's side is ``atlas.AtlasFollower``.
 """
 
 from __future__ import annotations
@@ -25,23 +25,23 @@ from semslam.dynamics.masks import keypoints_in_mask
 from semslam.dynamics.multiview import reference_views
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
-from semslam.slam.atlas import AtlasFollower
-from semslam.slam.frame_builders import FrameBuilder, frame_builder
-from semslam.slam.frame_state import FrameState
-from semslam.slam.keyframe_worker import KeyframeSink
-from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
-from semslam.slam.motion_priors.base import FrameImages, FrameOutcome, MotionState, PosePrior, PosePrediction, Stage
-from semslam.slam.motion_priors.blur_coast import BlurCoast
-from semslam.slam.motion_priors.constant_velocity import ConstantVelocity
-from semslam.slam.motion_priors.depth_odometry import DepthOdometry
-from semslam.slam.motion_priors.rolling_shutter import RollingShutter
-from semslam.slam.motion_priors.sharpness_history import SharpnessHistory
-from semslam.slam.row_kernels import first_seen_unique
-from semslam.slam.search import project, rotation_consistent, search_by_bow, search_by_projection
+from semslam.slam.orb.atlas import AtlasFollower
+from semslam.slam.orb.frame_builders import FrameBuilder, frame_builder
+from semslam.slam.orb.frame_state import FrameState
+from semslam.slam.orb.keyframe_worker import KeyframeSink
+from semslam.slam.orb.map import KeyFrame, Map, update_normals_and_depths
+from semslam.slam.orb.motion_priors.base import FrameImages, FrameOutcome, MotionState, PosePrior, PosePrediction, Stage
+from semslam.slam.orb.motion_priors.blur_coast import BlurCoast
+from semslam.slam.orb.motion_priors.constant_velocity import ConstantVelocity
+from semslam.slam.orb.motion_priors.depth_odometry import DepthOdometry
+from semslam.slam.orb.motion_priors.rolling_shutter import RollingShutter
+from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
+from semslam.slam.orb.row_kernels import first_seen_unique
+from semslam.slam.orb.search import project, rotation_consistent, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
-    from semslam.slam.atlas import Atlas
+    from semslam.slam.orb.atlas import Atlas
     from semslam.place.vocabulary import Vocabulary
 
 

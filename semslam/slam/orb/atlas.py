@@ -9,7 +9,7 @@ loop correction never mix them; what must not run over several maps at once (ess
 graph, global BA: each map has its own gauge) asks the atlas for one map's keyframes.
 
 Each map has its own world frame: the camera of its first keyframe (``Map.origins``).
-Merging moves the newer map into the older one's frame (``slam/map_merging.py``); the
+Merging moves the newer map into the older one's frame (``slam/orb/map_merging.py``); the
 atlas records which map went into which, and the move of the world for tracking, whose
 last frame is still in the old coordinates (tracking takes it under the map lock at the
 start of its next frame).
@@ -32,10 +32,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.geometry.se3 import invert
-from semslam.slam.map import KeyFrame, Map
+from semslam.slam.orb.map import KeyFrame, Map
 
 if TYPE_CHECKING:
-    from semslam.slam.frame_state import FrameState
+    from semslam.slam.orb.frame_state import FrameState
 
 #: The longest gap (seconds) between the last frame tracked in one map and a relocalisation
 #: in another over which the motion model still bridges the two (``AtlasFollower.bridge_to``).
@@ -63,7 +63,7 @@ class Atlas:
         self._world_change: NDArray[np.float64] | None = None
         # Tracking left a map by relocalising in another: see ``activate``.
         self._merge_hints: list[MergeHint] = []
-        # Every merge check (slam/merge_check.py), for stats.json: rejected ones by reason.
+        # Every merge check (slam/orb/merge_check.py), for stats.json: rejected ones by reason.
         self.merge_checks: list[dict[str, Any]] = []
         self.merges_rejected: Counter[str] = Counter()
 

@@ -18,10 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.map import KeyFrame, Map
-from semslam.slam.point_store import MapPoint
-from semslam.slam.map_batch import distinctive_descriptors, shared_store, store_rows
-from semslam.slam.search import project
+from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.point_store import MapPoint
+from semslam.slam.orb.map_batch import distinctive_descriptors, shared_store, store_rows
+from semslam.slam.orb.search import project
 
 _ID = attrgetter("id")
 

@@ -19,8 +19,8 @@ from semslam.core.types import DescriptorKind, FeatureSpec, Keypoints
 from semslam.features.keypoint_grid import KeypointGrid
 from semslam.features.matching import matcher_for
 from semslam.geometry.se3 import invert
-from semslam.slam.map_batch import compute_distinctive_descriptors, normals_and_depths
-from semslam.slam.point_store import MapPoint, PointSlots, PointStore
+from semslam.slam.orb.map_batch import compute_distinctive_descriptors, normals_and_depths
+from semslam.slam.orb.point_store import MapPoint, PointSlots, PointStore
 
 Array = NDArray[np.float64]
 
@@ -60,7 +60,7 @@ class KeyFrame:
     to_be_erased: bool = False
     T_cw_before_gba: Array | None = None
     T_cp: Array | None = None  # pose relative to the parent, kept when the keyframe is culled
-    # The atlas map this keyframe belongs to (slam/atlas.py; 0 without a new map) and whether
+    # The atlas map this keyframe belongs to (slam/orb/atlas.py; 0 without a new map) and whether
     # it is that map's first keyframe: the root of its spanning tree, never culled, fixed in
     # local BA (ORB-SLAM3's GetInitKFid; ORB-SLAM2 tests id 0).
     map_id: int = 0
@@ -213,7 +213,7 @@ class Map:
         self._next_kf = 0
         self._next_pt = 0
         self.origins: list[KeyFrame] = []  # the first keyframe of each atlas map, by map id
-        # The atlas map new keyframes join (slam/atlas.py changes it; 0 with one map).
+        # The atlas map new keyframes join (slam/orb/atlas.py changes it; 0 with one map).
         self.active_map = 0
         self.n_loops = 0
         # Bumped by loop correction and global BA: a local BA computed on older poses is dropped.

@@ -1,5 +1,5 @@
 """A tracked frame: features with depth, their map points and the pose being estimated
-(built per sensor by ``slam/frame_builders.py``)."""
+(built per sensor by ``slam/orb/frame_builders.py``)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from numpy.typing import NDArray
 from semslam.core.types import Keypoints
 from semslam.features.keypoint_grid import KeypointGrid
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.frame_to_keyframe import sample_depth
-from semslam.slam.map import KeyFrame, PointSlots, PointStore
+from semslam.frontend.keypoint_depth import sample_depth
+from semslam.slam.orb.map import KeyFrame, PointSlots, PointStore
 
 
 @dataclass(eq=False)

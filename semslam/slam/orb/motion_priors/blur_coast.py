@@ -21,13 +21,13 @@ from semslam.frontend.shift_rotation import ShiftRotation, small_image
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.rotation_about_centre import fit_rotation_about_centre
 from semslam.geometry.se3 import invert
-from semslam.slam.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
+from semslam.slam.orb.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
                                              Stage, TrackerOps)
-from semslam.slam.motion_priors.sharpness_history import SharpnessHistory
+from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 
 if TYPE_CHECKING:
-    from semslam.slam.frame_state import FrameState
-    from semslam.slam.map import KeyFrame, Map
+    from semslam.slam.orb.frame_state import FrameState
+    from semslam.slam.orb.map import KeyFrame, Map
 
 #: Steady frames whose camera centres give the velocity a coasted frame's centre moves on
 #: at: one frame's centre is centimetres off on a turn's first frames.

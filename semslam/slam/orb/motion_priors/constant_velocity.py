@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from semslam.slam.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
+from semslam.slam.orb.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
                                              Stage, TrackerOps)
 
 if TYPE_CHECKING:
-    from semslam.slam.frame_state import FrameState
+    from semslam.slam.orb.frame_state import FrameState
 
 
 class ConstantVelocity:

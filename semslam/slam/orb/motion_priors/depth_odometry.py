@@ -15,12 +15,12 @@ from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
 from semslam.config.schema import SlamConfig
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
-from semslam.slam.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
+from semslam.slam.orb.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
                                              Stage, TrackerOps)
-from semslam.slam.motion_priors.sharpness_history import SharpnessHistory
+from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 
 if TYPE_CHECKING:
-    from semslam.slam.frame_state import FrameState
+    from semslam.slam.orb.frame_state import FrameState
 
 #: Well-tracked frames whose camera centres give the velocity an aligned frame's centre
 #: moves on at: one frame's centre is centimetres off on a turn's first frames.

@@ -12,7 +12,7 @@ closes everything on every path.
 Trajectory output follows ORB-SLAM's SaveTrajectoryTUM: every tracked frame is stored
 relative to its reference keyframe and composed with that keyframe's final pose (walking up
 the spanning tree when the keyframe was culled); lost frames have no pose and are left out.
-With the atlas (``slam/atlas.py``) every frame is in its final map's frame: the first map's
+With the atlas (``slam/orb/atlas.py``) every frame is in its final map's frame: the first map's
 once the maps merged, its own map's first keyframe otherwise (``stats.json`` counts them).
 """
 
@@ -38,14 +38,14 @@ from semslam.core.trajectory import Trajectory
 from semslam.place.database import KeyframeDatabase
 from semslam.place.flat import vocabulary_for
 from semslam.place.vocabulary import Vocabulary
-from semslam.slam.atlas import Atlas
-from semslam.slam.fusion import PointFusion
-from semslam.slam.keyframe_worker import KeyframeInbox
-from semslam.slam.local_mapping import LocalMapping
-from semslam.slam.loop_closing import LoopClosing
-from semslam.slam.map import KeyFrame, Map
-from semslam.slam.map_merging import MapMerger
-from semslam.slam.tracking import Tracking
+from semslam.slam.orb.atlas import Atlas
+from semslam.slam.orb.fusion import PointFusion
+from semslam.slam.orb.keyframe_worker import KeyframeInbox
+from semslam.slam.orb.local_mapping import LocalMapping
+from semslam.slam.orb.loop_closing import LoopClosing
+from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.map_merging import MapMerger
+from semslam.slam.orb.tracking import Tracking
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +92,7 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerI
                           "depth network's depth (depth.source: sdfcnn, --preset sdf_rgbd), or use --preset sdf")
     slam_map = None
     if map_path is not None:
-        from semslam.slam.map_io import load_map
+        from semslam.slam.orb.map_io import load_map
 
         slam_map = load_map(map_path, feature_spec(config.features, _image_size(camera)))
     return OrbTracker(config, camera, inputs or TrackerInputs(SensorDepth()), slam_map)
@@ -235,11 +235,11 @@ class OrbTracker:
         }
 
     def _atlas_stats(self) -> dict[str, Any]:
-        """``maps``, ``merges`` and the trajectory's frames per final map (slam/atlas.py)."""
+        """``maps``, ``merges`` and the trajectory's frames per final map (slam/orb/atlas.py)."""
         with self.map.lock:
             return self.atlas.stats(ref.map_id for _, ref, _ in self.tracking.trajectory_refs)
 
     def save_map(self, path: Path) -> None:
-        from semslam.slam.map_io import save_map
+        from semslam.slam.orb.map_io import save_map
 
         save_map(self.map, path)

@@ -11,9 +11,9 @@ from numpy.typing import NDArray
 from semslam.config import SystemConfig
 from semslam.core.types import Keypoints
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.frame_state import FrameState
-from semslam.slam.frame_to_keyframe import sample_depth
-from semslam.slam.map import PointSlots
+from semslam.slam.orb.frame_state import FrameState
+from semslam.frontend.keypoint_depth import sample_depth
+from semslam.slam.orb.map import PointSlots
 
 
 class FrameBuilder(Protocol):

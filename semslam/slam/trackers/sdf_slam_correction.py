@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from semslam.backend.pose_graph import optimize_pose_graph
 from semslam.core.protocols import Matcher
 from semslam.geometry.se3 import invert, rotation_angle
-from semslam.slam.sdf_slam_pnp import PnpSettings, solve_pnp
+from semslam.slam.trackers.sdf_slam_pnp import PnpSettings, solve_pnp
 
 Array = NDArray[np.float64]
 

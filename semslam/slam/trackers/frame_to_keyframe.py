@@ -24,6 +24,7 @@ from semslam.errors import ConfigError, DataError
 from semslam.features import create_extractor
 from semslam.core.trajectory import Trajectory
 from semslam.features.matching import match_brute_force, match_candidates, pairs_within_radius
+from semslam.frontend.keypoint_depth import sample_depth
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose, rotation_angle
 from semslam.core.types import Frame
@@ -36,17 +37,6 @@ class _Keyframe:
     pose_wc: NDArray[np.float64]
     points_w: NDArray[np.float64]
     descriptors: NDArray[np.uint8]
-
-
-def sample_depth(depth: NDArray[np.float32], xy: NDArray[np.floating]) -> NDArray[np.float32]:
-    """Depth at the nearest pixel of each keypoint (0 outside the image)."""
-    h, w = depth.shape
-    u = np.rint(xy[:, 0]).astype(np.intp)
-    v = np.rint(xy[:, 1]).astype(np.intp)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    out = np.zeros(len(xy), np.float32)
-    out[inside] = depth[v[inside], u[inside]]
-    return out
 
 
 def _pose_to_rvec_tvec(pose_cw: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -26,7 +26,7 @@ import numpy as np
 import semslam
 from semslam.core.types import FeatureSpec, Keypoints
 from semslam.errors import ConfigError, DataError
-from semslam.slam.map import KeyFrame, Map, update_normals_and_depths
+from semslam.slam.orb.map import KeyFrame, Map, update_normals_and_depths
 
 FORMAT = "semslam-map-2"
 #: How a zip archive (an .npz) starts: a file record, or the end record of an empty archive.

@@ -38,8 +38,8 @@ from numpy.typing import NDArray
 from semslam.backend.pose_only import optimize_pose
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize, rotation_angle
-from semslam.slam.map import KeyFrame
-from semslam.slam.point_store import MapPoint
+from semslam.slam.orb.map import KeyFrame
+from semslam.slam.orb.point_store import MapPoint
 
 #: Pose-only inliers the keyframe that found the place needs (relocalisation's bar).
 MIN_INLIERS = 50

@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from typing import Protocol
 
 from semslam.runtime import lower_thread_priority
-from semslam.slam.map import KeyFrame
+from semslam.slam.orb.map import KeyFrame
 
 log = logging.getLogger(__name__)
 

@@ -41,8 +41,8 @@ from numpy.typing import NDArray
 from semslam.core.types import Frame
 
 if TYPE_CHECKING:
-    from semslam.slam.frame_state import FrameState
-    from semslam.slam.map import KeyFrame
+    from semslam.slam.orb.frame_state import FrameState
+    from semslam.slam.orb.map import KeyFrame
 
 
 class Stage(Enum):

@@ -21,20 +21,20 @@ from semslam.config import SystemConfig
 from semslam.geometry.alignment import AlignmentError, umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose
-from semslam.slam.fusion import PointArrays, PointFusion, adopt_matched_points
-from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeWorker
-from semslam.slam.local_mapping import apply_in_slices, build_ba_problem
-from semslam.slam.loop_consistency import Candidate, LoopConsistency
-from semslam.slam.atlas import MergeHint
-from semslam.slam.merge_check import COVISIBLES, MIN_PROJECTED, PENDING_MISSES, MergeVerifier, PendingMerge, enough
-from semslam.slam.map import KeyFrame, Map
-from semslam.slam.point_store import MapPoint
-from semslam.slam.map_batch import normals_and_depths
-from semslam.slam.search import project, search_by_bow, search_by_projection
+from semslam.slam.orb.fusion import PointArrays, PointFusion, adopt_matched_points
+from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeWorker
+from semslam.slam.orb.local_mapping import apply_in_slices, build_ba_problem
+from semslam.slam.orb.loop_consistency import Candidate, LoopConsistency
+from semslam.slam.orb.atlas import MergeHint
+from semslam.slam.orb.merge_check import COVISIBLES, MIN_PROJECTED, PENDING_MISSES, MergeVerifier, PendingMerge, enough
+from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.point_store import MapPoint
+from semslam.slam.orb.map_batch import normals_and_depths
+from semslam.slam.orb.search import project, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
-    from semslam.slam.map_merging import MapMerger
+    from semslam.slam.orb.map_merging import MapMerger
 
 #: New keyframes of the map tracking relocalised in on which a merge hint is tried (``_merge_on_hints``).
 HINT_KEYFRAMES = 5
@@ -122,7 +122,7 @@ class LoopClosing(KeyframeWorker):
         self.last_loop_kf_id = 0
         self.consistency = LoopConsistency(config.slam.loop_consistency)
         # Atlas (ORB-SLAM3): the same place recognition across maps finds merges, and each
-        # candidate must pass slam/merge_check.py (spread, depth, agreement of COINCIDENCES
+        # candidate must pass slam/orb/merge_check.py (spread, depth, agreement of COINCIDENCES
         # keyframes) before maps are welded: a wrong merge offsets a whole map for good.
         self.merger = merger
         self.verifier = MergeVerifier(camera, config.slam.bf, self.pyr.inv_sigma2, self._match_at)
@@ -351,7 +351,7 @@ class LoopClosing(KeyframeWorker):
         return True
 
     def _merge_maps(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], matched: dict[int, MapPoint]) -> None:
-        """Merge kf's map with cand's (``slam/map_merging.py``) with local mapping paused, then
+        """Merge kf's map with cand's (``slam/orb/map_merging.py``) with local mapping paused, then
         the essential graph and global BA over the merged map, as after a loop."""
         assert self.merger is not None
         t0 = time.perf_counter()

@@ -15,12 +15,12 @@ from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.rolling_shutter import row_time_fraction
 from semslam.geometry.se3 import invert
-from semslam.slam.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
+from semslam.slam.orb.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
                                              Stage, TrackerOps)
 
 if TYPE_CHECKING:
-    from semslam.slam.frame_state import FrameState
-    from semslam.slam.map import Map
+    from semslam.slam.orb.frame_state import FrameState
+    from semslam.slam.orb.map import Map
 
 #: Matches the joint rolling-shutter fit uses at most (its cost grows with them).
 RS_SOLVE_MAX_POINTS = 200

@@ -59,10 +59,10 @@ from semslam.features.matching import matcher_for, pairs_within_radius
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.core.trajectory import Trajectory
-from semslam.slam.sdf_slam_correction import (DepthAlignment, Edge, TrackTable, ViewFeatures, candidate_pairs,
+from semslam.slam.trackers.sdf_slam_correction import (DepthAlignment, Edge, TrackTable, ViewFeatures, candidate_pairs,
                                               correct_poses, fit_depth_alignment, match_views, pair_constraint, relative_motion)
-from semslam.slam.frame_to_keyframe import sample_depth
-from semslam.slam.sdf_slam_pnp import PnpSettings, solve_pnp
+from semslam.frontend.keypoint_depth import sample_depth
+from semslam.slam.trackers.sdf_slam_pnp import PnpSettings, solve_pnp
 
 Array = NDArray[np.float64]
 

@@ -32,14 +32,14 @@ from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
-from semslam.slam.fusion import PointArrays, PointFusion
-from semslam.slam.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
-from semslam.slam.map import KeyFrame, Map
-from semslam.slam.point_store import MapPoint
-from semslam.slam.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
+from semslam.slam.orb.fusion import PointArrays, PointFusion
+from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
+from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.point_store import MapPoint
+from semslam.slam.orb.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
                                     point_positions)
-from semslam.slam.map_batch import warm_up as warm_up_kernels
-from semslam.slam.search import node_pairs, project
+from semslam.slam.orb.map_batch import warm_up as warm_up_kernels
+from semslam.slam.orb.search import node_pairs, project
 
 if TYPE_CHECKING:
     from semslam.place.vocabulary import Vocabulary
@@ -222,7 +222,7 @@ class LocalMapping(KeyframeWorker):
             if p.bad:
                 continue
             if p.ref_kf is not None and p.ref_kf.map_id != kf.map_id:
-                # An atlas map tracking left (slam/atlas.py): its keyframes stopped coming, so
+                # An atlas map tracking left (slam/orb/atlas.py): its keyframes stopped coming, so
                 # its points cannot be seen again; ageing them by the new map's keyframes
                 # culled every point of a map that had one keyframe (nothing left to merge with).
                 continue

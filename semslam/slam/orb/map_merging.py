@@ -1,7 +1,7 @@
 """Merging two atlas maps that saw the same place (ORB-SLAM3 LoopClosing::MergeLocal, RGB-D).
 
 Loop closing finds the place (bag-of-words candidates in another map, SE(3) RANSAC and
-verification by projection, as for a loop), slam/merge_check.py verifies it (spread,
+verification by projection, as for a loop), slam/orb/merge_check.py verifies it (spread,
 depths, several keyframes agreeing) and loop closing hands the result here; afterwards it runs the essential graph and global BA over the
 merged map, as after a loop.
 
@@ -24,11 +24,11 @@ from numpy.typing import NDArray
 
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
-from semslam.slam.atlas import Atlas
-from semslam.slam.fusion import PointArrays, PointFusion, adopt_matched_points
-from semslam.slam.local_mapping import apply_in_slices
-from semslam.slam.map import KeyFrame, Map
-from semslam.slam.point_store import MapPoint
+from semslam.slam.orb.atlas import Atlas
+from semslam.slam.orb.fusion import PointArrays, PointFusion, adopt_matched_points
+from semslam.slam.orb.local_mapping import apply_in_slices
+from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.point_store import MapPoint
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ class MapMerger:
 
     def merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64],
               matched: dict[int, MapPoint]) -> MergeResult:
-        """Merge kf's map and cand's map (verified by loop closing and slam/merge_check.py:
+        """Merge kf's map and cand's map (verified by loop closing and slam/orb/merge_check.py:
         ``T12`` kf <- cand, and ``matched`` kf keypoint -> cand-side point). Local mapping is
         paused by the caller."""
         move_kf_map = kf.map_id > cand.map_id  # the newer map moves into the older one's frame

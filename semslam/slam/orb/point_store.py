@@ -16,7 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.slam.row_kernels import first_seen_unique
+from semslam.slam.orb.row_kernels import first_seen_unique
 
 Array = NDArray[np.float64]
 
