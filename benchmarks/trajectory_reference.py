@@ -43,7 +43,7 @@ def _render(data: Path) -> dict[str, Path]:
 
 def _run(seq_dir: Path, preset: str, out_dir: Path) -> Path:
     cmd = [sys.executable, "-m", "semslam.cli.main", "run", str(seq_dir), "--out", str(out_dir), "--preset", preset,
-           "--sequential", "--quiet", "--no-report"]
+           "--sequential", "--quiet", "--no-report", "--overwrite"]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     return out_dir / "trajectory.txt"
 
