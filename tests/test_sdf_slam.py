@@ -21,8 +21,8 @@ from semslam.features.matching import matcher_for
 from semslam.geometry.se3 import invert, make_pose
 from semslam.io.trajectory import read_trajectory
 from semslam.slam.trackers.sdf_slam_correction import (DepthAlignment, Edge, TrackTable, ViewFeatures, candidate_pairs,
-                                              correct_poses, fit_depth_alignment, group_median, intersect_rays,
-                                              pair_constraint)
+                                                       correct_poses, fit_depth_alignment, group_median, intersect_rays,
+                                                       pair_constraint)
 from semslam.slam.trackers.sdf_slam_pnp import PnpSettings, solve_pnp
 from tests.conftest import run_cli
 

@@ -37,7 +37,7 @@ from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeSink, Keyfra
 from semslam.slam.orb.map import KeyFrame, Map
 from semslam.slam.orb.point_store import MapPoint
 from semslam.slam.orb.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
-                                    point_positions)
+                                        point_positions)
 from semslam.slam.orb.map_batch import warm_up as warm_up_kernels
 from semslam.slam.orb.search import node_pairs, project
 

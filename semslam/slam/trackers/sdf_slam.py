@@ -60,7 +60,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.core.trajectory import Trajectory
 from semslam.slam.trackers.sdf_slam_correction import (DepthAlignment, Edge, TrackTable, ViewFeatures, candidate_pairs,
-                                              correct_poses, fit_depth_alignment, match_views, pair_constraint, relative_motion)
+                                                       correct_poses, fit_depth_alignment, match_views, pair_constraint, relative_motion)
 from semslam.frontend.keypoint_depth import sample_depth
 from semslam.slam.trackers.sdf_slam_pnp import PnpSettings, solve_pnp
 

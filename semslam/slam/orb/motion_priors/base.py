@@ -149,3 +149,25 @@ class PosePrior(Protocol):
     def counters(self) -> dict[str, int]:
         """What the prior did so far, for the run's stats (names unique across priors)."""
         ...
+
+
+class PriorDefaults:
+    """What a prior does where it has nothing to say (subclass and override the rest):
+    no prediction, no correction, ORB-SLAM's keyframe decision, no counters, nothing kept."""
+
+    def predict(self, state: MotionState, images: FrameImages) -> PosePrediction | None:
+        return None
+
+    def correct(self, stage: Stage, state: MotionState, cur: "FrameState", tracked: bool,
+                images: FrameImages, ops: TrackerOps) -> Correction | None:
+        return None
+
+    def keyframe_wanted(self, state: MotionState, cur: "FrameState", ops: TrackerOps,
+                        orb_slam_wants: Callable[[], bool]) -> bool:
+        return orb_slam_wants()
+
+    def update(self, outcome: FrameOutcome) -> None:
+        return None
+
+    def counters(self) -> dict[str, int]:
+        return {}

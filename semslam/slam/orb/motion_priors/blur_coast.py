@@ -22,7 +22,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.rotation_about_centre import fit_rotation_about_centre
 from semslam.geometry.se3 import invert
 from semslam.slam.orb.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
-                                             Stage, TrackerOps)
+                                                 Stage, TrackerOps)
 from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 
 if TYPE_CHECKING:

@@ -15,8 +15,9 @@ from semslam.backend.depth_odometry import RotationOdometry, rotation_angle_deg
 from semslam.config.schema import SlamConfig
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
-from semslam.slam.orb.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
-                                             Stage, TrackerOps)
+from semslam.slam.orb.motion_priors.base import (
+    Correction, FrameImages, FrameOutcome, MotionState, PriorDefaults, Stage, TrackerOps,
+)
 from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 
 if TYPE_CHECKING:
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 GOOD_FRAMES = 10
 
 
-class DepthOdometry:
+class DepthOdometry(PriorDefaults):
     """Aligns a frame whose features tracked weakly, not at all, or on a fast turn; see the
     module docstring."""
 
@@ -44,9 +45,6 @@ class DepthOdometry:
         self._sharp = False  # this frame is sharp (only with slam.depth_odometry_sharp_ratio > 0)
         self.n_depth_odometry_frames = 0
         self.n_depth_odometry_runs = 0
-
-    def predict(self, state: MotionState, images: FrameImages) -> PosePrediction | None:
-        return None
 
     def correct(self, stage: Stage, state: MotionState, cur: "FrameState", tracked: bool,
                 images: FrameImages, ops: TrackerOps) -> Correction | None:

@@ -3,7 +3,6 @@ velocity, then that velocity refined from the tracked pose (or fitted with it)."
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -15,8 +14,9 @@ from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.rolling_shutter import row_time_fraction
 from semslam.geometry.se3 import invert
-from semslam.slam.orb.motion_priors.base import (Correction, FrameImages, FrameOutcome, MotionState, PosePrediction,
-                                             Stage, TrackerOps)
+from semslam.slam.orb.motion_priors.base import (
+    Correction, FrameImages, MotionState, PriorDefaults, Stage, TrackerOps,
+)
 
 if TYPE_CHECKING:
     from semslam.slam.orb.frame_state import FrameState
@@ -26,10 +26,11 @@ if TYPE_CHECKING:
 RS_SOLVE_MAX_POINTS = 200
 
 
-class RollingShutter:
+class RollingShutter(PriorDefaults):
     """``slam.rolling_shutter_ms`` > 0: before matching, the keypoints move by the motion
     model's velocity; after the first match (and with ``slam.rolling_shutter_solve`` again
-    after the local map) by the tracked pose's, and the pose is refitted."""
+    after the local map) by the tracked pose's, and the pose is refitted. Nothing is kept:
+    each frame starts from the motion state's velocity."""
 
     name = "rolling_shutter"
 
@@ -39,9 +40,6 @@ class RollingShutter:
         self.map = slam_map
         self.pyr = pyramid
 
-    def predict(self, state: MotionState, images: FrameImages) -> PosePrediction | None:
-        return None
-
     def correct(self, stage: Stage, state: MotionState, cur: "FrameState", tracked: bool,
                 images: FrameImages, ops: TrackerOps) -> Correction | None:
         if stage is Stage.FEATURES:
@@ -50,16 +48,6 @@ class RollingShutter:
         elif tracked and (stage is Stage.MATCHED or self.cfg.rolling_shutter_solve):
             self._refine(state, cur, images.depth, ops)
         return None
-
-    def keyframe_wanted(self, state: MotionState, cur: "FrameState", ops: TrackerOps,
-                        orb_slam_wants: Callable[[], bool]) -> bool:
-        return orb_slam_wants()
-
-    def counters(self) -> dict[str, int]:
-        return {}
-
-    def update(self, outcome: FrameOutcome) -> None:
-        """Nothing kept: each frame starts from the motion state's velocity."""
 
     def _to_middle_row(self, cur: "FrameState", velocity: NDArray[np.float64], dt: float,
                        depth: NDArray[np.float32] | None) -> None:
