@@ -119,35 +119,12 @@ class Tracking:
 
     # ------------------------------------------------------------------ the priors' counters
     def prior_counters(self) -> dict[str, int]:
-        """Every prior's counters (0 for a prior that is off)."""
-        counters = dict.fromkeys(("n_depth_odometry_frames", "n_depth_odometry_runs", "n_coasted_frames",
-                                  "n_coast_keyframes", "n_coast_shift_only"), 0)
+        """Every prior's counters, by their ``stats.json`` names (0 for a prior that is off)."""
+        counters = dict.fromkeys(("depth_odometry_frames", "coasted_frames", "coast_keyframes",
+                                  "coasted_on_shift_only", "depth_odometry_runs"), 0)
         for prior in self.priors:
             counters.update(prior.counters())
         return counters
-
-    def _counter(self, name: str) -> int:
-        return self.prior_counters()[name]
-
-    @property
-    def n_depth_odometry_frames(self) -> int:
-        return self._counter("n_depth_odometry_frames")
-
-    @property
-    def n_depth_odometry_runs(self) -> int:
-        return self._counter("n_depth_odometry_runs")
-
-    @property
-    def n_coasted_frames(self) -> int:
-        return self._counter("n_coasted_frames")
-
-    @property
-    def n_coast_keyframes(self) -> int:
-        return self._counter("n_coast_keyframes")
-
-    @property
-    def n_coast_shift_only(self) -> int:
-        return self._counter("n_coast_shift_only")
 
     def start_lost_in(self, ref_kf: KeyFrame) -> None:
         """A loaded map: start lost (the camera is nowhere until it relocalises) with this

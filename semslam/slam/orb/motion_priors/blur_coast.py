@@ -235,8 +235,8 @@ class BlurCoast:
 
     # ------------------------------------------------------------------ after the frame
     def counters(self) -> dict[str, int]:
-        return {"n_coasted_frames": self.n_coasted_frames, "n_coast_keyframes": self.n_coast_keyframes,
-                "n_coast_shift_only": self.n_coast_shift_only}
+        return {"coasted_frames": self.n_coasted_frames, "coast_keyframes": self.n_coast_keyframes,
+                "coasted_on_shift_only": self.n_coast_shift_only}
 
     def update(self, outcome: FrameOutcome) -> None:
         coasted = outcome.posed_by is self

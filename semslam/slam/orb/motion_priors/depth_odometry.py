@@ -134,8 +134,8 @@ class DepthOdometry(PriorDefaults):
         return orb_slam_wants() or ops.n_matches_inliers <= 15
 
     def counters(self) -> dict[str, int]:
-        return {"n_depth_odometry_frames": self.n_depth_odometry_frames,
-                "n_depth_odometry_runs": self.n_depth_odometry_runs}
+        return {"depth_odometry_frames": self.n_depth_odometry_frames,
+                "depth_odometry_runs": self.n_depth_odometry_runs}
 
     def update(self, outcome: FrameOutcome) -> None:
         if outcome.tracked and not outcome.started_map and outcome.posed_by is not self \
