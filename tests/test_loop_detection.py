@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from semslam.config import load_config
+from semslam.backend.sim3 import ransac_similarity
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.core.types import Keypoints, orb_spec
 from semslam.slam.orb.fusion import PointFusion
@@ -27,7 +28,7 @@ from semslam.geometry.alignment import AlignmentError
 from semslam.geometry.camera import PinholeCamera
 from semslam.place.database import KeyframeDatabase
 from semslam.place.vocabulary import BowVector
-from semslam.slam.orb.loop_closing import LoopClosing, ransac_se3
+from semslam.slam.orb.loop_closing import LoopClosing
 from semslam.slam.orb.loop_consistency import Candidate, ConsistentGroup, LoopConsistency
 from semslam.slam.orb.map import KeyFrame, Map
 
@@ -209,29 +210,29 @@ def _rigid_correspondences(n: int, rng: np.random.Generator) -> tuple[np.ndarray
     return x1, x2, uv1, uv2, cam
 
 
-def test_ransac_se3_skips_degenerate_samples() -> None:
+def test_rigid_ransac_skips_degenerate_samples() -> None:
     """Half the points coincide: samples drawn from them are colinear (AlignmentError) and
     are skipped; the other samples still find the motion."""
     rng = np.random.default_rng(0)
     x1, x2, uv1, uv2, cam = _rigid_correspondences(40, rng)
     x1[:20], x2[:20], uv1[:20], uv2[:20] = x1[0], x2[0], uv1[0], uv2[0]
     ones = np.ones(40)
-    T, inl = ransac_se3(x1, x2, uv1, uv2, ones, ones, cam, np.random.default_rng(1))
+    T, inl = ransac_similarity(x1, x2, uv1, uv2, ones, ones, cam, np.random.default_rng(1), with_scale=False)
     assert T is not None and inl.all()
     assert np.allclose(T[:3, 3], [0.1, 0.0, 0.0], atol=1e-9)
 
 
-def test_ransac_se3_lets_other_errors_through(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_rigid_ransac_lets_other_errors_through(monkeypatch: pytest.MonkeyPatch) -> None:
     """Only a degenerate sample is swallowed; a bug in the solver must surface."""
-    import semslam.slam.orb.loop_closing as lc
+    import semslam.backend.sim3 as sim3
 
     def broken(*_: Any, **__: Any) -> Any:
         raise IndexError("bug")
 
-    monkeypatch.setattr(lc, "umeyama", broken)
+    monkeypatch.setattr(sim3, "umeyama", broken)
     x1, x2, uv1, uv2, cam = _rigid_correspondences(30, np.random.default_rng(0))
     with pytest.raises(IndexError):
-        ransac_se3(x1, x2, uv1, uv2, np.ones(30), np.ones(30), cam, np.random.default_rng(0))
+        ransac_similarity(x1, x2, uv1, uv2, np.ones(30), np.ones(30), cam, np.random.default_rng(0), with_scale=False)
     assert issubclass(AlignmentError, ValueError)  # what the loop does catch
 
 

@@ -16,11 +16,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.pose_graph import PoseGraphFailed
+from semslam.backend.sim3 import ransac_similarity
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
-from semslam.geometry.alignment import AlignmentError, umeyama
 from semslam.geometry.camera import PinholeCamera
-from semslam.geometry.se3 import invert, make_pose
+from semslam.geometry.se3 import invert
 from semslam.slam.orb.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.orb.local_mapping import apply_in_slices, build_ba_problem
@@ -40,46 +40,6 @@ if TYPE_CHECKING:
 HINT_KEYFRAMES = 5
 
 log = logging.getLogger(__name__)
-
-
-def ransac_se3(x1: NDArray[np.float64], x2: NDArray[np.float64], uv1: NDArray[np.float64], uv2: NDArray[np.float64],
-               inv_s2_1: NDArray[np.float64], inv_s2_2: NDArray[np.float64], camera: PinholeCamera,
-               rng: np.random.Generator, iterations: int = 300, min_inliers: int = 20
-               ) -> tuple[NDArray[np.float64] | None, NDArray[np.bool_]]:
-    """T_12 with x1 = T_12 x2 (camera-frame points of matched map points), hypotheses from
-    3 correspondences (Horn/Umeyama), inliers by reprojection in both images (chi2 9.21,
-    ORB-SLAM's Sim3Solver)."""
-    n = len(x1)
-    best_inl = np.zeros(n, bool)
-    best_T = None
-    if n < max(3, min_inliers):
-        return None, best_inl
-    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
-
-    def inliers_of(T: NDArray[np.float64]) -> NDArray[np.bool_]:
-        p1, z1 = project(T, x2, fx, fy, cx, cy)
-        p2, z2 = project(invert(T), x1, fx, fy, cx, cy)
-        e1 = ((p1 - uv1) ** 2).sum(1) * inv_s2_1
-        e2 = ((p2 - uv2) ** 2).sum(1) * inv_s2_2
-        return (z1 > 0) & (z2 > 0) & (e1 < 9.21) & (e2 < 9.21)
-
-    for _ in range(iterations):
-        s = rng.choice(n, 3, replace=False)
-        try:
-            R, t, _ = umeyama(x2[s], x1[s], with_scale=False)
-        except AlignmentError:  # colinear or coincident sample: no hypothesis, draw again
-            continue
-        T = make_pose(R, t)
-        inl = inliers_of(T)
-        if inl.sum() > best_inl.sum():
-            best_inl, best_T = inl, T
-            if inl.sum() > 0.9 * n:
-                break
-    if best_T is None or best_inl.sum() < min_inliers:
-        return None, best_inl
-    R, t, _ = umeyama(x2[best_inl], x1[best_inl], with_scale=False)
-    T = make_pose(R, t)
-    return T, inliers_of(T)
 
 
 def _point_positions(kf: KeyFrame) -> NDArray[np.float64]:
@@ -406,8 +366,9 @@ class LoopClosing(KeyframeWorker):
             return None
         x1 = pos1[i1] @ T1[:3, :3].T + T1[:3, 3]
         x2 = pos2[i2] @ T2[:3, :3].T + T2[:3, 3]
-        T12, inl = ransac_se3(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
-                              self.pyr.inv_sigma2[cand.keypoints.octave[i2]], self.camera, self.rng)
+        T12, inl = ransac_similarity(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
+                                     self.pyr.inv_sigma2[cand.keypoints.octave[i2]], self.camera, self.rng,
+                                     with_scale=False)
         if T12 is None:
             log.debug("kf %d vs %d: SE3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(i1), int(inl.sum()))
             return None
