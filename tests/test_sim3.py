@@ -20,7 +20,7 @@ from semslam.backend.sim3 import (
 from semslam.geometry.alignment import AlignmentError, umeyama
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, make_pose, rotation_angle, so3_exp
-from semslam.slam.orb.search import project
+from semslam.geometry.projection import project
 
 CAM = PinholeCamera(500.0, 500.0, 320.0, 240.0)
 

@@ -17,6 +17,7 @@ from scipy.optimize import least_squares
 
 from semslam.geometry.alignment import AlignmentError, umeyama
 from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.projection import project
 from semslam.geometry.se3 import invert, make_pose, so3_exp
 
 Array = NDArray[np.float64]
@@ -49,16 +50,6 @@ def sim3_inverse(S: Array) -> Array:
     return make_pose(R.T / s, -(R.T @ t) / s)
 
 
-def _project(T: Array, pts: Array, fx: float, fy: float, cx: float, cy: float) -> tuple[Array, Array]:
-    """Pixels and depths of ``T @ pts``: the arithmetic of ``slam.orb.search.project`` (which
-    this layer may not import), so that rigid RANSAC stays bit-identical to before."""
-    pc = pts @ T[:3, :3].T + T[:3, 3]
-    z = pc[:, 2]
-    zs = np.where(np.abs(z) > 1e-9, z, 1e-9)
-    uv = np.stack([fx * pc[:, 0] / zs + cx, fy * pc[:, 1] / zs + cy], axis=1)
-    return uv, z
-
-
 def _hypothesis(R: Array, t: Array, s: float, with_scale: bool) -> tuple[Array, Array]:
     """``S_12`` and ``S_12^-1``; the rigid case goes through ``make_pose`` / ``invert`` as
     ``ransac_se3`` did (same floating-point results)."""
@@ -88,8 +79,8 @@ def ransac_similarity(x1: Array, x2: Array, uv1: Array, uv2: Array, inv_s2_1: Ar
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
 
     def inliers_of(S: Array, S_inv: Array) -> NDArray[np.bool_]:
-        p1, z1 = _project(S, x2, fx, fy, cx, cy)
-        p2, z2 = _project(S_inv, x1, fx, fy, cx, cy)
+        p1, z1 = project(S, x2, fx, fy, cx, cy)
+        p2, z2 = project(S_inv, x1, fx, fy, cx, cy)
         e1 = ((p1 - uv1) ** 2).sum(1) * inv_s2_1
         e2 = ((p2 - uv2) ** 2).sum(1) * inv_s2_2
         return (z1 > 0) & (z2 > 0) & (e1 < CHI2_2DOF) & (e2 < CHI2_2DOF)
@@ -160,8 +151,8 @@ def optimize_similarity(S12: Array, x1: Array, x2: Array, uv1: Array, uv2: Array
 
     def errors(p: Array, keep: NDArray[np.bool_]) -> tuple[Array, Array, NDArray[np.bool_]]:
         S, S_inv = unpack(p)
-        p1, z1 = _project(S, x2[keep], fx, fy, cx, cy)
-        p2, z2 = _project(S_inv, x1[keep], fx, fy, cx, cy)
+        p1, z1 = project(S, x2[keep], fx, fy, cx, cy)
+        p2, z2 = project(S_inv, x1[keep], fx, fy, cx, cy)
         return (uv1[keep] - p1) * w1[keep], (uv2[keep] - p2) * w2[keep], (z1 > 0) & (z2 > 0)
 
     def run(p: Array, keep: NDArray[np.bool_], max_nfev: int) -> Array:

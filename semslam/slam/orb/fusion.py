@@ -21,7 +21,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.slam.orb.map import KeyFrame, Map
 from semslam.slam.orb.point_store import MapPoint
 from semslam.slam.orb.map_batch import distinctive_descriptors, shared_store, store_rows
-from semslam.slam.orb.search import project
+from semslam.geometry.projection import project
 
 _ID = attrgetter("id")
 

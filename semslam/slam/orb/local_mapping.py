@@ -39,7 +39,8 @@ from semslam.slam.orb.point_store import MapPoint
 from semslam.slam.orb.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
                                         point_positions)
 from semslam.slam.orb.map_batch import warm_up as warm_up_kernels
-from semslam.slam.orb.search import node_pairs, project
+from semslam.geometry.projection import project
+from semslam.slam.orb.search import node_pairs
 
 if TYPE_CHECKING:
     from semslam.place.vocabulary import Vocabulary

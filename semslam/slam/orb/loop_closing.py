@@ -30,7 +30,8 @@ from semslam.slam.orb.merge_check import COVISIBLES, MIN_PROJECTED, PENDING_MISS
 from semslam.slam.orb.map import KeyFrame, Map
 from semslam.slam.orb.point_store import MapPoint
 from semslam.slam.orb.map_batch import normals_and_depths
-from semslam.slam.orb.search import project, search_by_bow, search_by_projection
+from semslam.geometry.projection import project
+from semslam.slam.orb.search import search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase

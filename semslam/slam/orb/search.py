@@ -37,16 +37,6 @@ def rotation_consistent(angle_a: NDArray[np.floating], angle_b: NDArray[np.float
     return kept[bins]
 
 
-def project(T_cw: NDArray[np.float64], pts_w: NDArray[np.float64], fx: float, fy: float, cx: float, cy: float
-            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Pixel positions and depths of world points seen from ``T_cw``."""
-    pc = pts_w @ T_cw[:3, :3].T + T_cw[:3, 3]
-    z = pc[:, 2]
-    zs = np.where(np.abs(z) > 1e-9, z, 1e-9)
-    uv = np.stack([fx * pc[:, 0] / zs + cx, fy * pc[:, 1] / zs + cy], axis=1)
-    return uv, z
-
-
 def search_by_projection(
     uv: NDArray[np.float64],
     radius: NDArray[np.float64],

@@ -37,7 +37,8 @@ from semslam.slam.orb.motion_priors.depth_odometry import DepthOdometry
 from semslam.slam.orb.motion_priors.rolling_shutter import RollingShutter
 from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 from semslam.slam.orb.row_kernels import first_seen_unique
-from semslam.slam.orb.search import project, rotation_consistent, search_by_bow, search_by_projection
+from semslam.geometry.projection import project
+from semslam.slam.orb.search import rotation_consistent, search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
