@@ -64,6 +64,11 @@ class MonocularFrameBuilder:
                       np.full(n, -1.0))
 
 
+def is_monocular(config: SystemConfig) -> bool:
+    """Frames without any depth: a monocular camera without a depth network."""
+    return config.sensor == "mono" and config.depth.source == "sensor"
+
+
 def frame_builder(config: SystemConfig, camera: PinholeCamera) -> FrameBuilder:
     """The builder for the frames ``config`` gives: RGB-D whenever they come with depth, the
     sensor's or a depth network's (a monocular camera as pseudo-RGB-D)."""

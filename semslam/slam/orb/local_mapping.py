@@ -32,6 +32,7 @@ from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
+from semslam.slam.orb.frame_builders import is_monocular
 from semslam.slam.orb.fusion import PointArrays, PointFusion
 from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
 from semslam.slam.orb.map import KeyFrame, Map
@@ -115,6 +116,8 @@ class LocalMapping(KeyframeWorker):
         self.voc = vocabulary
         self.pyr = slam_map.spec.pyramid  # the pyramid of the map's features
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
+        # No depth at all: ORB-SLAM's monocular thresholds where they differ.
+        self.mono = is_monocular(config)
         super().__init__(inbox)
         self.ba = ba
         self.fusion = fusion
@@ -230,7 +233,7 @@ class LocalMapping(KeyframeWorker):
             age = kf.id - p.first_kf_id
             # Observations count twice where the keyframe has depth (ORB-SLAM's stereo rule),
             # so "<= 3" means: seen by fewer than two RGB-D keyframes.
-            if p.found_ratio < 0.25 or (age >= 2 and p.n_obs <= 3):
+            if p.found_ratio < 0.25 or (age >= 2 and p.n_obs <= (2 if self.mono else 3)):
                 cull.append(p)
                 continue
             if age >= 3:
@@ -248,10 +251,17 @@ class LocalMapping(KeyframeWorker):
         free1 = kf.free_mask()
         new: list[tuple[KeyFrame, int, int]] = []
         new_pos = []
-        for nb in kf.best_covisibles(10):
+        # Monocular: 20 neighbours, and a baseline of 1 % of the neighbour's median scene
+        # depth instead of the virtual stereo baseline (ORB-SLAM CreateNewMapPoints).
+        for nb in kf.best_covisibles(20 if self.mono else 10):
             if not free1.any():
                 break
-            if np.linalg.norm(nb.center - kf.center) < baseline:
+            dist = np.linalg.norm(nb.center - kf.center)
+            if self.mono:
+                median = self._median_depth(nb)
+                if not median > 0 or dist / median < 0.01:
+                    continue
+            elif dist < baseline:
                 continue
             free2 = nb.free_mask()
             i1, i2 = self._epipolar_matches(kf, nb, free1, free2)
@@ -283,6 +293,15 @@ class LocalMapping(KeyframeWorker):
         apply_in_slices(self.map.lock, [partial(self._add_triangulated, kf, nb, a, b, pw, n, mx, mn, d)
                                         for (nb, a, b), pw, n, mx, mn, d
                                         in zip(new, pos, normal, max_d.tolist(), min_d.tolist(), desc)])
+
+    def _median_depth(self, kf: KeyFrame) -> float:
+        """Median depth of the keyframe's points in its frame (ComputeSceneMedianDepth(2));
+        0 without points."""
+        rows = kf.points.good_rows(self.map.store)[1]
+        if not rows.size:
+            return 0.0
+        z = self.map.store.pos[rows] @ kf.T_cw[2, :3] + kf.T_cw[2, 3]
+        return float(np.median(z))
 
     def _add_triangulated(self, kf: KeyFrame, nb: KeyFrame, a: int, b: int, pw: NDArray[np.float64],
                           normal: NDArray[np.float64], max_dist: float, min_dist: float,
@@ -511,7 +530,8 @@ class LocalMapping(KeyframeWorker):
         for c, (idx, rows) in zip(cands, slots):
             alive = ~gone[rows]
             depth = c.depth[idx]
-            close = alive & (depth > 0) & (depth <= self.th_depth_m)
+            # Monocular: every point counts (ORB-SLAM tests depth only with a depth sensor).
+            close = alive if self.mono else alive & (depth > 0) & (depth <= self.th_depth_m)
             n_points = int(close.sum())
             if not n_points:
                 continue

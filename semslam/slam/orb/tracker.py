@@ -86,10 +86,9 @@ def _image_size(camera: PinholeCamera) -> tuple[int, int] | None:
 
 def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerInputs | None = None,
                    map_path: Path | None = None) -> "OrbTracker":
-    """The registry's factory: refuses a sensor it cannot run, loads a saved map."""
-    if config.sensor == "mono" and config.depth.source == "sensor":  # pseudo-RGB-D needs a depth network
-        raise ConfigError("sensor: mono has no sensor depth; tracking.method=orb_slam runs monocular frames on a "
-                          "depth network's depth (depth.source: sdfcnn, --preset sdf_rgbd), or use --preset sdf")
+    """The registry's factory: loads a saved map."""
+    # sensor: mono with depth.source: sensor runs without depth (two-view initialisation,
+    # slam/orb/mono_init.py); with a depth network's depth it is pseudo-RGB-D.
     slam_map = None
     if map_path is not None:
         from semslam.slam.orb.map_io import load_map

@@ -26,10 +26,11 @@ from semslam.dynamics.multiview import reference_views
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.orb.atlas import AtlasFollower
-from semslam.slam.orb.frame_builders import FrameBuilder, frame_builder
+from semslam.slam.orb.frame_builders import FrameBuilder, MonocularFrameBuilder, frame_builder
 from semslam.slam.orb.frame_state import FrameState
 from semslam.slam.orb.keyframe_worker import KeyframeSink
 from semslam.slam.orb.map import KeyFrame, Map, update_normals_and_depths
+from semslam.slam.orb.mono_init import MonocularInitializer
 from semslam.slam.orb.motion_priors.base import FrameImages, FrameOutcome, MotionState, PosePrior, PosePrediction, Stage
 from semslam.slam.orb.motion_priors.blur_coast import BlurCoast
 from semslam.slam.orb.motion_priors.constant_velocity import ConstantVelocity
@@ -90,6 +91,11 @@ class Tracking:
         self.depth = depth
         self.dynamics = dynamics
         self.builder = builder if builder is not None else frame_builder(config, camera)
+        # Monocular (no depth at all): two-view initialisation and ORB-SLAM's monocular
+        # thresholds where they differ from RGB-D's.
+        self.mono = isinstance(self.builder, MonocularFrameBuilder)
+        self.mono_init = (MonocularInitializer(camera, slam_map.matcher, self.spec.th_low, config.seed)
+                          if self.mono else None)
         self.sharpness = SharpnessHistory()
         self.priors = (priors if priors is not None
                        else pose_priors(config, camera, slam_map, self.pyr, self.sharpness))
@@ -340,7 +346,10 @@ class Tracking:
 
     # ------------------------------------------------------------------ initialisation
     def _initialize(self, cur: FrameState) -> bool:
-        """First frame with enough keypoints becomes keyframe 0 at the origin, points from depth."""
+        """First frame with enough keypoints becomes keyframe 0 at the origin, points from depth
+        (monocular: two views, ``_initialize_monocular``)."""
+        if self.mono_init is not None:
+            return self._initialize_monocular(cur)
         if len(cur) < self.cfg.min_init_keypoints or (cur.depth > 0).sum() < self.cfg.min_init_keypoints // 2:
             return False
         cur.T_cw = np.eye(4)
@@ -354,6 +363,47 @@ class Tracking:
         self.last_kf_frame = cur.index
         self.local_kfs = [kf]
         self.local_rows = kf.points.rows[kf.points.rows >= 0]
+        self.state = TrackingState.OK
+        self.new_map_pending = False
+        return True
+
+    def _initialize_monocular(self, cur: FrameState) -> bool:
+        """ORB-SLAM's MonocularInitialization / CreateInitialMapMonocular: once a pair holds,
+        the reference becomes keyframe 0 at the origin and this frame keyframe 1, with the
+        triangulated points (median depth 1) seen by both."""
+        assert self.mono_init is not None
+        pair = self.mono_init.attempt(cur)
+        if pair is None:
+            return False
+        self.mono_init.reset()
+        ref = pair.reference
+        ref.clear_points()
+        cur.clear_points()
+        ref.T_cw = np.eye(4)
+        cur.T_cw = pair.T_cw
+        kf0, kf1 = self._make_keyframe(ref), self._make_keyframe(cur)
+        made = []
+        for a, b, pw in zip(pair.idx_ref.tolist(), pair.idx_cur.tolist(), pair.points_w):
+            p = self.map.new_point(pw, kf0.keypoints.descriptors[a], kf0)
+            p.add_observation(kf0, a)
+            p.add_observation(kf1, b)
+            kf0.points[a] = p
+            kf1.points[b] = p
+            cur.points[b] = p
+            made.append(p)
+        update_normals_and_depths(made, self.pyr.scales)
+        for kf in (kf0, kf1):
+            self.map.add_keyframe(kf)
+        for kf in (kf0, kf1):
+            kf.update_connections()
+        for kf in (kf0, kf1):
+            self.keyframes.insert(kf)
+        self.ref_kf = kf1
+        cur.ref_kf = kf1
+        self.last_kf_frame = cur.index
+        self.local_kfs = [kf0, kf1]
+        self.local_rows = kf1.points.rows[kf1.points.rows >= 0]
+        self.velocity = None  # ORB-SLAM: the next frame tracks the reference keyframe
         self.state = TrackingState.OK
         self.new_map_pending = False
         return True
@@ -454,8 +504,8 @@ class Tracking:
         uv, z = project(cur.T_cw, pos, self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy)
         # Forward motion makes points appear at finer levels, backward at coarser (ORB-SLAM).
         t_lc = (cur.T_cw @ invert(last.T_cw))[:3, 3]
-        forward = t_lc[2] > self.cfg.bf / self.camera.fx
-        backward = -t_lc[2] > self.cfg.bf / self.camera.fx
+        forward = t_lc[2] > self.cfg.bf / self.camera.fx and not self.mono
+        backward = -t_lc[2] > self.cfg.bf / self.camera.fx and not self.mono
         octv = last.keypoints.octave[idx].astype(np.intp)
         lo = np.where(forward, octv, np.where(backward, 0, octv - 1))
         hi = np.where(forward, self.pyr.n_levels - 1, np.where(backward, octv, octv + 1))
@@ -572,7 +622,8 @@ class Tracking:
             store.n_visible[cand[sel]] += 1
             if len(sel):
                 level = self.pyr.predict_level(max_d[sel], dist[sel])
-                th = 5.0 if cur.index < self.last_reloc_frame + 2 else 3.0  # RGB-D: 3 (ORB-SLAM2)
+                # RGB-D: 3, monocular: 1 (ORB-SLAM2 SearchLocalPoints)
+                th = 5.0 if cur.index < self.last_reloc_frame + 2 else (1.0 if self.mono else 3.0)
                 # ORB-SLAM also widens the radius for points seen at a grazing angle (cos < 0.998).
                 radius = th * np.where(view_cos[sel] > 0.998, 2.5, 4.0) * self.pyr.scales[level]
                 qi, ti = self._search(cur, uv[sel], radius, level - 1, level, store.descriptor[cand[sel]])
@@ -589,7 +640,8 @@ class Tracking:
 
     # ------------------------------------------------------------------ keyframes
     def _need_new_keyframe(self, cur: FrameState) -> bool:
-        """ORB-SLAM2 Tracking::NeedNewKeyFrame for RGB-D."""
+        """ORB-SLAM2 Tracking::NeedNewKeyFrame for RGB-D and monocular (no close points, a
+        0.9 reference ratio, no c1c, nothing inserted while local mapping is busy)."""
         n_kfs = len(self.map.keyframes)
         if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_kfs > self.cfg.max_frames:
             return False
@@ -603,13 +655,15 @@ class Tracking:
         n_tracked_close = int((close & tracked).sum())
         n_untracked_close = int((close & ~tracked).sum())
         need_close = n_tracked_close < 100 and n_untracked_close > 70
-        th_ref = 0.4 if n_kfs < 2 else 0.75
+        th_ref = 0.9 if self.mono else (0.4 if n_kfs < 2 else 0.75)
         inl = self.n_matches_inliers
         c1a = cur.index >= self.last_kf_frame + self.cfg.max_frames
         c1b = cur.index >= self.last_kf_frame + self.cfg.min_frames and idle
-        c1c = inl < ref_matches * 0.25 or need_close
+        c1c = not self.mono and (inl < ref_matches * 0.25 or need_close)
         c2 = (inl < ref_matches * th_ref or need_close) and inl > 15
         if (c1a or c1b or c1c) and c2:
+            if self.mono and not idle:
+                return False
             queued = self.keyframes.queue_size()
             return idle or queued < 3 or (c1c and queued < self.cfg.max_queued_keyframes_when_weak)
         return False

@@ -1,0 +1,104 @@
+"""Monocular map initialisation, a collaborator of ``Tracking`` (ORB-SLAM's
+``Tracking::MonocularInitialization`` and ``CreateInitialMapMonocular``).
+
+The first frame with more than ``MIN_KEYPOINTS`` keypoints becomes the reference (not a
+keyframe). Each next frame is matched to it (``ORBmatcher::SearchForInitialization``: the same
+pyramid level within ``WINDOW_PX`` of the reference keypoint, ``th_low`` and a 0.9 ratio, then
+rotation consistency); with fewer than ``MIN_MATCHES`` matches the reference is dropped (the
+next frame becomes it); otherwise the two views are reconstructed
+(``geometry/two_view.reconstruct``). On success two keyframes are made, the reference at the
+origin and the current frame at ``T_21``, with a map point per triangulated match, scaled to a
+median depth of 1 in the first keyframe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.geometry.camera import PinholeCamera
+from semslam.geometry.two_view import TwoViewParams, TwoViewResult, normalise_initial_map, reconstruct
+from semslam.slam.orb.frame_state import FrameState
+from semslam.slam.orb.search import rotation_consistent
+
+#: ORB-SLAM's constants (Tracking::MonocularInitialization, SearchForInitialization).
+MIN_KEYPOINTS = 100
+MIN_MATCHES = 100
+WINDOW_PX = 100.0
+RATIO = 0.9
+
+
+@dataclass(frozen=True, eq=False)
+class InitialPair:
+    """A reconstruction that holds: reference/current keypoint indices of the triangulated
+    matches, their world points (the reference's frame, median depth 1) and the current
+    frame's ``T_cw`` (= ``T_21``, scaled)."""
+
+    reference: FrameState
+    idx_ref: NDArray[np.intp]
+    idx_cur: NDArray[np.intp]
+    points_w: NDArray[np.float64]
+    T_cw: NDArray[np.float64]
+    result: TwoViewResult
+
+
+class MonocularInitializer:
+    """Keeps the reference frame between attempts; ``attempt`` says when a pair holds."""
+
+    def __init__(self, camera: PinholeCamera, matcher: object, th_low: float, seed: int,
+                 params: TwoViewParams | None = None) -> None:
+        self.camera = camera
+        self.matcher = matcher
+        self.th_low = th_low
+        self.rng = np.random.default_rng(seed)
+        self.params = params or TwoViewParams()
+        self.reference: FrameState | None = None
+        self.attempts = 0
+        self.reasons: dict[str, int] = {}  # why reconstructions were refused, counted
+
+    def reset(self) -> None:
+        self.reference = None
+
+    def match(self, ref: FrameState, cur: FrameState) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """SearchForInitialization: candidates at the reference keypoint's level within the
+        window, best by Hamming under ``th_low`` with the ratio test, one per current keypoint,
+        then the rotation histogram."""
+        grid = cur.grid(*self.camera.image_size)
+        oct_ref = ref.keypoints.octave.astype(np.intp)
+        n = len(ref)
+        cq, ct = grid.pairs_in_radius(ref.xy, np.full(n, WINDOW_PX), oct_ref, oct_ref, np.ones(len(cur), bool))
+        qi, ti, _ = self.matcher.match_candidates(ref.keypoints.descriptors,  # type: ignore[attr-defined]
+                                                  cur.keypoints.descriptors, cq, ct, self.th_low, RATIO)
+        qi, ti = np.asarray(qi, np.intp), np.asarray(ti, np.intp)
+        keep = rotation_consistent(ref.keypoints.angle[qi], cur.keypoints.angle[ti])
+        return qi[keep], ti[keep]
+
+    def attempt(self, cur: FrameState) -> InitialPair | None:
+        """One frame of ORB-SLAM's MonocularInitialization; the pair when it holds."""
+        if self.reference is None:
+            if len(cur) > MIN_KEYPOINTS:
+                self.reference = cur
+            return None
+        ref = self.reference
+        if len(cur) <= MIN_KEYPOINTS:
+            self.reset()
+            return None
+        i_ref, i_cur = self.match(ref, cur)
+        if len(i_ref) < MIN_MATCHES:
+            # ORB-SLAM drops the initializer here: the next frame becomes the reference.
+            self.reset()
+            return None
+        self.attempts += 1
+        res = reconstruct(ref.xy[i_ref], cur.xy[i_cur], self.camera.K, self.rng, self.params)
+        if not res.ok:
+            self.reasons[res.reason] = self.reasons.get(res.reason, 0) + 1
+            return None
+        good = res.triangulated
+        try:
+            pts, T_21, _ = normalise_initial_map(res.points[good], res.T_21)
+        except ValueError:
+            self.reset()
+            return None
+        return InitialPair(ref, i_ref[good], i_cur[good], pts, T_21, res)

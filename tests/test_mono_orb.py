@@ -1,0 +1,96 @@
+"""Plain monocular ORB core (``--preset mono``: no depth at all) end to end through the CLI,
+``--sequential`` (deterministic): two-view initialisation (slam/orb/mono_init.py), tracking
+with 2-residual observations, points only from local mapping's triangulation.
+
+Numbers measured here (this machine), the bounds a little above them:
+
+- ``static_xyz`` render, 90 frames: initialised at frame 27 (the pairs before are refused by
+  geometry/two_view as ambiguous: too little parallax), no frame lost afterwards, 9 keyframes,
+  Sim(3) ATE 0.40 cm against the RGB-D preset's 0.36 cm SE(3) on the same frames (ratio
+  1.10; issue 40's target: within 2x of RGB-D).
+- Real TUM fr2_desk, first 50 frames: initialised at frame 10, the 40 frames after all tracked,
+  12 keyframes, Sim(3) ATE 1.19 cm (RGB-D ``orb``: 0.93 cm SE(3), tests/test_real_fr2_desk.py).
+
+The Sim(3) ATE is checked against evo's scale-corrected alignment, an independent reference.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semslam.config import load_config
+from semslam.geometry.camera import PinholeCamera
+from semslam.slam.orb.frame_builders import MonocularFrameBuilder, is_monocular
+from semslam.slam.orb.tracker import create_tracker
+from tests.conftest import run_cli
+
+FR2_DESK = "rgbd_dataset_freiburg2_desk_first50"
+
+
+def evo_ate_sim3(gt: Path, est: Path) -> float:
+    """ATE RMSE after evo's Umeyama alignment with scale (the monocular reference)."""
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    ref, e = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
+                                         file_interface.read_tum_trajectory_file(str(est)), max_diff=0.02)
+    e.align(ref, correct_scale=True)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, e))
+    return float(ape.get_statistic(metrics.StatisticsType.rmse))
+
+
+def test_mono_preset_builds_a_depthless_tracker() -> None:
+    cfg = load_config("mono", ["slam.sequential=true"])
+    assert cfg.sensor == "mono" and cfg.depth.source == "sensor" and is_monocular(cfg)
+    assert not cfg.slam.loop_closing and cfg.slam.new_map_after_s == 0
+    camera = PinholeCamera(520.9, 521.0, 325.1, 249.7, width=640, height=480)
+    tracker = create_tracker(cfg, camera)  # refused before issue 40
+    try:
+        assert isinstance(tracker.tracking.builder, MonocularFrameBuilder)
+        assert tracker.tracking.mono and tracker.mapper.mono
+    finally:
+        tracker.shutdown()
+    assert not is_monocular(load_config("orb"))
+    assert not is_monocular(load_config("sdf_rgbd"))  # mono camera on a depth network: RGB-D path
+
+
+@pytest.mark.slow
+def test_mono_tracks_a_render_close_to_rgbd(static_render: Path, tmp_path: Path) -> None:
+    mono = run_cli(static_render, tmp_path / "mono", "--preset", "mono", "--sequential", "--no-report")
+    rgbd = run_cli(static_render, tmp_path / "orb", "--preset", "orb", "--sequential", "--no-report")
+    n = mono["frames"]
+    assert mono["uninitialized_frames"] <= 30, mono["uninitialized_frames"]  # measured 27
+    # Every frame after initialisation tracked: none lost, no relocalisation.
+    assert mono["lost_frames"] == 0 and mono["relocalisations"] == 0
+    assert mono["tracked_frames"] == n - mono["uninitialized_frames"]
+    assert mono["ate_alignment"] == "sim3"
+    ate = mono["ate"]["rmse"]
+    assert ate == pytest.approx(evo_ate_sim3(static_render / "groundtruth.txt",
+                                             tmp_path / "mono" / "trajectory.txt"), abs=1e-9)
+    assert ate < 0.006, ate  # measured 0.40 cm
+    # The map's scale is the initial pair's (median depth 1), not metres.
+    assert not 0.8 < mono["ate_sim3_scale"] < 1.25, mono["ate_sim3_scale"]
+    ratio = ate / rgbd["ate"]["rmse"]
+    assert ratio < 2.0, ratio  # issue 40's target; measured 1.10
+    assert 3 <= mono["keyframes"] <= n // 5, mono["keyframes"]  # measured 9
+    assert mono["triangulated_points"] > 0  # the map grows by triangulation only
+
+
+@pytest.mark.slow
+def test_mono_initialises_on_real_fr2_desk(shared_data: Path, tmp_path: Path) -> None:
+    seq = shared_data / FR2_DESK
+    if not seq.is_dir():
+        pytest.skip(f"{seq} not found")
+    out = tmp_path / "run"
+    stats = run_cli(seq, out, "--preset", "mono", "--sequential", "--no-report")
+    assert stats["uninitialized_frames"] <= 30, stats["uninitialized_frames"]  # measured 10
+    assert stats["lost_frames"] == 0
+    assert stats["tracked_frames"] == stats["frames"] - stats["uninitialized_frames"]
+    ate = stats["ate"]["rmse"]
+    assert ate == pytest.approx(evo_ate_sim3(seq / "groundtruth.txt", out / "trajectory.txt"), abs=1e-9)
+    assert ate < 0.015, ate  # measured 1.19 cm; a camera standing still scores 12 cm
+    assert np.isfinite(stats["ate_sim3_scale"])
