@@ -18,12 +18,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from semslam.config import load_config
+from semslam.features import create_extractor
+from semslam.features.matching import matcher_for
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.orb.frame_builders import MonocularFrameBuilder, is_monocular
+from semslam.slam.orb.frame_state import FrameState
+from semslam.slam.orb.mono_init import MonocularInitializer
 from semslam.slam.orb.tracker import create_tracker
 from tests.conftest import run_cli
 
@@ -41,6 +46,48 @@ def evo_ate_sim3(gt: Path, est: Path) -> float:
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, e))
     return float(ape.get_statistic(metrics.StatisticsType.rmse))
+
+
+def _frames(gray: np.ndarray, shifts: list[tuple[float, float]]) -> tuple[MonocularInitializer, list[FrameState]]:
+    """The image and copies translated by ``shifts`` (pixels) as monocular frames."""
+    h, w = gray.shape
+    camera = PinholeCamera(520.9, 521.0, w / 2, h / 2, width=w, height=h)
+    extractor = create_extractor(load_config("mono").features, (w, h))
+    builder = MonocularFrameBuilder(camera)
+    frames = []
+    for i, (dx, dy) in enumerate([(0.0, 0.0), *shifts]):
+        img = cv2.warpAffine(gray, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), borderMode=cv2.BORDER_REFLECT)
+        frames.append(builder.build(i, i / 30, extractor.extract(img, None)))
+    spec = extractor.spec
+    return MonocularInitializer(camera, matcher_for(spec), spec.th_low, 0), frames
+
+
+def test_search_for_initialization_finds_a_known_shift_inside_its_window(real_gray: np.ndarray) -> None:
+    # An image and its copy moved by (12, -7) px: every true match moved by exactly that
+    # (away from the reflected border); by 150 px (outside ORB-SLAM's 100 px window) none can be found.
+    init, (f0, near, far) = _frames(real_gray, [(12.0, -7.0), (150.0, 0.0)])
+    i0, i1 = init.match(f0, near)
+    shift = near.xy[i1] - f0.xy[i0]
+    # Within 1.5 px at the keypoint's pyramid scale (measured: 471 matches of 1004
+    # keypoints, 97.9 % right, median error 0.52 px).
+    right = np.linalg.norm(shift - [12.0, -7.0], axis=1) < 1.5 * 1.2 ** f0.keypoints.octave[i0]
+    assert len(i0) >= 350, len(i0)
+    assert right.mean() > 0.95, right.mean()
+    assert len(np.unique(i1)) == len(i1)  # one match per keypoint of the current frame
+    i0, i1 = init.match(f0, far)
+    moved = np.linalg.norm(far.xy[i1] - f0.xy[i0] - [150.0, 0.0], axis=1) < 3.0
+    assert moved.sum() == 0
+
+
+def test_reference_is_dropped_when_too_few_matches(real_gray: np.ndarray) -> None:
+    # ORB-SLAM's MonocularInitialization: < 100 matches drops the reference; the next frame
+    # with > 100 keypoints becomes it.
+    init, (f0, far, f2) = _frames(real_gray, [(150.0, 0.0), (2.0, 1.0)])
+    assert init.attempt(f0) is None and init.reference is f0
+    assert init.attempt(far) is None and init.reference is None
+    assert init.attempt(f2) is None and init.reference is f2
+    assert init.attempt(f0) is None  # a 2 px shift has no parallax: refused, reference kept
+    assert init.reference is f2 and init.attempts == 1 and sum(init.reasons.values()) == 1
 
 
 def test_mono_preset_builds_a_depthless_tracker() -> None:
@@ -64,6 +111,9 @@ def test_mono_tracks_a_render_close_to_rgbd(static_render: Path, tmp_path: Path)
     rgbd = run_cli(static_render, tmp_path / "orb", "--preset", "orb", "--sequential", "--no-report")
     n = mono["frames"]
     assert mono["uninitialized_frames"] <= 30, mono["uninitialized_frames"]  # measured 27
+    # Every pair before was tried and refused by geometry/two_view (too little parallax).
+    assert mono["mono_init_attempts"] == sum(mono["mono_init_refused"].values()) + 1
+    assert "mono_init_attempts" not in rgbd
     # Every frame after initialisation tracked: none lost, no relocalisation.
     assert mono["lost_frames"] == 0 and mono["relocalisations"] == 0
     assert mono["tracked_frames"] == n - mono["uninitialized_frames"]

@@ -227,7 +227,15 @@ class OrbTracker:
             "culled_dynamic_points": self.tracking.n_culled_dynamic_points,
             "threaded": self.threaded,
             **self._atlas_stats(),
+            **self._mono_stats(),
         }
+
+    def _mono_stats(self) -> dict[str, Any]:
+        """Monocular only: two-view reconstructions tried and why they were refused."""
+        init = self.tracking.mono_init
+        if init is None:
+            return {}
+        return {"mono_init_attempts": init.attempts, "mono_init_refused": dict(init.reasons)}
 
     def _atlas_stats(self) -> dict[str, Any]:
         """``maps``, ``merges`` and the trajectory's frames per final map (slam/orb/atlas.py)."""
