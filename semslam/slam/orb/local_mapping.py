@@ -427,6 +427,17 @@ class LocalMapping(KeyframeWorker):
         outside = [i for i, k in enumerate(observers) if k not in local_set and not k.bad]
         order = sorted(outside, key=lambda i: -n_seen[i])[: self.cfg.local_ba_max_fixed]
         fixed_list = [observers[i] for i in order] + [k for k in local if k.is_origin]
+        if self.mono and len(fixed_list) < 2 and len(free) > 1:
+            # Without depth one fixed keyframe leaves the map's scale free (the gauge of a
+            # monocular BA), and the solver shrank the whole map towards the fixed keyframe
+            # (static_xyz, 300 frames: to 1e-5 of its size within 10 keyframes). The oldest
+            # free keyframe is fixed too, as ORB-SLAM3 does when fewer than two are fixed
+            # (pLowerKf / pSecondLowerKF in Optimizer::LocalBundleAdjustment).
+            oldest = min(free, key=lambda k: k.id)
+            free = [k for k in free if k is not oldest]
+            fixed_list = fixed_list + [oldest]
+        if self.mono and not fixed_list:
+            return  # ORB-SLAM3 aborts local BA with no fixed keyframe ("0 fixed KF")
         problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf, table)
         t1 = time.perf_counter()
         result: BAResult = self.ba.run(problem)
