@@ -272,8 +272,8 @@ class Tracking:
     def _keyframe_wanted(self, cur: FrameState, posed_by: PosePrior | None) -> bool:
         """ORB-SLAM2's decision, or for a frame a prior posed, that prior's."""
         if posed_by is None:
-            return self._need_new_keyframe(cur)
-        return posed_by.keyframe_wanted(self._motion_state(), cur, self, lambda: self._need_new_keyframe(cur))
+            return self._need_new_keyframe(cur, self.mono)
+        return posed_by.keyframe_wanted(self._motion_state(), cur, self, lambda: self._need_new_keyframe(cur, self.mono))
 
     # ------------------------------------------------------------------ dynamics
     def _motion_prior(self) -> MotionPrior | None:
@@ -639,9 +639,10 @@ class Tracking:
         return n_found >= 30
 
     # ------------------------------------------------------------------ keyframes
-    def _need_new_keyframe(self, cur: FrameState) -> bool:
-        """ORB-SLAM2 Tracking::NeedNewKeyFrame for RGB-D and monocular (no close points, a
-        0.9 reference ratio, no c1c, nothing inserted while local mapping is busy)."""
+    def _need_new_keyframe(self, cur: FrameState, mono: bool = False) -> bool:
+        """ORB-SLAM2 Tracking::NeedNewKeyFrame for RGB-D, or with ``mono`` for a monocular
+        camera (no close points, a 0.9 reference ratio, no c1c, nothing inserted while local
+        mapping is busy)."""
         n_kfs = len(self.map.keyframes)
         if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_kfs > self.cfg.max_frames:
             return False
@@ -655,14 +656,14 @@ class Tracking:
         n_tracked_close = int((close & tracked).sum())
         n_untracked_close = int((close & ~tracked).sum())
         need_close = n_tracked_close < 100 and n_untracked_close > 70
-        th_ref = 0.9 if self.mono else (0.4 if n_kfs < 2 else 0.75)
+        th_ref = 0.9 if mono else (0.4 if n_kfs < 2 else 0.75)
         inl = self.n_matches_inliers
         c1a = cur.index >= self.last_kf_frame + self.cfg.max_frames
         c1b = cur.index >= self.last_kf_frame + self.cfg.min_frames and idle
-        c1c = not self.mono and (inl < ref_matches * 0.25 or need_close)
+        c1c = not mono and (inl < ref_matches * 0.25 or need_close)
         c2 = (inl < ref_matches * th_ref or need_close) and inl > 15
         if (c1a or c1b or c1c) and c2:
-            if self.mono and not idle:
+            if mono and not idle:
                 return False
             queued = self.keyframes.queue_size()
             return idle or queued < 3 or (c1c and queued < self.cfg.max_queued_keyframes_when_weak)
