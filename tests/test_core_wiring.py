@@ -74,10 +74,13 @@ def test_registry_errors_name_the_key() -> None:
         load_config("orb", ["sensor=stereo"])
 
 
-def test_mono_sensor_is_refused_by_the_rgbd_trackers_with_a_clear_line() -> None:
-    # orb_slam runs mono only on a depth network's depth (pseudo-RGB-D), f2kf never.
-    with pytest.raises(ConfigError, match="mono has no sensor depth"):
-        System(load_config("orb", ["sensor=mono"]), CAM)
+def test_mono_sensor_runs_the_orb_core_without_depth_and_is_refused_by_f2kf() -> None:
+    # orb_slam runs mono frames with no depth at all (two-view initialisation); f2kf needs depth.
+    system = System(load_config("orb", ["sensor=mono"]), CAM)
+    try:
+        assert system.tracker.tracking.mono_init is not None
+    finally:
+        system.close()
     with pytest.raises(ConfigError, match=r"monocular: tracking\.method=sdf_slam"):
         System(load_config("f2kf", ["sensor=mono"]), CAM)
 

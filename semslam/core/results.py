@@ -46,6 +46,9 @@ class TrackingCounters(Counters):
     depth_odometry_runs: int | None = None
     #: Map points removed because they landed on moving regions.
     culled_dynamic_points: int | None = None
+    #: Monocular ORB: two-view reconstructions tried before the map started, and why refused.
+    mono_init_attempts: int | None = None
+    mono_init_refused: Mapping[str, int] | None = None
     tracking_edges: int | None = None
     reanchors: int | None = None
     fallback_reference: int | None = None
@@ -177,7 +180,7 @@ STATS_LAYOUT: tuple[str, ...] = (
     "loops_dropped", "ba_worker_restarts", "culled_keyframes", "triangulated_points", "culled_dynamic_points",
     "threaded",
     "maps", "merges", "maps_unmerged", "trajectory_frames_by_map", "frames_outside_first_map", "trajectory_map_runs",
-    "merges_rejected", "merge_checks",
+    "merges_rejected", "merge_checks", "mono_init_attempts", "mono_init_refused",
     *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
     "jit_warmup_s",
 )
