@@ -122,14 +122,15 @@ def run_cli(seq: Path, out: Path, *extra: str) -> dict:
     return json.loads((out / "stats.json").read_text())
 
 
-def evo_ate(gt: Path, est: Path) -> float:
-    """ATE RMSE (SE(3)-aligned, translation) computed by evo itself, the reference."""
+def evo_ate(gt: Path, est: Path, correct_scale: bool = False) -> float:
+    """ATE RMSE (translation) computed by evo itself, the reference: SE(3)-aligned, or Sim(3)
+    with ``correct_scale`` (monocular)."""
     from evo.core import metrics, sync
     from evo.tools import file_interface
 
     ref, e = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
                                          file_interface.read_tum_trajectory_file(str(est)), max_diff=0.02)
-    e.align(ref, correct_scale=False)
+    e.align(ref, correct_scale=correct_scale)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, e))
     return float(ape.get_statistic(metrics.StatisticsType.rmse))

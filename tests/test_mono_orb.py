@@ -31,22 +31,9 @@ from semslam.slam.orb.frame_builders import MonocularFrameBuilder, is_monocular
 from semslam.slam.orb.frame_state import FrameState
 from semslam.slam.orb.mono_init import MonocularInitializer
 from semslam.slam.orb.tracker import create_tracker
-from tests.conftest import run_cli
+from tests.conftest import evo_ate, run_cli
 
 FR2_DESK = "rgbd_dataset_freiburg2_desk_first50"
-
-
-def evo_ate_sim3(gt: Path, est: Path) -> float:
-    """ATE RMSE after evo's Umeyama alignment with scale (the monocular reference)."""
-    from evo.core import metrics, sync
-    from evo.tools import file_interface
-
-    ref, e = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
-                                         file_interface.read_tum_trajectory_file(str(est)), max_diff=0.02)
-    e.align(ref, correct_scale=True)
-    ape = metrics.APE(metrics.PoseRelation.translation_part)
-    ape.process_data((ref, e))
-    return float(ape.get_statistic(metrics.StatisticsType.rmse))
 
 
 def _frames(gray: np.ndarray, shifts: list[tuple[float, float]]) -> tuple[MonocularInitializer, list[FrameState]]:
@@ -120,8 +107,8 @@ def test_mono_tracks_a_render_close_to_rgbd(static_render: Path, tmp_path: Path)
     assert mono["tracked_frames"] == n - mono["uninitialized_frames"]
     assert mono["ate_alignment"] == "sim3"
     ate = mono["ate"]["rmse"]
-    assert ate == pytest.approx(evo_ate_sim3(static_render / "groundtruth.txt",
-                                             tmp_path / "mono" / "trajectory.txt"), abs=1e-9)
+    assert ate == pytest.approx(evo_ate(static_render / "groundtruth.txt",
+                                    tmp_path / "mono" / "trajectory.txt", correct_scale=True), abs=1e-9)
     assert ate < 0.004, ate  # measured 0.29 cm
     # The map's scale is the initial pair's (median depth 1), not metres.
     assert not 0.8 < mono["ate_sim3_scale"] < 1.25, mono["ate_sim3_scale"]
@@ -161,6 +148,6 @@ def test_mono_initialises_on_real_fr2_desk(shared_data: Path, tmp_path: Path) ->
     assert stats["lost_frames"] == 0
     assert stats["tracked_frames"] == stats["frames"] - stats["uninitialized_frames"]
     ate = stats["ate"]["rmse"]
-    assert ate == pytest.approx(evo_ate_sim3(seq / "groundtruth.txt", out / "trajectory.txt"), abs=1e-9)
+    assert ate == pytest.approx(evo_ate(seq / "groundtruth.txt", out / "trajectory.txt", correct_scale=True), abs=1e-9)
     assert ate < 0.0065, ate  # measured 0.48 cm; a camera standing still scores 12 cm
     assert np.isfinite(stats["ate_sim3_scale"])

@@ -72,6 +72,6 @@ def is_monocular(config: SystemConfig) -> bool:
 def frame_builder(config: SystemConfig, camera: PinholeCamera) -> FrameBuilder:
     """The builder for the frames ``config`` gives: RGB-D whenever they come with depth, the
     sensor's or a depth network's (a monocular camera as pseudo-RGB-D)."""
-    if config.sensor == "rgbd" or config.depth.source != "sensor":
-        return RgbdFrameBuilder(camera, config.slam.bf)
-    return MonocularFrameBuilder(camera)
+    if is_monocular(config):
+        return MonocularFrameBuilder(camera)
+    return RgbdFrameBuilder(camera, config.slam.bf)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.protocols import Matcher
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.two_view import TwoViewParams, TwoViewResult, normalise_initial_map, reconstruct
 from semslam.slam.orb.frame_state import FrameState
@@ -47,7 +48,7 @@ class InitialPair:
 class MonocularInitializer:
     """Keeps the reference frame between attempts; ``attempt`` says when a pair holds."""
 
-    def __init__(self, camera: PinholeCamera, matcher: object, th_low: float, seed: int,
+    def __init__(self, camera: PinholeCamera, matcher: Matcher, th_low: float, seed: int,
                  params: TwoViewParams | None = None) -> None:
         self.camera = camera
         self.matcher = matcher
@@ -69,8 +70,7 @@ class MonocularInitializer:
         oct_ref = ref.keypoints.octave.astype(np.intp)
         n = len(ref)
         cq, ct = grid.pairs_in_radius(ref.xy, np.full(n, WINDOW_PX), oct_ref, oct_ref, np.ones(len(cur), bool))
-        qi, ti, _ = self.matcher.match_candidates(ref.keypoints.descriptors,  # type: ignore[attr-defined]
-                                                  cur.keypoints.descriptors, cq, ct, self.th_low, RATIO)
+        qi, ti, _ = self.matcher.match_candidates(ref.keypoints.descriptors, cur.keypoints.descriptors, cq, ct, self.th_low, RATIO)
         qi, ti = np.asarray(qi, np.intp), np.asarray(ti, np.intp)
         keep = rotation_consistent(ref.keypoints.angle[qi], cur.keypoints.angle[ti])
         return qi[keep], ti[keep]

@@ -358,13 +358,7 @@ class Tracking:
         self._new_points_from_keyframe(kf, cur, idx, cur.world_points(idx, self.camera))
         self.map.add_keyframe(kf)
         self.keyframes.insert(kf)
-        self.ref_kf = kf
-        cur.ref_kf = kf
-        self.last_kf_frame = cur.index
-        self.local_kfs = [kf]
-        self.local_rows = kf.points.rows[kf.points.rows >= 0]
-        self.state = TrackingState.OK
-        self.new_map_pending = False
+        self._map_started(cur, [kf])
         return True
 
     def _initialize_monocular(self, cur: FrameState) -> bool:
@@ -398,15 +392,21 @@ class Tracking:
             kf.update_connections()
         for kf in (kf0, kf1):
             self.keyframes.insert(kf)
-        self.ref_kf = kf1
-        cur.ref_kf = kf1
-        self.last_kf_frame = cur.index
-        self.local_kfs = [kf0, kf1]
-        self.local_rows = kf1.points.rows[kf1.points.rows >= 0]
         self.velocity = None  # ORB-SLAM: the next frame tracks the reference keyframe
+        self._map_started(cur, [kf0, kf1])
+        return True
+
+    def _map_started(self, cur: FrameState, keyframes: list[KeyFrame]) -> None:
+        """A map starts with ``keyframes``, the last one this frame's: it is the reference and
+        they are the local map."""
+        kf = keyframes[-1]
+        self.ref_kf = kf
+        cur.ref_kf = kf
+        self.last_kf_frame = cur.index
+        self.local_kfs = keyframes
+        self.local_rows = kf.points.rows[kf.points.rows >= 0]
         self.state = TrackingState.OK
         self.new_map_pending = False
-        return True
 
     def _new_points_from_keyframe(self, kf: KeyFrame, cur: FrameState, idx: NDArray[np.intp],
                                   pos: NDArray[np.float64]) -> None:
