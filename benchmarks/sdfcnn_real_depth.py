@@ -1,7 +1,8 @@
 #!/usr/bin/env python
 """Benchmark: SDFCNN's depth on real Kinect frames (issue 12, item 7), against the sensor's depth.
 
-    python benchmarks/sdfcnn_real_depth.py [--json out.json]
+    python benchmarks/sdfcnn_real_depth.py [--weights A.onnx --weights B.pt ...] [--renders DIR ...]
+        [--json out.json]
 
 The shipped network was trained on the project's renders only; these are the real frames
 available here: the first 50 frames of TUM freiburg2_desk (`../shared/data/
@@ -10,7 +11,12 @@ mm). Table 9's measures (RMS, REL, delta < 1.25^k) on the pixels with sensor dep
 SDFCNN's metric depth as predicted; the same scaled per frame by median(truth) / median(pred)
 (the shape of the depth without its scale, what a Sim(3)-aligned monocular run uses); and a
 baseline that knows each frame's median true depth and predicts it everywhere.
-Prints a JSON document, then a markdown table.
+``--weights`` (repeatable) compares several networks (default: the shipped one), e.g. the
+weights of the photo-textured recipe (``semslam train reproduce sdfcnn_photo``) against the
+shipped ones; ``--renders`` adds renders (every 3rd frame) to the same table, e.g. the held-out
+rooms (``semslam synth DIR --sequence static_xyz -n 60 --layout 1|2|3``), so that a network
+better on real frames can be seen not to be worse where it was measured before. Prints a JSON
+document, then a markdown table.
 """
 
 from __future__ import annotations
@@ -30,10 +36,10 @@ from semslam.semantics.sdfcnn_backend import SdfcnnPredictor
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def _tum_frames(root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+def _tum_frames(root: Path, every: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:
     seq = TumRgbdSequence(root)
     out = []
-    for k in range(len(seq)):
+    for k in range(0, len(seq), every):
         f = seq.load(k)
         assert f.depth is not None
         out.append((f.rgb, f.depth))
@@ -68,24 +74,33 @@ def evaluate(frames: list[tuple[np.ndarray, np.ndarray]], predictor: SdfcnnPredi
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--weights", type=Path, action="append", default=[],
+                    help="SDFCNN weights (.onnx or .pt), repeatable (default: the shipped ones)")
+    ap.add_argument("--renders", type=Path, nargs="*", default=[],
+                    help="TUM-layout renders to add (every 3rd frame), e.g. the held-out rooms")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     import torch
 
     torch.set_num_threads(1)
-    predictor = SdfcnnPredictor(None)
     sets = {"fr2_desk (first 50, real TUM)": _tum_frames(SHARED / "rgbd_dataset_freiburg2_desk_first50"),
-            "kinect_rgbd_5frames": _kinect_frames(SHARED / "kinect_rgbd_5frames")}
-    doc = {name: evaluate(frames, predictor) for name, frames in sets.items()}
+            "kinect_rgbd_5frames": _kinect_frames(SHARED / "kinect_rgbd_5frames"),
+            **{f"render {r.name}": _tum_frames(r, every=3) for r in args.renders}}
+    weights = args.weights or [None]
+    doc = {}
+    for w in weights:
+        predictor = SdfcnnPredictor(w)
+        doc[str(w or "shipped")] = {name: evaluate(frames, predictor) for name, frames in sets.items()}
     print(json.dumps(doc, indent=1))
     if args.json:
         args.json.write_text(json.dumps(doc, indent=1))
-    print("\n| frames | depth | RMS m | REL | d<1.25 | d<1.25^2 | d<1.25^3 |\n|---|---|---|---|---|---|---|")
-    for name, res in doc.items():
-        for kind in ("metric", "median_scaled", "median_depth_baseline"):
-            r = res[kind]
-            print(f"| {name} | {kind} | {r['rms']:.3f} | {r['rel']:.3f} | {r['delta1']:.3f} | {r['delta2']:.3f} | "
-                  f"{r['delta3']:.3f} |")
+    print("\n| weights | frames | depth | RMS m | REL | d<1.25 | d<1.25^2 | d<1.25^3 |\n|---|---|---|---|---|---|---|---|")
+    for wname, per_set in doc.items():
+        for name, res in per_set.items():
+            for kind in ("metric", "median_scaled", "median_depth_baseline"):
+                r = res[kind]
+                print(f"| {Path(wname).name} | {name} | {kind} | {r['rms']:.3f} | {r['rel']:.3f} | {r['delta1']:.3f} "
+                      f"| {r['delta2']:.3f} | {r['delta3']:.3f} |")
     return 0
 
 

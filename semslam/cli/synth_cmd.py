@@ -103,6 +103,10 @@ def synth_command(
         None, "--white-balance-swing", help="Per-channel white-balance swings of up to +- this share "
         "(default: 0)."
     ),
+    photo_textures: Path | None = typer.Option(
+        None, "--photo-textures", help="Folder of photographs laid on a seeded share of the surfaces "
+        "(renders for training; fill one with `python -m semslam.synth.textures DIR`)."
+    ),
     workers: int = typer.Option(2, "--workers", help="Frames rendered in parallel (threads)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -115,6 +119,8 @@ def synth_command(
     base = get_sequence(sequence) if sequence else SynthConfig()
     if people_dir is not None and not people_dir.is_dir():
         raise ConfigError(f"--people-dir {people_dir}: folder not found")
+    if photo_textures is not None and not photo_textures.is_dir():
+        raise ConfigError(f"--photo-textures {photo_textures}: folder not found")
     if workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")
     cfg = base.replace(
@@ -141,6 +147,7 @@ def synth_command(
         occluder_start_s=occluder_start_s,
         occluder_kind=occluder_kind,
         white_balance_swing=white_balance_swing,
+        photo_textures=str(photo_textures) if photo_textures is not None else None,
     ).validate()
     start = time.perf_counter()
     path = render_sequence(cfg, out, progress=not quiet, workers=workers)

@@ -36,7 +36,7 @@ def reproduce_command(
     data = work / "data"
     commands: list[tuple[list[str], bool]] = []  # (argv after `semslam`, already done)
     for r in recipe.renders:
-        commands.append((r.argv(data), not needs_render(data / r.name, r.config())))
+        commands.append((r.argv(data), not needs_render(data / r.name, r.config(data))))
     for step in recipe.steps:
         commands.append((step.resolve(data, work), (work / step.output).is_file()))
     if dry_run:
@@ -46,6 +46,10 @@ def reproduce_command(
     typer.echo(f"{name}: {len(recipe.renders)} renders and {len(recipe.steps)} steps into {work} ({recipe.note})",
                err=True)
     work.mkdir(parents=True, exist_ok=True)
+    if recipe.photos and not (data / recipe.photos).is_dir():  # photo textures (training-time packages)
+        from semslam.synth.textures import collect_photos
+
+        typer.echo(f"{len(collect_photos(data / recipe.photos))} photos in {data / recipe.photos}", err=True)
     for i, (argv, done) in enumerate(commands, 1):
         line = shlex.join(["semslam", *argv])
         if done:

@@ -36,6 +36,9 @@ def sdfcnn_command(
     threads: int = typer.Option(0, "--threads", min=0, help="Torch threads (0 = all cores)."),
     minutes: float = typer.Option(0.0, "--minutes", min=0.0, help="Time budget; lr decays by time, then stop."),
     fp32: bool = typer.Option(False, "--fp32", help="Store float32 weights (default float16)."),
+    camera: float = typer.Option(0.0, "--camera", min=0.0, max=1.0,
+                                 help="Share of training samples given a real camera's defects (exposure, "
+                                 "white balance, blur, noise, JPEG)."),
     init: Path = typer.Option(None, "--init", help="Start from these weights (same width)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -46,7 +49,7 @@ def sdfcnn_command(
         raise ConfigError(f"train sdfcnn: --out must end in .pt, got {out}")
     cfg = SdfTrainConfig(out=out, data=list(data), val=list(val), epochs=epochs, batch=batch,
                          size=_size(size, "--size"), width=width, lr=lr, lam=lam, every=every, seed=seed,
-                         threads=threads, minutes=minutes, half=not fp32, init=init,
+                         threads=threads, minutes=minutes, half=not fp32, init=init, camera=camera,
                          command=command_line(ctx))
     say = (lambda msg: None) if quiet else (lambda msg: typer.echo(msg, err=True))
     meta = train_sdfcnn(cfg, progress=not quiet, say=say)

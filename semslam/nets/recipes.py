@@ -22,7 +22,12 @@ __all__ = ["RECIPES", "Recipe", "Render", "TrainStep"]
 
 # SynthConfig field -> `semslam synth` flag (the fields the recipes set).
 _SYNTH_FLAGS = {"motion": "--motion", "frames": "-n", "people": "--people", "seed": "--seed", "fps": "--fps",
-                "width": "--width", "height": "--height", "layout": "--layout"}
+                "width": "--width", "height": "--height", "layout": "--layout", "exposure_ms": "--exposure-ms",
+                "rolling_shutter_ms": "--rolling-shutter-ms", "gain_swing": "--gain-swing",
+                "white_balance_swing": "--white-balance-swing", "photo_textures": "--photo-textures"}
+#: Folder (under the recipe's data folder) of the photographs for photo-textured renders,
+#: written by ``python -m semslam.synth.textures DIR`` (needs the ``train`` extra and opencv-doc).
+PHOTOS = "photos"
 
 
 @dataclass(frozen=True)
@@ -33,13 +38,20 @@ class Render:
     overrides: dict[str, Any]
     sequence: str | None = None
 
-    def config(self) -> SynthConfig:
+    def config(self, data: Path | None = None) -> SynthConfig:
+        """The render's configuration; ``data``: the recipe's data folder (where its photos are)."""
         base = get_sequence(self.sequence) if self.sequence else SynthConfig()
-        return base.replace(**self.overrides)
+        return base.replace(**self._resolved(data))
+
+    def _resolved(self, data: Path | None) -> dict[str, Any]:
+        photos = self.overrides.get("photo_textures")
+        if photos is None:
+            return dict(self.overrides)
+        return {**self.overrides, "photo_textures": str((data or Path()) / photos)}
 
     def argv(self, data: Path) -> list[str]:
         args = ["synth", str(data / self.name)] + (["--sequence", self.sequence] if self.sequence else [])
-        for key, value in self.overrides.items():
+        for key, value in self._resolved(data).items():
             if key == "mover":
                 args.append("--mover" if value else "--no-mover")
             else:
@@ -65,6 +77,7 @@ class Recipe:
     steps: tuple[TrainStep, ...]
     shipped: tuple[str, ...]  # files under the work folder that go to semslam/data/
     note: str = ""  # what it costs, for the command's first line
+    photos: str | None = None  # folder under the data folder its photo-textured renders read
 
 
 def _data_flags(flag: str, names: list[str]) -> list[str]:
@@ -114,6 +127,38 @@ def _sdfcnn() -> Recipe:
                   note="103 renders (~4 min), then ~53 min of training on 2 CPU threads")
 
 
+def _sdfcnn_photo(base: Recipe) -> Recipe:
+    """SDFCNN fine-tuned on renders that look more like camera images (issue 40, item 4): the
+    rooms with real photographs on 60 % of their surfaces and the hard-imaging effects on half
+    of them, mixed with the base recipe's renders so the rooms' look is not forgotten, and a
+    real camera's defects on half the samples (``--camera``); from ``base``'s weights."""
+    small = {"fps": 3.0, "width": 320, "height": 240}
+    hard = ({}, {"exposure_ms": 12.0, "gain_swing": 0.3, "white_balance_swing": 0.1},
+            {"rolling_shutter_ms": 25.0, "exposure_ms": 6.0})
+    motions = ("xyz", "rpy", "halfsphere", "loop", "room_loop", "room_revisit", "fast_turns", "xyz", "room_loop")
+    photo = []
+    for k, layout in enumerate(range(4, 100, 6)):  # 16 rooms, never the held-out 1-3 nor the validation 50
+        m = motions[k % 9]
+        photo.append(Render(f"photo_l{layout}_{m}_s{700 + layout}",
+                            {"motion": m, "layout": layout, "seed": 700 + layout, "frames": 40, **small,
+                             "people": k % 3, "photo_textures": PHOTOS, **hard[k % 3]}))
+    office = [r.name for r in base.renders if r.name.startswith("train_") and not r.name.startswith("train_l")]
+    rooms = sorted(r.name for r in base.renders if r.name.startswith("train_l"))[::4]
+    train = [r.name for r in photo] + office + rooms
+    step = TrainStep(("train", "sdfcnn", "--init", "{work}/sdfcnn_base.pt", "--out", "{work}/sdfcnn.pt",
+                      *_data_flags("--data", train), "--val", "{data}/val_xyz_s304", "--val",
+                      "{data}/val_l50_xyz_s450", "--epochs", "8", "--batch", "8", "--size", "192x144",
+                      "--width", "0.5", "--lr", "0.001", "--lambda", "0.4", "--camera", "0.5", "--seed", "1",
+                      "--threads", "1", "--minutes", "25"), "sdfcnn.pt")
+    first = base.steps[0]
+    base_step = TrainStep(tuple(a.replace("{work}/sdfcnn.pt", "{work}/sdfcnn_base.pt") for a in first.argv),
+                          "sdfcnn_base.pt")
+    export = TrainStep(("export-onnx", "{work}/sdfcnn.pt"), "sdfcnn.onnx")
+    return Recipe("sdfcnn_photo", (*base.renders, *photo), (base_step, step, export), ("sdfcnn.pt", "sdfcnn.onnx"),
+                  note=f"{len(base.renders) + len(photo)} renders (~8 min; first `python -m "
+                       f"semslam.synth.textures DATA/{PHOTOS}`), ~53 + 25 min of training", photos=PHOTOS)
+
+
 def _fpfdcnn() -> Recipe:
     """FPFDCNN of 2026-11-29: dense-Harris stage, then two cell-softmax stages."""
     train = [Render(f"train_{m}_s{s}", {"motion": m, "people": 0, "seed": s, "frames": 60, "fps": 10.0})
@@ -138,4 +183,4 @@ def _fpfdcnn() -> Recipe:
                   note="7 renders (~1 min), then 13 + 25 + 35 min of training")
 
 
-RECIPES: dict[str, Recipe] = {r.name: r for r in (_sdfcnn(), _fpfdcnn())}
+RECIPES: dict[str, Recipe] = {r.name: r for r in (_sdfcnn(), _sdfcnn_photo(_sdfcnn()), _fpfdcnn())}

@@ -14,8 +14,9 @@ by a 256-entry lookup table:
 Frames come through ``io.sequence.TumRgbdSequence`` (rgb/depth association, depth scale);
 labels through ``nets.datasets.read_label``. Everything is resized to one training size
 (image: area, labels and depth: nearest, so no depth is invented across edges; 0 = no
-depth stays 0) and kept in memory. Augmentation is horizontal flip and colour jitter only:
-scaling or cropping would change what a pixel's depth means for the camera.
+depth stays 0) and kept in memory. Augmentation is horizontal flip and colour jitter, and
+optionally (``camera`` > 0, that share of samples) a real camera's defects, :func:`camera_effects`;
+no scaling or cropping: they would change what a pixel's depth means for the camera.
 """
 
 from __future__ import annotations
@@ -109,12 +110,44 @@ def resize_sample(rgb: NDArray[np.uint8], label: NDArray[np.uint8], depth: NDArr
     return DepthSample(np.ascontiguousarray(rgb), np.ascontiguousarray(label), depth.astype(np.float32))
 
 
-class SdfDataset(Dataset):
-    """In-memory (image tensor, label, depth) samples; ``augment`` adds flip + colour jitter."""
+def camera_effects(rgb: NDArray[np.uint8], rng: random.Random) -> NDArray[np.uint8]:
+    """What a real (Kinect-class) camera does to an image that the renders lack, each drawn at
+    random: an exposure and tone curve (gain, gamma), a white-balance cast, defocus or motion
+    blur, shot and read noise, and JPEG compression. Geometry is unchanged, so the depth and
+    labels stay right."""
+    img = rgb.astype(np.float32) / 255.0
+    img = np.clip(img * rng.uniform(0.6, 1.5), 0, 1) ** rng.uniform(0.7, 1.4)
+    img *= np.array([rng.uniform(0.85, 1.15) for _ in range(3)], np.float32)
+    k = rng.random()
+    if k < 0.35:
+        img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.5, 1.5))
+    elif k < 0.6:  # linear motion blur along a random direction
+        n = rng.randint(3, 7)
+        kern = np.zeros((n, n), np.float32)
+        kern[n // 2] = 1.0 / n
+        rot = cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), rng.uniform(0, 180), 1.0)
+        kern = cv2.warpAffine(kern, rot, (n, n))
+        img = cv2.filter2D(img, -1, kern / max(float(kern.sum()), 1e-6))
+    nrng = np.random.default_rng(rng.getrandbits(32))
+    shot, read = rng.uniform(0.0, 0.03), rng.uniform(0.002, 0.02)
+    img = img + nrng.standard_normal(img.shape, dtype=np.float32) * np.sqrt(shot * np.clip(img, 0, 1) * 0.1
+                                                                             + read**2)
+    out = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    if rng.random() < 0.7:
+        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, rng.randint(30, 95)])
+        out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if ok else out
+    return out
 
-    def __init__(self, samples: Sequence[DepthSample], augment: bool = False, seed: int = 0) -> None:
+
+class SdfDataset(Dataset):
+    """In-memory (image tensor, label, depth) samples; ``augment`` adds flip + colour jitter and,
+    for a share ``camera`` of the samples, :func:`camera_effects`."""
+
+    def __init__(self, samples: Sequence[DepthSample], augment: bool = False, seed: int = 0,
+                 camera: float = 0.0) -> None:
         self.samples = list(samples)
         self.augment = augment
+        self.camera = camera
         self._jitter = Augment()
         self._rng = random.Random(seed)
 
@@ -128,6 +161,8 @@ class SdfDataset(Dataset):
             if self._rng.random() < 0.5:
                 rgb, lab, depth = rgb[:, ::-1], lab[:, ::-1], depth[:, ::-1]
             rgb = self._jitter.jitter(np.ascontiguousarray(rgb), self._rng)
+            if self.camera and self._rng.random() < self.camera:
+                rgb = camera_effects(rgb, self._rng)
         return (to_tensor(rgb), torch.from_numpy(lab.astype(np.int64)),
                 torch.from_numpy(np.ascontiguousarray(depth)))
 

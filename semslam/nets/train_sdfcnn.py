@@ -50,6 +50,7 @@ class SdfTrainConfig:
     threads: int = 0  # 0 = all cores
     minutes: float = 0.0  # stop (and save) after this long; 0 = no limit
     half: bool = True
+    camera: float = 0.0  # share of training samples given a real camera's defects (sdf_dataset.camera_effects)
     init: Path | None = None
     command: str = ""
 
@@ -63,6 +64,8 @@ class SdfTrainConfig:
             raise ConfigError("train sdfcnn: epochs and batch must be >= 1")
         if not 0.05 <= self.width <= 2.0:
             raise ConfigError(f"train sdfcnn: width {self.width} out of range (0.05..2)")
+        if not 0.0 <= self.camera <= 1.0:
+            raise ConfigError(f"train sdfcnn: camera {self.camera} out of range (0..1)")
         if not 0.0 <= self.lam <= 1.0:
             raise ConfigError(f"train sdfcnn: lambda {self.lam} out of range (0..1)")
         return self
@@ -93,7 +96,7 @@ def build_datasets(cfg: SdfTrainConfig, say: Callable[[str], None]) -> tuple[Sdf
     if not val:  # hold out every 10th training frame
         val, train = train[::10], [s for k, s in enumerate(train) if k % 10]
     say(f"loaded {len(train)} training and {len(val)} validation frames in {time.perf_counter() - t0:.1f} s")
-    return SdfDataset(train, augment=True, seed=cfg.seed), SdfDataset(val)
+    return SdfDataset(train, augment=True, seed=cfg.seed, camera=cfg.camera), SdfDataset(val)
 
 
 def train_sdfcnn(cfg: SdfTrainConfig, progress: bool = True, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -126,7 +129,7 @@ def train_sdfcnn(cfg: SdfTrainConfig, progress: bool = True, say: Callable[[str]
         "val_data": describe_sources(cfg.val, []) if cfg.val else "every 10th training frame",
         "n_train_frames": len(train_ds), "n_val_frames": len(val_ds),
         "class_freq_train": [round(f, 5) for f in class_frequencies(train_ds.samples)],
-        "batch": cfg.batch, "lr": cfg.lr, "optimizer": "AdamW, warm-up + poly(0.9)", "seed": cfg.seed,
+        "camera_effects": cfg.camera, "batch": cfg.batch, "lr": cfg.lr, "optimizer": "AdamW, warm-up + poly(0.9)", "seed": cfg.seed,
         "init": str(cfg.init) if cfg.init else None, "command": cfg.command, "torch_version": str(torch.__version__),
         "parameters": sum(p.numel() for p in model.parameters()),
         "inference_parameters": sum(p.numel() for p in model.parameters()),

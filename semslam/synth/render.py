@@ -50,7 +50,7 @@ IN_PROGRESS = ".rendering.json"
 #: SynthConfig fields added after renders were first cached (absent there = default).
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
                  "blackout_start_s", "blackout_s", "layout", "occluder_s", "occluder_start_s",
-                 "occluder_kind", "white_balance_swing")
+                 "occluder_kind", "white_balance_swing", "photo_textures")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -65,7 +65,8 @@ class Frame:
 
 
 @functools.lru_cache(maxsize=2)
-def scene_for_seed(seed: int, carried: bool = False, layout: int = 0) -> tuple[list[Box], TextureAtlas]:
+def scene_for_seed(seed: int, carried: bool = False, layout: int = 0,
+                   photo_textures: str | None = None) -> tuple[list[Box], TextureAtlas]:
     """Static boxes of room ``layout`` and the atlas, cached. The atlas also holds the
     mover's faces (after the static boxes) and, with ``carried``, the carried box's (last).
     The carried box casts no baked contact shadow (it does not stay where it stands at
@@ -73,9 +74,11 @@ def scene_for_seed(seed: int, carried: bool = False, layout: int = 0) -> tuple[l
     room = get_layout(layout)
     boxes = room.boxes()
     if not carried:
-        return boxes, build_texture_atlas(boxes + [mover_box(0.0)], seed, lights=room.lights)
+        return boxes, build_texture_atlas(boxes + [mover_box(0.0)], seed, lights=room.lights,
+                                          photo_textures=photo_textures)
     casters = boxes + [mover_box(0.0)]
-    return boxes, build_texture_atlas(casters + [carried_box(0.0)], seed, casters=casters, lights=room.lights)
+    return boxes, build_texture_atlas(casters + [carried_box(0.0)], seed, casters=casters, lights=room.lights,
+                                      photo_textures=photo_textures)
 
 
 class Renderer:
@@ -85,7 +88,7 @@ class Renderer:
         self.cfg = cfg.validate()
         fx, fy, cx, cy = cfg.intrinsics()
         self.cam = Camera(fx, fy, cx, cy, cfg.width, cfg.height)
-        self.boxes, self.atlas = scene_for_seed(cfg.seed, cfg.box_carrier, cfg.layout)
+        self.boxes, self.atlas = scene_for_seed(cfg.seed, cfg.box_carrier, cfg.layout, cfg.photo_textures)
         self.times = np.arange(cfg.frames) / cfg.fps
         self.poses = camera_trajectory(cfg.motion, self.times, cfg.duration, cfg.seed)
         self.people = People(

@@ -77,6 +77,9 @@ class SynthConfig:
     occluder_kind: str = "hand"
     # Auto white balance hunting: per-channel gains swing by up to +- this share.
     white_balance_swing: float = 0.0
+    # Issue 40: a folder of photographs laid on a seeded share of the surfaces
+    # (synth/texture_atlas.py), renders for training SDFCNN; None = procedural textures only.
+    photo_textures: str | None = None
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""

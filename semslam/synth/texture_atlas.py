@@ -21,6 +21,10 @@ from semslam.synth.scene import LIGHTS, Box
 PAD = 8  # texels of replicated border around each face (enough for mip level 2)
 ATLAS_WIDTH = 4096
 LEVELS = 3
+#: With photo textures, this share of faces shows a photograph (blended over its procedural
+#: texture, which keeps some of the office's look), chosen per face by its own seeded stream.
+PHOTO_SHARE = 0.6
+PHOTO_STREAM = 7  # the photo choice's stream: the procedural textures' streams stay as they were
 #: Ceiling lights: (position, relative intensity) per light.
 Lights = tuple[tuple[NDArray[np.float64], float], ...]
 
@@ -89,19 +93,36 @@ def _shading(
     return cv2.resize(light.astype(np.float32), (wpx, hpx), interpolation=cv2.INTER_LINEAR)
 
 
+def _photo_face(tex: NDArray[np.uint8], seed: int, box: Box, f: int, ppm: float,
+                photos: tuple[NDArray[np.uint8], ...]) -> NDArray[np.uint8]:
+    """``tex``, or with probability :data:`PHOTO_SHARE` a photo blended over it (70-100 %)."""
+    rng = np.random.default_rng([seed, zlib.crc32(box.name.encode()), f, PHOTO_STREAM])
+    if rng.random() >= PHOTO_SHARE:
+        return tex
+    h, w = tex.shape[:2]
+    alpha = rng.uniform(0.7, 1.0)
+    img = textures.photo(rng, w, h, ppm, photos).astype(np.float32)
+    return np.clip(alpha * img + (1 - alpha) * tex.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
+
+
 def build_texture_atlas(
-    boxes: list[Box], seed: int, casters: list[Box] | None = None, lights: Lights = LIGHTS
+    boxes: list[Box], seed: int, casters: list[Box] | None = None, lights: Lights = LIGHTS,
+    photo_textures: str | None = None,
 ) -> TextureAtlas:
     """Generate, light and pack the textures of all faces of ``boxes``; contact shadows
     are baked in from ``casters`` (default: all of ``boxes``), light from ``lights``
-    (default: layout 0's)."""
+    (default: layout 0's). ``photo_textures``: a folder of photographs, laid on a seeded
+    share of the faces (``textures.photo``); None (default) keeps the procedural ones."""
     others = boxes if casters is None else casters
+    photos = textures.load_photos(photo_textures) if photo_textures else None
     items = []  # (box index, face, texture)
     for i, box in enumerate(boxes):
         for f in range(6):
             _, _, _, w, h = box.face_frame(f)
             wpx, hpx = max(2, round(w * box.ppm)), max(2, round(h * box.ppm))
             tex = textures.generate(box.faces[f], _face_rng(seed, box, f), wpx, hpx, box.ppm)
+            if photos:
+                tex = _photo_face(tex, seed, box, f, box.ppm, photos)
             lit = tex.astype(np.float32) * _shading(box, f, wpx, hpx, w, h, others, lights)[..., None]
             items.append((i, f, np.clip(lit + 0.5, 0, 255).astype(np.uint8), w, h))
     # shelf packing, tallest first

@@ -2,14 +2,17 @@
 
 ORB needs many distinct, non-repeating corners, so surfaces are covered with random
 structure as in a real office: posters and notes with text, book spines, wood grain,
-speckled linoleum, cardboard with labels. Nothing is loaded from disk. Every generator
+speckled linoleum, cardboard with labels. Nothing is loaded from disk, except with photo
+textures (:func:`photo`, renders for training: a folder of real photographs). Every generator
 has the signature ``gen(rng, width_px, height_px, ppm) -> uint8 RGB (H, W, 3)`` where
 ``ppm`` is texels per metre, so decorations get physical sizes.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -885,3 +888,104 @@ def generate(kind: str, rng: Rng, w: int, h: int, ppm: float) -> Image:
     img = GENERATORS[kind](rng, max(w, 2), max(h, 2), ppm)
     assert img.shape == (max(h, 2), max(w, 2), 3), (kind, img.shape, w, h)
     return img
+
+
+# --------------------------------------------------------------------------- photo textures
+# Real photographs as surface textures, for renders that look more like camera images than the
+# procedural generators above do (issue 40, item 4: SDFCNN trained on renders only does not
+# generalise to real frames). Training-time only: the photos come from packages of the
+# ``train`` extra and Debian's opencv-doc; a default render never reads them.
+
+#: opencv-doc's natural photographs (examples/data; drawings, logos, charts and calibration
+#: boards left out).
+OPENCV_DOC_DIR = Path("/usr/share/doc/opencv-doc/examples/data")
+OPENCV_DOC_PHOTOS = ("aero1.jpg", "aero3.jpg", "aloeL.jpg", "apple.jpg", "baboon.jpg", "basketball1.png",
+                     "board.jpg", "box_in_scene.png", "building.jpg", "butterfly.jpg", "fruits.jpg", "home.jpg",
+                     "leuvenA.jpg", "messi5.jpg", "orange.jpg", "rubberwhale1.png", "smarties.png",
+                     "squirrel_cls.jpg", "starry_night.jpg", "stuff.jpg", "graf1.png", "ela_original.jpg",
+                     "licenseplate_motion.jpg", "text_defocus.jpg")
+#: scikit-image's bundled photographs (``skimage.data``; the ones it ships without a download).
+SKIMAGE_PHOTOS = ("astronaut", "brick", "camera", "cat", "chelsea", "coffee", "coins", "grass", "gravel",
+                  "rocket", "page", "immunohistochemistry", "hubble_deep_field")
+PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def collect_photos(dest: Path) -> list[Path]:
+    """Write the real photographs of the installed sources into ``dest`` as PNG (RGB) and return
+    the paths: opencv-doc's, scikit-image's and scikit-learn's sample images, whichever are
+    installed (``pip install semslam[train]``, ``apt-get install opencv-doc``)."""
+    dest = Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    found: dict[str, NDArray[np.uint8]] = {}
+    for name in OPENCV_DOC_PHOTOS:
+        bgr = cv2.imread(str(OPENCV_DOC_DIR / name), cv2.IMREAD_COLOR)
+        if bgr is not None:
+            found[f"opencv_{Path(name).stem}"] = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    try:
+        from skimage import data as skdata
+
+        for name in SKIMAGE_PHOTOS:
+            img = np.asarray(getattr(skdata, name)())
+            found[f"skimage_{name}"] = np.repeat(img[..., None], 3, 2) if img.ndim == 2 else img[..., :3]
+    except ImportError:
+        pass
+    try:
+        from sklearn.datasets import load_sample_images
+
+        sk = load_sample_images()
+        for fname, img in zip(sk.filenames, sk.images):
+            found[f"sklearn_{Path(fname).stem}"] = np.asarray(img)[..., :3]
+    except ImportError:
+        pass
+    out = []
+    for name, img in sorted(found.items()):
+        path = dest / f"{name}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(img.astype(np.uint8)), cv2.COLOR_RGB2BGR))
+        out.append(path)
+    return out
+
+
+@functools.lru_cache(maxsize=2)
+def load_photos(folder: str) -> tuple[Image, ...]:
+    """The photos in ``folder`` (RGB, sorted by file name, so a seed picks the same ones)."""
+    paths = sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in PHOTO_SUFFIXES)
+    photos = []
+    for p in paths:
+        bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        if bgr is not None:
+            photos.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+    if not photos:
+        raise FileNotFoundError(f"no photos ({'/'.join(PHOTO_SUFFIXES)}) in {folder}")
+    return tuple(photos)
+
+
+def photo(rng: Rng, w: int, h: int, ppm: float, photos: tuple[Image, ...]) -> Image:
+    """One of ``photos`` laid on a ``w`` x ``h`` face: printed 0.3-2 m across (a real size, so
+    its detail shrinks with distance as a real surface's does), mirror-tiled over larger faces
+    from a random offset, randomly flipped, and given a random colour cast."""
+    src = photos[int(rng.integers(0, len(photos)))]
+    if rng.random() < 0.5:
+        src = src[:, ::-1]
+    if rng.random() < 0.3:
+        src = np.ascontiguousarray(np.rot90(src))
+    across = rng.uniform(0.3, 2.0) * ppm  # texels the photo's width spans
+    scale = across / src.shape[1]
+    pw, ph = max(2, round(src.shape[1] * scale)), max(2, round(src.shape[0] * scale))
+    img = cv2.resize(np.ascontiguousarray(src), (pw, ph), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    ox, oy = int(rng.integers(0, pw)), int(rng.integers(0, ph))
+    reps_y, reps_x = (h + oy) // ph + 2, (w + ox) // pw + 2
+    tile = np.concatenate([img, img[::-1]], 0)  # mirrored tiling: no seams
+    tile = np.concatenate([tile, tile[:, ::-1]], 1)
+    big = np.tile(tile, ((reps_y + 1) // 2 + 1, (reps_x + 1) // 2 + 1, 1))
+    out = big[oy : oy + h, ox : ox + w].astype(np.float32)
+    gains = rng.uniform(0.8, 1.2, 3) * rng.uniform(0.7, 1.1)
+    return np.clip(out * gains, 0, 255).astype(np.uint8)
+
+
+if __name__ == "__main__":  # python -m semslam.synth.textures DIR: a photo folder for --photo-textures
+    import sys
+
+    if len(sys.argv) != 2:
+        raise SystemExit("usage: python -m semslam.synth.textures DIR")
+    written = collect_photos(Path(sys.argv[1]))
+    print(f"{len(written)} photos in {sys.argv[1]}")
