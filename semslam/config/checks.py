@@ -200,7 +200,9 @@ RULES: dict[type, dict[str, Rule]] = {
         "warp": OneOf(s.MASK_WARPS),
         "warp_margin_px": PIXELS,
     },
-    s.DepthConfig: {"source": Backend("depth_source"), "weights": Text()},
+    s.DepthConfig: {"source": Backend("depth_source"), "weights": Text(), "use": OneOf(("measurement", "prior")),
+                    "prior_sigma": Num(0.01, 2.0), "prior_max_spread": POSITIVE, "prior_max_jump": POSITIVE,
+                    "prior_max_unexplained": POSITIVE},
     s.InpaintingConfig: {
         "keyframes": AT_LEAST_1,
         "depth_tolerance_m": POSITIVE,

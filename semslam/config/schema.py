@@ -339,6 +339,21 @@ class DepthConfig:
     # checkpoint). Empty: semantics.weights when the segmenter is the same network
     # (semantics.backend == source, one forward pass gives both), else the shipped weights.
     weights: str = ""
+    # How the ORB core uses a depth network's depth with a monocular camera: "measurement"
+    # (it stands in for a sensor's depth: pseudo-RGB-D) or "prior" (monocular geometry first;
+    # the depth scales the initial map and is a weak, checked prior in local BA:
+    # slam/orb/depth_prior.py). The sensor's own depth is always a measurement.
+    use: str = "measurement"
+    # The prior's relative depth uncertainty (1 sigma at the map's median depth).
+    prior_sigma: float = 0.2
+    # Checks that drop the prior: the robust spread of log(map depth / predicted depth) over
+    # a keyframe's points (or the initial pair's) above this, or a keyframe's median log ratio
+    # this far from the running scale.
+    prior_max_spread: float = 0.25
+    prior_max_jump: float = 0.3
+    # ... or the ratios' spread above this share of the spread of the map's log depths (the
+    # prediction must explain the structure, not only the mean depth).
+    prior_max_unexplained: float = 0.5
 
     def resolved(self, semantics: SemanticsConfig) -> DepthConfig:
         """This config with ``weights`` filled in from the segmenter's when it is the same network."""

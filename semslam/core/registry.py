@@ -47,6 +47,8 @@ PLUGINS: dict[str, dict[str, str]] = {
         "sdfcnn": "semslam.semantics.sdfcnn_backend:create_depth",
         "ground_truth_depth": "semslam.io.standin_depth:create_ground_truth",
         "constant_depth": "semslam.io.standin_depth:create_constant",
+        "scaled_depth": "semslam.io.standin_depth:create_scaled",
+        "shuffled_depth": "semslam.io.standin_depth:create_shuffled",
     },
     "map_builder": {
         "keyframe_cloud": "semslam.reconstruction.keyframe_cloud:KeyframeCloud",

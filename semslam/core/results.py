@@ -49,6 +49,13 @@ class TrackingCounters(Counters):
     #: Monocular ORB: two-view reconstructions tried before the map started, and why refused.
     mono_init_attempts: int | None = None
     mono_init_refused: Mapping[str, int] | None = None
+    #: Monocular with a depth network as a prior (slam/orb/depth_prior.py): whether the map
+    #: started metric, the running scale (map depth / predicted depth), keyframes given a
+    #: prior and why others were not.
+    depth_prior_metric_init: bool | None = None
+    depth_prior_scale: float | None = None
+    depth_prior_keyframes: int | None = None
+    depth_prior_refused: Mapping[str, int] | None = None
     tracking_edges: int | None = None
     reanchors: int | None = None
     fallback_reference: int | None = None
@@ -181,6 +188,7 @@ STATS_LAYOUT: tuple[str, ...] = (
     "threaded",
     "maps", "merges", "maps_unmerged", "trajectory_frames_by_map", "frames_outside_first_map", "trajectory_map_runs",
     "merges_rejected", "merge_checks", "mono_init_attempts", "mono_init_refused",
+    "depth_prior_metric_init", "depth_prior_scale", "depth_prior_keyframes", "depth_prior_refused",
     *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
     "jit_warmup_s",
 )

@@ -8,6 +8,10 @@ Neither is a monocular result, and neither is to be reported as one:
   perfect depth: what the tracker would do with a perfect depth network, an upper bound.
 * ``constant_depth`` - every pixel at 2 m: lets a monocular image folder that has no depth
   at all run end to end (the plumbing), with a wrong structure and so wrong poses.
+* ``scaled_depth`` / ``shuffled_depth`` - DELIBERATELY WRONG depth networks for robustness
+  tests of a depth prior (``depth.use: prior``): the sequence's depth times 2 (right shape,
+  wrong scale), or its valid pixels randomly permuted within each image (right distribution,
+  no structure).
 
 The monocular ``sdf`` preset names its depth network (``sdfcnn``) instead.
 """
@@ -81,6 +85,32 @@ class ConstantDepth:
         return np.full(frame.rgb.shape[:2], self.metres, np.float32)
 
 
+class ScaledDepth:
+    """WRONG ON PURPOSE: the sequence's depth times ``factor``."""
+
+    def __init__(self, factor: float = 2.0) -> None:
+        self.factor = float(factor)
+        self._truth = GroundTruthDepth()
+
+    def depth(self, frame: Frame) -> NDArray[np.float32]:
+        return (self._truth.depth(frame) * self.factor).astype(np.float32)
+
+
+class ShuffledDepth:
+    """WRONG ON PURPOSE: the sequence's valid depths randomly permuted within each image
+    (seeded by the frame's timestamp, so a run is repeatable)."""
+
+    def __init__(self) -> None:
+        self._truth = GroundTruthDepth()
+
+    def depth(self, frame: Frame) -> NDArray[np.float32]:
+        depth = self._truth.depth(frame).copy()
+        valid = np.flatnonzero(depth > 0)
+        rng = np.random.default_rng(int(round(frame.timestamp * 1e6)) % 2**32)
+        depth.flat[valid] = depth.flat[rng.permutation(valid)]
+        return depth
+
+
 def create_ground_truth(cfg: DepthConfig) -> GroundTruthDepth:
     """Registry factory of depth source ``ground_truth_depth``."""
     return GroundTruthDepth()
@@ -89,3 +119,13 @@ def create_ground_truth(cfg: DepthConfig) -> GroundTruthDepth:
 def create_constant(cfg: DepthConfig) -> ConstantDepth:
     """Registry factory of depth source ``constant_depth``."""
     return ConstantDepth()
+
+
+def create_scaled(cfg: DepthConfig) -> ScaledDepth:
+    """Registry factory of depth source ``scaled_depth``."""
+    return ScaledDepth()
+
+
+def create_shuffled(cfg: DepthConfig) -> ShuffledDepth:
+    """Registry factory of depth source ``shuffled_depth``."""
+    return ShuffledDepth()

@@ -52,7 +52,8 @@ class RgbdFrameBuilder:
 
 
 class MonocularFrameBuilder:
-    """No depth: every keypoint's depth is 0 and its right coordinate -1 (none)."""
+    """No depth: every keypoint's depth is 0 and its right coordinate -1 (none). A depth
+    network's image, where there is one, is read at the keypoints as ``prior_depth`` only."""
 
     def __init__(self, camera: PinholeCamera) -> None:
         self.camera = camera
@@ -60,13 +61,17 @@ class MonocularFrameBuilder:
     def build(self, index: int, timestamp: float, kps: Keypoints,
               depth_img: NDArray[np.float32] | None = None) -> FrameState:
         n = len(kps)
-        return _frame(index, timestamp, kps, self.camera.undistort_points(kps.xy), np.zeros(n, np.float32),
-                      np.full(n, -1.0))
+        frame = _frame(index, timestamp, kps, self.camera.undistort_points(kps.xy), np.zeros(n, np.float32),
+                       np.full(n, -1.0))
+        if depth_img is not None:
+            frame.prior_depth = sample_depth(depth_img, kps.xy).astype(np.float32)
+        return frame
 
 
 def is_monocular(config: SystemConfig) -> bool:
-    """Frames without any depth: a monocular camera without a depth network."""
-    return config.sensor == "mono" and config.depth.source == "sensor"
+    """Monocular geometry: a monocular camera without a depth network, or with one whose depth
+    is only a prior (``depth.use: prior``)."""
+    return config.sensor == "mono" and (config.depth.source == "sensor" or config.depth.use == "prior")
 
 
 def frame_builder(config: SystemConfig, camera: PinholeCamera) -> FrameBuilder:

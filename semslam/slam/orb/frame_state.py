@@ -30,6 +30,9 @@ class FrameState:
     ref_kf: KeyFrame | None = None
     bow: Any = None
     featvec: dict[int, Any] | None = None
+    # Monocular with a depth network as a prior: its depth at each keypoint (0: none);
+    # None otherwise. Never a measurement (slam/orb/depth_prior.py).
+    prior_depth: NDArray[np.float32] | None = None
     _grid: KeypointGrid | None = field(default=None, repr=False)
     # Undistorted keypoints and their depths as extracted, kept by the first to_middle_row.
     _raw_xy: NDArray[np.float64] | None = field(default=None, repr=False)
@@ -70,6 +73,8 @@ class FrameState:
         idx = np.nonzero(keep)[0]
         self.keypoints = self.keypoints.subset(idx)
         self.xy, self.depth, self.ur = self.xy[idx], self.depth[idx], self.ur[idx]
+        if self.prior_depth is not None:
+            self.prior_depth = self.prior_depth[idx]
         if self._raw_xy is not None:
             self._raw_xy, self._raw_depth = self._raw_xy[idx], self._raw_depth[idx]
         self.points = PointSlots([self.points[i] for i in idx.tolist()])

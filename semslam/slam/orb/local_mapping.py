@@ -32,6 +32,7 @@ from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.core.types import ScalePyramid
 from semslam.geometry.camera import PinholeCamera
+from semslam.slam.orb.depth_prior import DepthPrior
 from semslam.slam.orb.frame_builders import is_monocular
 from semslam.slam.orb.fusion import PointArrays, PointFusion
 from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
@@ -51,8 +52,8 @@ log = logging.getLogger(__name__)
 
 def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points: list[MapPoint],
                      camera: PinholeCamera, pyr: ScalePyramid, bf: float,
-                     table: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[KeyFrame]] | None = None
-                     ) -> BAProblem:
+                     table: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], list[KeyFrame]] | None = None,
+                     depth_prior: DepthPrior | None = None) -> BAProblem:
     """Arrays of a bundle adjustment over the given keyframes and points (observations of
     the points by keyframes outside both lists are left out); observation ``m`` is point
     ``points[obs_point[m]]`` in keyframe ``(kfs_free + kfs_fixed)[obs_pose[m]]``.
@@ -67,6 +68,9 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
         sel = pose_of[kf_row] >= 0
         obs_point, obs_pose, kp = pt_row[sel], pose_of[kf_row[sel]], kp_all[sel]
     uv, ur, octave = gather_keypoints(kfs, obs_pose, kp)
+    if depth_prior is not None:  # monocular: the prior's depths as virtual right coordinates
+        bf = depth_prior.virtual_bf()
+        ur = depth_prior.virtual_right(uv[:, 0], _prior_depths(kfs, obs_pose, kp), bf)
     return BAProblem(
         poses_cw=np.stack([kf.T_cw for kf in kfs]),
         pose_fixed=np.array([False] * len(kfs_free) + [True] * len(kfs_fixed)),
@@ -78,6 +82,16 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
         inv_sigma2=pyr.inv_sigma2[octave],
         fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, bf=bf,
     )
+
+
+def _prior_depths(kfs: list[KeyFrame], obs_pose: NDArray[np.intp], kp: NDArray[np.intp]) -> NDArray[np.float32]:
+    """Each observation's checked prior depth (0: none)."""
+    out = np.zeros(kp.size, np.float32)
+    for i, kf in enumerate(kfs):
+        if kf.prior_depth is not None:
+            sel = obs_pose == i
+            out[sel] = kf.prior_depth[kp[sel]]
+    return out
 
 
 def _chunks(items: list[Any], n: int) -> list[list[Any]]:
@@ -108,7 +122,8 @@ class LocalMapping(KeyframeWorker):
     thread_name = "local-mapping"
 
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
-                 ba: BundleAdjustmentRunner, fusion: PointFusion, inbox: KeyframeInbox, next_stage: KeyframeSink) -> None:
+                 ba: BundleAdjustmentRunner, fusion: PointFusion, inbox: KeyframeInbox, next_stage: KeyframeSink,
+                 depth_prior: DepthPrior | None = None) -> None:
         self.cfg = config.slam
         self.yield_s = config.slam.yield_to_tracking_ms / 1e3
         self.camera = camera
@@ -118,6 +133,7 @@ class LocalMapping(KeyframeWorker):
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
         # No depth at all: ORB-SLAM's monocular thresholds where they differ.
         self.mono = is_monocular(config)
+        self.depth_prior = depth_prior
         super().__init__(inbox)
         self.ba = ba
         self.fusion = fusion
@@ -133,6 +149,8 @@ class LocalMapping(KeyframeWorker):
             return
         with self._step("new_keyframe"):
             self._process_new_keyframe(kf)
+            if self.depth_prior is not None and kf.predicted_depth is not None:
+                self._check_depth_prior(kf)
         with self._step("cull_points"):
             self._cull_points(kf)
         if self.cfg.triangulation:
@@ -217,6 +235,18 @@ class LocalMapping(KeyframeWorker):
         apply_in_slices(self.map.lock, [set_bow, *(partial(observe, c) for c in _chunks(slots, 64)),
                                         kf.update_connections])
         self._write_statistics(matched)
+
+    def _check_depth_prior(self, kf: KeyFrame) -> None:
+        """The keyframe's prior for local BA: its predicted depths where they agree with the
+        depths of its map points (slam/orb/depth_prior.py)."""
+        assert self.depth_prior is not None and kf.predicted_depth is not None
+        with self.map.lock:
+            idx = np.flatnonzero(kf.points.rows >= 0)
+            pos = self.map.store.pos[kf.points.rows[idx]]
+            T = kf.T_cw.copy()
+        map_depth = np.zeros(len(kf.predicted_depth))
+        map_depth[idx] = pos @ T[2, :3] + T[2, 3]
+        kf.prior_depth = self.depth_prior.check_keyframe(map_depth, kf.predicted_depth)
 
     def _cull_points(self, kf: KeyFrame) -> None:
         """Recent points seen in < 25 % of the frames that should see them, or by < 3
@@ -438,7 +468,8 @@ class LocalMapping(KeyframeWorker):
             fixed_list = fixed_list + [oldest]
         if self.mono and not fixed_list:
             return  # ORB-SLAM3 aborts local BA with no fixed keyframe ("0 fixed KF")
-        problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf, table)
+        problem = build_ba_problem(free, fixed_list, points, self.camera, self.pyr, self.cfg.bf, table,
+                                   self.depth_prior)
         t1 = time.perf_counter()
         result: BAResult = self.ba.run(problem)
         t2 = time.perf_counter()

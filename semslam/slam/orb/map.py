@@ -65,6 +65,11 @@ class KeyFrame:
     # local BA (ORB-SLAM3's GetInitKFid; ORB-SLAM2 tests id 0).
     map_id: int = 0
     origin: bool = False
+    # Monocular with a depth network as a prior (slam/orb/depth_prior.py): its depth per
+    # keypoint as predicted, and the prior local BA uses once local mapping has checked it
+    # (0: none); None without one.
+    predicted_depth: NDArray[np.float32] | None = None
+    prior_depth: NDArray[np.float32] | None = None
     _tree: Any = None
     _grid: KeypointGrid | None = None
     _center: Array = field(default_factory=lambda: np.zeros(3), repr=False)

@@ -39,6 +39,8 @@ from semslam.place.database import KeyframeDatabase
 from semslam.place.flat import vocabulary_for
 from semslam.place.vocabulary import Vocabulary
 from semslam.slam.orb.atlas import Atlas
+from semslam.slam.orb.depth_prior import DepthPrior
+from semslam.slam.orb.frame_builders import is_monocular
 from semslam.slam.orb.fusion import PointFusion
 from semslam.slam.orb.keyframe_worker import KeyframeInbox
 from semslam.slam.orb.local_mapping import LocalMapping
@@ -132,11 +134,15 @@ class OrbTracker:
         merger = MapMerger(self.map, self.atlas, fusion, camera, config.slam.bf) if self.atlas.enabled else None
         self.closer = LoopClosing(config, camera, self.map, self.database, self.ba_runner, fusion, loop_inbox,
                                   mapping_inbox, merger)
+        # A depth network's depth as a checked prior of a monocular map (depth.use: prior).
+        self.depth_prior = (DepthPrior(config.depth)
+                            if is_monocular(config) and config.depth.source != "sensor" else None)
         self.mapper = LocalMapping(config, camera, self.map, self.vocabulary, self.ba_runner, fusion, mapping_inbox,
-                                   next_stage=self.closer if use_loops else indexer)
+                                   next_stage=self.closer if use_loops else indexer, depth_prior=self.depth_prior)
         self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database, extractor,
                                  keyframes=self.mapper if use_mapping else indexer, depth=inputs.depth,
-                                 dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None)
+                                 dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None,
+                                 depth_prior=self.depth_prior)
         if slam_map is not None:
             for kf in self.map.all_keyframes():
                 indexer.insert(kf)
@@ -228,6 +234,7 @@ class OrbTracker:
             "threaded": self.threaded,
             **self._atlas_stats(),
             **self._mono_stats(),
+            **(self.depth_prior.stats() if self.depth_prior is not None else {}),
         }
 
     def _mono_stats(self) -> dict[str, Any]:

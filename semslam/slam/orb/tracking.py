@@ -26,6 +26,7 @@ from semslam.dynamics.multiview import reference_views
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.orb.atlas import AtlasFollower
+from semslam.slam.orb.depth_prior import DepthPrior
 from semslam.slam.orb.frame_builders import FrameBuilder, MonocularFrameBuilder, frame_builder
 from semslam.slam.orb.frame_state import FrameState
 from semslam.slam.orb.keyframe_worker import KeyframeSink
@@ -71,7 +72,8 @@ class Tracking:
     def __init__(self, config: SystemConfig, camera: PinholeCamera, slam_map: Map, vocabulary: "Vocabulary",
                  database: "KeyframeDatabase", extractor: Extractor, keyframes: KeyframeSink,
                  depth: DepthSource, dynamics: DynamicStage | None, atlas: "Atlas | None" = None,
-                 builder: FrameBuilder | None = None, priors: list[PosePrior] | None = None) -> None:
+                 builder: FrameBuilder | None = None, priors: list[PosePrior] | None = None,
+                 depth_prior: DepthPrior | None = None) -> None:
         self.cfg = config.slam
         self.dyn = config.dynamics
         self.camera = camera
@@ -96,6 +98,7 @@ class Tracking:
         self.mono = isinstance(self.builder, MonocularFrameBuilder)
         self.mono_init = (MonocularInitializer(camera, slam_map.matcher, self.spec.th_low, config.seed)
                           if self.mono else None)
+        self.depth_prior = depth_prior  # a depth network's, checked: scales the initial map
         self.sharpness = SharpnessHistory()
         self.priors = (priors if priors is not None
                        else pose_priors(config, camera, slam_map, self.pyr, self.sharpness))
@@ -373,11 +376,18 @@ class Tracking:
         ref = pair.reference
         ref.clear_points()
         cur.clear_points()
+        points_w, T_21 = pair.points_w, pair.T_cw.copy()
+        if self.depth_prior is not None and ref.prior_depth is not None:
+            # Metric when the depth network agrees with the two views (the reference is the
+            # origin: a point's depth there is its z).
+            scale = self.depth_prior.initial_map_scale(points_w[:, 2], ref.prior_depth[pair.idx_ref])
+            if scale is not None:
+                points_w, T_21[:3, 3] = points_w * scale, T_21[:3, 3] * scale
         ref.T_cw = np.eye(4)
-        cur.T_cw = pair.T_cw
+        cur.T_cw = T_21
         kf0, kf1 = self._make_keyframe(ref), self._make_keyframe(cur)
         made = []
-        for a, b, pw in zip(pair.idx_ref.tolist(), pair.idx_cur.tolist(), pair.points_w):
+        for a, b, pw in zip(pair.idx_ref.tolist(), pair.idx_cur.tolist(), points_w):
             p = self.map.new_point(pw, kf0.keypoints.descriptors[a], kf0)
             p.add_observation(kf0, a)
             p.add_observation(kf1, b)
@@ -423,7 +433,7 @@ class Tracking:
     def _make_keyframe(self, cur: FrameState) -> KeyFrame:
         assert cur.T_cw is not None
         kf = KeyFrame(self.map.new_kf_id(), cur.index, cur.timestamp, cur.T_cw.copy(), cur.keypoints, cur.xy,
-                      cur.depth, cur.ur, list(cur.points))
+                      cur.depth, cur.ur, list(cur.points), predicted_depth=cur.prior_depth)
         if cur.bow is not None:
             kf.bow, kf.featvec = cur.bow, cur.featvec or {}
         return kf
