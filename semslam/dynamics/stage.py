@@ -6,6 +6,8 @@ border band grows it (``masks.py``); no keypoint is extracted there.
 After the pose (``after_pose``): DDL-SLAM's multi-view geometry (``multiview.py``, III-D)
 compares the frame's depth with the best-overlapping keyframes and returns the moving
 regions; the tracker drops keypoints there and culls the map points matched inside.
+A monocular frame has no depth: ``after_pose_mono`` runs the check's two-view form
+(``multiview_mono.py``: epipolar distance and reprojection error against the keyframes).
 """
 
 from __future__ import annotations
@@ -15,9 +17,10 @@ from numpy.typing import NDArray
 
 from semslam.config import DynamicsConfig, SemanticsConfig
 from semslam.core.protocols import FramePacket, MotionPrior, MovingRegions
-from semslam.core.types import Frame, LabelMap
+from semslam.core.types import FeatureSpec, Frame, LabelMap
 from semslam.dynamics.masks import dilate, extractor_mask
 from semslam.dynamics.multiview import multiview_mask
+from semslam.dynamics.multiview_mono import MonoView, mono_multiview
 from semslam.geometry.camera import PinholeCamera
 
 Reference = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]
@@ -56,6 +59,18 @@ class SceneDynamics:
         if not res.mask.any():
             return None
         return MovingRegions(res.mask, dilate(res.mask, self.border_px))
+
+    def after_pose_mono(self, current: MonoView, references: list[MonoView], spec: FeatureSpec
+                        ) -> MovingRegions | None:
+        """``after_pose`` for a monocular frame: the two-view tests instead of depth."""
+        if self.multiview is None:
+            return None
+        w, h = self.camera.image_size
+        mask, _ = mono_multiview(current, references, self.camera, spec, (int(round(h)), int(round(w))),
+                                 self.multiview)
+        if not mask.any():
+            return None
+        return MovingRegions(mask, dilate(mask, self.border_px))
 
     def stats(self) -> dict[str, float]:
         return self.semantic.stats() if self.semantic is not None else {}

@@ -23,6 +23,7 @@ from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePa
 from semslam.core.types import ScalePyramid, TrackingState, TrackResult
 from semslam.dynamics.masks import keypoints_in_mask
 from semslam.dynamics.multiview import reference_views
+from semslam.dynamics.multiview_mono import mono_views
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.orb.atlas import AtlasFollower
@@ -185,7 +186,7 @@ class Tracking:
                                        dynamic=dynamic, keypoints_xy=kps.xy)
             else:
                 ok, posed_by = self._track_in_map(cur, images, timings)
-                if ok and self.dyn.multiview and self.dynamics is not None and depth is not None:
+                if ok and self.dyn.multiview and self.dynamics is not None and (depth is not None or self.mono):
                     dynamic = self._check_moving(cur, depth, dynamic, posed_by, timings)
                 self.state = TrackingState.OK if ok else TrackingState.LOST
                 if ok:
@@ -287,7 +288,7 @@ class Tracking:
         velocity = self.velocity if self.state is TrackingState.OK else None
         return MotionPrior(last.index, last.T_cw, velocity)
 
-    def _check_moving(self, cur: FrameState, depth: NDArray[np.float32], dynamic: NDArray[np.bool_] | None,
+    def _check_moving(self, cur: FrameState, depth: NDArray[np.float32] | None, dynamic: NDArray[np.bool_] | None,
                       posed_by: PosePrior | None, timings: dict[str, float]) -> NDArray[np.bool_] | None:
         """DDL-SLAM's multi-view check on a tracked frame (``_remove_moving``); a pose a prior
         gave the frame stays, since a refit on the few matches left would undo it."""
@@ -300,7 +301,7 @@ class Tracking:
         timings["multiview"] = (time.perf_counter() - t0) * 1e3
         return dynamic
 
-    def _remove_moving(self, cur: FrameState, depth: NDArray[np.float32],
+    def _remove_moving(self, cur: FrameState, depth: NDArray[np.float32] | None,
                        dynamic: NDArray[np.bool_] | None) -> NDArray[np.bool_] | None:
         """With the pose just tracked, the dynamic stage finds moving regions (DDL-SLAM's
         multi-view geometry); keypoints there (and in their border band) are dropped, the map
@@ -308,8 +309,12 @@ class Tracking:
         ref = self.ref_kf
         if ref is None or cur.T_cw is None or self.dynamics is None:
             return dynamic
-        refs = reference_views(ref, cur.timestamp, self.dyn.multiview_keyframes, self.dyn.multiview_min_age_s)
-        regions = self.dynamics.after_pose(cur.T_cw, depth, refs)
+        if depth is None:  # monocular: the check's two-view form (dynamics/multiview_mono.py)
+            view, views = mono_views(cur, ref, cur.timestamp, self.dyn.multiview_keyframes, self.dyn.multiview_min_age_s)
+            regions = self.dynamics.after_pose_mono(view, views, self.spec)
+        else:
+            refs = reference_views(ref, cur.timestamp, self.dyn.multiview_keyframes, self.dyn.multiview_min_age_s)
+            regions = self.dynamics.after_pose(cur.T_cw, depth, refs)
         if regions is None:
             return dynamic
         drop = keypoints_in_mask(cur.keypoints.xy, regions.drop)
