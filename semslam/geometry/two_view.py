@@ -31,15 +31,18 @@ What is added, each measured against the synthetic scenes and fr2_desk of the te
 
 - Model re-fits: after RANSAC the best model is re-fitted on its inliers (F by the same DLT, H
   by OpenCV's least squares with Levenberg-Marquardt) while the score rises.
-- E refined before its decomposition: the Sampson error over ``(R, t)`` (5 DoF) from the first
-  of E's hypotheses; the 4 hypotheses of the refined E are then checked as ORB-SLAM checks F's.
-  An 8-point F is not an essential matrix: decomposed as is, it left too few good points on
-  3-4 of 12 synthetic scenes and failed 7 of the 10 fr2_desk pairs (frame 0 with 18, 21, ...,
-  45) that succeed with the refinement.
+- E refined before its decomposition: the Sampson error over ``(R, t)`` (5 DoF) from F's
+  first hypothesis and from each of H's (2 distinct essential matrices), the best score kept;
+  the 4 hypotheses of the refined E are then checked as ORB-SLAM checks F's. An 8-point F is
+  not an essential matrix: decomposed as is, it left too few good points on 3-4 of 12
+  synthetic scenes and failed 7 of the 10 fr2_desk pairs that succeed with the refinement; from
+  F's start alone, near-planar renders at 1-2 deg of parallax ended 40-110 deg off.
   (ORB-SLAM refines the initial map with a global BA afterwards.)
-- A planarity guard on the F route, since the refinement would hide F's degeneracy on a plane
-  (ORB-SLAM relies on the raw F's decomposition failing there): F is refused (``planar``) when
-  80 % of its inliers are homography inliers too.
+- Uniqueness on the F route, since the refinement would hide F's degeneracy on a plane (ORB-SLAM
+  relies on the raw F's decomposition failing there): a plane's two motions are both optima of
+  the refined E with scores within ~4 %; F is refused (``planar``) when a motion over 15 deg
+  away scores 0.95 of the best, and the homography route decides instead when ``R_H`` is over
+  ORB-SLAM2's 0.40.
 - The pose from H is not refined with the Sampson error: on a plane that cost leaves the
   translation direction free by degrees (measured 8 deg from the truth at 0.5 px).
 
@@ -47,11 +50,13 @@ The parallax that gates is ORB-SLAM's: the 51st-largest parallax angle of the go
 (``min(50, n-1)`` in their ascending cosines), i.e. "at least ~50 points seen at over 1 deg";
 the median parallax is reported beside it.
 
-Model selection: ``R_H > 0.40`` (ORB-SLAM2) rather than ORB-SLAM3's 0.50. With ORB-SLAM's
-scores a plane gives R_H = 0.41 at 1 px of noise per view and 0.48 at 0.5 px (closed form and
-measured, see the tests): F's 1-D distances score higher than H's 2-D ones for the same fit, so
-with 0.50 a plane never goes to H. General scenes score 0.13-0.21, fr2_desk 0.28-0.38 where it
-initialises.
+Model selection: ``R_H > 0.50`` (ORB-SLAM3). With ORB-SLAM's scores a plane gives R_H = 0.41
+at 1 px of noise per view and 0.48 at 0.5 px (closed form and measured, see the tests): F's 1-D
+distances score higher than H's 2-D ones for the same fit, so a plane goes to F, is found not
+unique there, and goes to H at ORB-SLAM2's 0.40. The renders' rooms at 1-2 deg of parallax score
+0.41-0.47 (a wall fills much of the view): with 0.40 alone they went to H, whose decomposition
+has no clear winner, until 28-41 frames; with 0.50 and F they initialise at frames 19-26. General
+scenes score 0.13-0.21, fr2_desk 0.28-0.46 where it initialises.
 """
 
 from __future__ import annotations
@@ -99,14 +104,19 @@ class TwoViewParams:
 
     sigma: float = 1.0
     iterations: int = 200
-    ratio_h: float = 0.40
+    ratio_h: float = 0.50
     min_parallax_deg: float = 1.0
     min_triangulated: int = 50
     min_good_fraction: float = 0.9
     refine: bool = True
-    #: F is refused when this share of its inliers are homography inliers too (measured:
-    #: 0.83-0.89 on a plane with 1 px noise, 0.45-0.76 on fr2_desk where F initialises).
-    max_planar_share: float = 0.8
+    #: ORB-SLAM2's R_H threshold, used when F's motion is not unique (see ``reconstruct``).
+    ratio_h_fallback: float = 0.40
+    #: F's motion is refused (``planar``) when a distinct motion (translation directions over
+    #: ``distinct_deg`` apart, up to sign) scores at least this share of the best's score.
+    #: Measured (1 px, 400 matches): the plane's two motions 0.96-1.0 of each other; the
+    #: renders' wrong optima 0.91-0.99 at 1-2 deg of parallax (refused: wait a frame).
+    min_unique_share: float = 0.95
+    distinct_deg: float = 15.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -452,6 +462,60 @@ def refine_pose(R: Array, t: Array, uv1: Array, uv2: Array, K: Array, sigma: flo
     return unpack(x)
 
 
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """A refined ``(R, t)`` and its epipolar score (ORB-SLAM's ``CheckFundamental`` of
+    ``F = K^-T [t]x R K^-1``)."""
+
+    R: Array
+    t: Array
+    score: float
+
+
+def essential_optima(F21: Array, H21: Array, uv1: Array, uv2: Array, K: Array, sigma: float = 1.0
+                     ) -> list[Motion]:
+    """The Sampson-refined motions reached from F's essential matrix and from each of H's
+    motion hypotheses, best score first. Near a plane, F's 8-point estimate is poorly
+    determined and one start can end in the wrong one of several optima (measured on renders
+    at 1-2 deg of parallax: 110 deg off in translation from F's start alone); H's hypotheses
+    start next to the plane's motions, which the score then ranks."""
+    R_f, t_f = decompose_essential(K.T @ F21 @ K)
+    starts = [(R_f[0], t_f[0])]
+    hyp_h = decompose_homography(H21, K)
+    essentials = [_unit_essential(R_f[0], t_f[0])]
+    for R0, t0 in zip(*hyp_h) if hyp_h is not None else ():
+        # H's 8 hypotheses are 2 essential matrices up to sign (the same Sampson cost).
+        E = _unit_essential(R0, t0)
+        if all(abs(float((E * other).sum())) < 0.9999 for other in essentials):
+            essentials.append(E)
+            starts.append((R0, t0))
+    Kinv = np.linalg.inv(K)
+    optima = []
+    for R0, t0 in starts:
+        R, t = refine_pose(R0, t0, uv1, uv2, K, sigma)
+        score, _ = score_fundamental(Kinv.T @ _skew(t) @ R @ Kinv, uv1, uv2, sigma)
+        optima.append(Motion(R, t, float(score)))
+    return sorted(optima, key=lambda m: -m.score)
+
+
+def _unit_essential(R: Array, t: Array) -> Array:
+    E = _skew(t) @ R
+    return E / np.linalg.norm(E)
+
+
+def unique_motion(optima: list[Motion], min_share: float, distinct_deg: float) -> bool:
+    """Whether the best motion is the data's only good one: no other optimum whose translation
+    direction is over ``distinct_deg`` away (up to sign: the sign is the cheirality test's)
+    scores ``min_share`` of the best. A plane's two motions fit its matches equally (F's route
+    cannot tell them apart); ORB-SLAM's ReconstructF asks the same of E's 4 hypotheses."""
+    best = optima[0]
+    cos_max = np.cos(np.radians(distinct_deg))
+    for other in optima[1:]:
+        if abs(float(other.t @ best.t)) < cos_max and other.score >= min_share * best.score:
+            return False
+    return True
+
+
 # --------------------------------------------------------------------------------------
 # reconstruction
 
@@ -489,22 +553,25 @@ def reconstruct(uv1: ArrayLike, uv2: ArrayLike, K: ArrayLike,
     head = dict(model=model, score_h=fit_h.score, score_f=fit_f.score, ratio_h=ratio)
     empty["inliers"] = fit.inliers
 
+    if not use_h:
+        hyp = decompose_essential(K.T @ fit.matrix @ K)
+        if p.refine:
+            # The 4 hypotheses share one E: refining it on the essential manifold (from every
+            # start, the best optimum) refines E, and the refined E's decomposition is checked
+            # as ORB-SLAM checks F's.
+            optima = essential_optima(fit_f.matrix, fit_h.matrix, uv1, uv2, K, p.sigma)
+            if not unique_motion(optima, p.min_unique_share, p.distinct_deg):
+                if ratio <= p.ratio_h_fallback:
+                    return TwoViewResult(False, PLANAR, **head, **empty)
+                # Near a plane (ORB-SLAM2 would take H here): H's cheirality may tell them apart.
+                use_h, model, fit = True, HOMOGRAPHY, fit_h
+                head["model"], empty["inliers"] = model, fit.inliers
+            else:
+                hyp = decompose_essential(_skew(optima[0].t) @ optima[0].R)
     if use_h:
         hyp = decompose_homography(fit.matrix, K)
         if hyp is None:
             return TwoViewResult(False, DEGENERATE_HOMOGRAPHY, **head, **empty)
-    else:
-        # A plane fits a whole family of F (F = [e]x H for any e): if the homography explains
-        # nearly all of F's inliers, F's motion cannot be trusted (ORB-SLAM relies on the
-        # unrefined F's decomposition failing then; the refinement below would hide it).
-        if (fit_h.inliers & fit.inliers).sum() >= p.max_planar_share * fit.inliers.sum():
-            return TwoViewResult(False, PLANAR, **head, **empty)
-        hyp = decompose_essential(K.T @ fit.matrix @ K)
-        if p.refine:
-            # The 4 hypotheses share one E: refining one on the essential manifold refines E,
-            # and the decomposition of the refined E is checked as ORB-SLAM checks F's.
-            R0, t0 = refine_pose(hyp[0][0], hyp[1][0], uv1, uv2, K, p.sigma)
-            hyp = decompose_essential(_skew(t0) @ R0)
     th2 = 4.0 * p.sigma**2
     checks = [check_rt(R, t, uv1, uv2, K, fit.inliers, th2) for R, t in zip(*hyp)]
     n_good = tuple(c.n_good for c in checks)

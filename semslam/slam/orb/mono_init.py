@@ -3,7 +3,8 @@
 
 The first frame with more than ``MIN_KEYPOINTS`` keypoints becomes the reference (not a
 keyframe). Each next frame is matched to it (``ORBmatcher::SearchForInitialization``: the same
-pyramid level within ``WINDOW_PX`` of the reference keypoint, ``th_low`` and a 0.9 ratio, then
+pyramid level within ``WINDOW_PX`` of where the reference keypoint was last matched
+(``mvbPrevMatched``: the windows follow the motion), ``th_low`` and a 0.9 ratio, then
 rotation consistency); with fewer than ``MIN_MATCHES`` matches the reference is dropped (the
 next frame becomes it); otherwise the two views are reconstructed
 (``geometry/two_view.reconstruct``). On success two keyframes are made, the reference at the
@@ -56,20 +57,26 @@ class MonocularInitializer:
         self.rng = np.random.default_rng(seed)
         self.params = params or TwoViewParams()
         self.reference: FrameState | None = None
+        #: Where each reference keypoint was last matched (ORB-SLAM's mvbPrevMatched): the
+        #: centres of the next search windows.
+        self.prev_xy = np.zeros((0, 2))
         self.attempts = 0
         self.reasons: dict[str, int] = {}  # why reconstructions were refused, counted
 
     def reset(self) -> None:
         self.reference = None
 
-    def match(self, ref: FrameState, cur: FrameState) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    def match(self, ref: FrameState, cur: FrameState, centres: NDArray[np.float64] | None = None
+              ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         """SearchForInitialization: candidates at the reference keypoint's level within the
-        window, best by Hamming under ``th_low`` with the ratio test, one per current keypoint,
-        then the rotation histogram."""
+        window around ``centres`` (default: the reference keypoints), best by descriptor
+        distance under ``th_low`` with the ratio test, one per current keypoint, then the
+        rotation histogram."""
         grid = cur.grid(*self.camera.image_size)
         oct_ref = ref.keypoints.octave.astype(np.intp)
         n = len(ref)
-        cq, ct = grid.pairs_in_radius(ref.xy, np.full(n, WINDOW_PX), oct_ref, oct_ref, np.ones(len(cur), bool))
+        centres = ref.xy if centres is None else centres
+        cq, ct = grid.pairs_in_radius(centres, np.full(n, WINDOW_PX), oct_ref, oct_ref, np.ones(len(cur), bool))
         qi, ti, _ = self.matcher.match_candidates(ref.keypoints.descriptors, cur.keypoints.descriptors, cq, ct, self.th_low, RATIO)
         qi, ti = np.asarray(qi, np.intp), np.asarray(ti, np.intp)
         keep = rotation_consistent(ref.keypoints.angle[qi], cur.keypoints.angle[ti])
@@ -80,12 +87,14 @@ class MonocularInitializer:
         if self.reference is None:
             if len(cur) > MIN_KEYPOINTS:
                 self.reference = cur
+                self.prev_xy = cur.xy.copy()
             return None
         ref = self.reference
         if len(cur) <= MIN_KEYPOINTS:
             self.reset()
             return None
-        i_ref, i_cur = self.match(ref, cur)
+        i_ref, i_cur = self.match(ref, cur, self.prev_xy)
+        self.prev_xy[i_ref] = cur.xy[i_cur]
         if len(i_ref) < MIN_MATCHES:
             # ORB-SLAM drops the initializer here: the next frame becomes the reference.
             self.reset()
