@@ -1,4 +1,5 @@
-"""SE(3) essential-graph optimisation after a loop closure (ORB-SLAM2 OptimizeEssentialGraph).
+"""Essential-graph optimisation after a loop closure (ORB-SLAM OptimizeEssentialGraph): SE(3)
+for RGB-D / stereo, Sim(3) for monocular maps (``optimize_sim3_pose_graph``).
 
 ORB-SLAM2 optimises Sim3 vertices with the scale fixed for stereo / RGB-D (``_fix_scale``), which
 is exactly an SE(3) pose graph, so here every node is a GTSAM ``Pose3`` (``T_wc``) and every edge
@@ -87,6 +88,93 @@ def optimize_pose_graph(
 
     out = poses_wc.copy()
     out[keys] = poses_from_rows(gtsam.utilities.extractPose3(result))
+    out[fixed_idx] = poses_wc[fixed_idx]
+    return out
+
+
+def rigid_part(S: Array) -> Array:
+    """The camera pose ``[[R, t / s], [0, 1]]`` of a similarity ``S_cw = [[s R, t], [0, 1]]``:
+    what a keyframe keeps of its Sim(3) after a loop correction (ORB-SLAM CorrectLoop /
+    OptimizeEssentialGraph: ``eigt *= 1 / s``); it sees every point at the same pixel."""
+    A = S[:3, :3]
+    s = float(np.cbrt(np.linalg.det(A)))
+    out = np.eye(4)
+    out[:3, :3] = A / s
+    out[:3, 3] = S[:3, 3] / s
+    return out
+
+
+def _to_similarity3(S: Array) -> gtsam.Similarity3:
+    """GTSAM's ``Similarity3`` of our ``S = [[s R, t], [0, 1]]`` (``x -> s R x + t``).
+    GTSAM's acts as ``x -> s (R x + t')``, so ``t' = t / s``."""
+    A = S[:3, :3]
+    s = float(np.cbrt(np.linalg.det(A)))
+    return gtsam.Similarity3(gtsam.Rot3(A / s), np.ascontiguousarray(S[:3, 3] / s), s)
+
+
+def _from_similarity3(S: gtsam.Similarity3) -> Array:
+    """Our 4x4 ``[[s R, t], [0, 1]]`` of a GTSAM ``Similarity3``."""
+    s = float(S.scale())
+    out = np.eye(4)
+    out[:3, :3] = s * S.rotation().matrix()
+    out[:3, 3] = s * np.asarray(S.translation(), dtype=np.float64)
+    return out
+
+
+def optimize_sim3_pose_graph(
+    poses_wc: Array,
+    edges: NDArray[np.intp],
+    measurements: Array,
+    information: ArrayLike | None = None,
+    fixed: Sequence[int] | NDArray[np.intp] = (0,),
+    iterations: int = 20,
+) -> Array:
+    """Optimised (K, 4, 4) ``S_wc`` similarities of a Sim(3) pose graph (monocular maps).
+
+    The Sim(3) form of :func:`optimize_pose_graph`, as ORB-SLAM's OptimizeEssentialGraph with
+    ``bFixScale`` false (VertexSim3Expmap nodes, EdgeSim3 edges, identity information): each
+    node is ``S_wc = [[s R, t], [0, 1]]`` (``x_w = s R x_c + t``), ``edges[e] = (i, j)`` with
+    measurement ``S_i_j = inv(S_wi) @ S_wj``; ``information`` is (E,) scalar weights
+    (``w * I`` on GTSAM's 7-d tangent) or None for all ones. A loop edge measured after the
+    loop's Sim(3) correction and tree edges measured before it disagree in scale along the
+    loop; the optimiser spreads that scale correction over the graph. ``fixed`` nodes are
+    held by a tight prior (sigma 1e-9) and returned verbatim; nodes no edge touches are
+    returned unchanged.
+    """
+    poses_wc = np.asarray(poses_wc, dtype=np.float64)
+    edges = np.asarray(edges, dtype=np.intp).reshape(-1, 2)
+    measurements = np.asarray(measurements, dtype=np.float64).reshape(-1, 4, 4)
+    n_e = edges.shape[0]
+    K = poses_wc.shape[0]
+    fixed_idx = np.unique(np.asarray(fixed, dtype=np.intp).reshape(-1))
+
+    graph = gtsam.NonlinearFactorGraph()
+    w = np.ones(n_e) if information is None else np.broadcast_to(np.asarray(information, dtype=np.float64), (n_e,))
+    levels, idx = np.unique(w, return_inverse=True)
+    models = [gtsam.noiseModel.Isotropic.Precision(7, float(x)) for x in levels]
+    for (i, j), S, li in zip(edges.tolist(), measurements, idx.tolist()):
+        graph.push_back(gtsam.BetweenFactorSimilarity3(i, j, _to_similarity3(S), models[li]))
+
+    used = np.zeros(K, bool)
+    used[edges.reshape(-1)] = True
+    prior = gtsam.noiseModel.Isotropic.Sigma(7, _FIXED_SIGMA)
+    for k in fixed_idx[used[fixed_idx]].tolist():
+        graph.push_back(gtsam.PriorFactorSimilarity3(k, _to_similarity3(poses_wc[k]), prior))
+
+    keys = np.flatnonzero(used)
+    values = gtsam.Values()
+    for k in keys.tolist():
+        values.insert(k, _to_similarity3(poses_wc[k]))
+    params = lm_params(iterations)
+    params.setRelativeErrorTol(1e-10)
+    try:
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    except RuntimeError as exc:
+        raise PoseGraphFailed(str(exc).strip()[:200]) from exc
+
+    out = poses_wc.copy()
+    for k in keys.tolist():
+        out[k] = _from_similarity3(result.atSimilarity3(k))
     out[fixed_idx] = poses_wc[fixed_idx]
     return out
 

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.backend.bundle_adjustment import BAProblem, BAResult, bundle_adjust, warm_up
-from semslam.backend.pose_graph import optimize_pose_graph
+from semslam.backend.pose_graph import optimize_pose_graph, optimize_sim3_pose_graph
 from semslam.runtime import lower_thread_priority
 from semslam.worker_processes import worker_pool
 
@@ -37,7 +37,7 @@ def _warm() -> bool:
 
 
 class BundleAdjustmentRunner:
-    """``run(problem, **kwargs) -> BAResult`` and ``run_pose_graph(...)``.
+    """``run(problem, **kwargs) -> BAResult``, ``run_pose_graph(...)`` and ``run_sim3_pose_graph(...)``.
 
     Built inert; ``start(use_process)`` loads the compiled solver into this process (from
     numba's disk cache; so no frame pays for it) and, for a threaded system, starts the
@@ -75,6 +75,13 @@ class BundleAdjustmentRunner:
         if self._pool is None:
             return optimize_pose_graph(*args, **kwargs)
         return self._in_worker(optimize_pose_graph, *args, **kwargs)
+
+    def run_sim3_pose_graph(self, *args: Any, **kwargs: Any) -> NDArray[np.float64]:
+        """``pose_graph.optimize_sim3_pose_graph`` (monocular maps) in the worker, as
+        ``run_pose_graph``."""
+        if self._pool is None:
+            return optimize_sim3_pose_graph(*args, **kwargs)
+        return self._in_worker(optimize_sim3_pose_graph, *args, **kwargs)
 
     def _in_worker(self, fn: Callable[..., R], *args: Any, **kwargs: Any) -> R:
         """``fn`` in the worker process; if the process died (killed, out of memory), a new

@@ -1,8 +1,13 @@
-"""ORB-SLAM2 loop closing for RGB-D: bag-of-words candidates with covisibility-group
-consistency, SE(3) RANSAC on matched map points, verification by projection, loop
-correction (pose propagation + point fusion), essential-graph optimisation and global BA.
+"""ORB-SLAM loop closing: bag-of-words candidates with covisibility-group consistency,
+a similarity RANSAC on matched map points, verification by projection, loop correction
+(pose propagation + point fusion), essential-graph optimisation and global BA.
 
-RGB-D fixes the scale, so ORB-SLAM's Sim3 becomes SE(3) here.
+RGB-D fixes the scale, so ORB-SLAM's Sim3 becomes SE(3) there. A monocular map
+(``frame_builders.is_monocular``) drifts in scale, so its loops are Sim(3) as in ORB-SLAM:
+7-DoF RANSAC refined by ``optimize_similarity`` (Sim3Solver + Optimizer::OptimizeSim3),
+the correction propagated as similarities (CorrectLoop's g2oCorrectedSiw) and the essential
+graph solved in Sim(3) (``pose_graph.optimize_sim3_pose_graph``); keyframes keep the rigid
+part of their similarity and points move with the full similarity.
 """
 
 from __future__ import annotations
@@ -10,17 +15,18 @@ from __future__ import annotations
 import logging
 import time
 from functools import partial
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_graph import PoseGraphFailed
-from semslam.backend.sim3 import ransac_similarity
+from semslam.backend.pose_graph import PoseGraphFailed, rigid_part
+from semslam.backend.sim3 import optimize_similarity, ransac_similarity, sim3_inverse
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
+from semslam.slam.orb.frame_builders import is_monocular
 from semslam.slam.orb.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeWorker
 from semslam.slam.orb.local_mapping import apply_in_slices, build_ba_problem
@@ -39,8 +45,21 @@ if TYPE_CHECKING:
 
 #: New keyframes of the map tracking relocalised in on which a merge hint is tried (``_merge_on_hints``).
 HINT_KEYFRAMES = 5
+#: Matches a monocular loop's Sim(3) must keep after OptimizeSim3 (ORB-SLAM ComputeSim3: 20).
+MIN_SIM3_INLIERS = 20
 
 log = logging.getLogger(__name__)
+
+
+class _Matches(NamedTuple):
+    """BoW matches of two keyframes' map points (``ransac_similarity``'s arguments in order)."""
+
+    x1: NDArray[np.float64]  # points in kf's camera frame
+    x2: NDArray[np.float64]  # the same in cand's camera frame
+    uv1: NDArray[np.float64]
+    uv2: NDArray[np.float64]
+    inv_s2_1: NDArray[np.float64]
+    inv_s2_2: NDArray[np.float64]
 
 
 def _point_positions(kf: KeyFrame) -> NDArray[np.float64]:
@@ -50,6 +69,37 @@ def _point_positions(kf: KeyFrame) -> NDArray[np.float64]:
         if p is not None and not p.bad:
             pos[i] = p.pos
     return pos
+
+
+def rescale_frame_records(records: list[tuple[float, KeyFrame, NDArray[np.float64]]],
+                          factors: dict[KeyFrame, float]) -> int:
+    """Tracked frames' poses relative to their reference keyframe (``T_c_ref``, tracking's
+    ``trajectory_refs``) after a Sim(3) correction scaled the map around that keyframe by
+    ``factors[kf]``: their translations (and the ``T_cp`` of culled keyframes between a record
+    and its live keyframe) scale with it, so the frames keep their place in the corrected map
+    (ORB-SLAM keeps the rigid relative poses, which then sit off by the scale change times the
+    distance to the keyframe). Returns the records changed."""
+    scaled: set[int] = set()
+    n = 0
+    for i in range(len(records)):  # tracking may append meanwhile: the entries so far
+        t, ref, T = records[i]
+        chain, k = [], ref
+        while k.bad and k.parent is not None and k.T_cp is not None:
+            chain.append(k)
+            k = k.parent
+        f = factors.get(k)
+        if f is None or f == 1.0:
+            continue
+        T = T.copy()
+        T[:3, 3] *= f
+        records[i] = (t, ref, T)
+        n += 1
+        for c in chain:
+            if c.id not in scaled and c.T_cp is not None:
+                scaled.add(c.id)
+                c.T_cp = c.T_cp.copy()
+                c.T_cp[:3, 3] *= f
+    return n
 
 
 def _neighbourhood_points(kf: KeyFrame) -> list[MapPoint]:
@@ -71,6 +121,8 @@ class LoopClosing(KeyframeWorker):
                  merger: "MapMerger | None" = None) -> None:
         super().__init__(inbox)
         self.cfg = config.slam
+        # Monocular: loops are similarities (scale drift); RGB-D / stereo: rigid.
+        self.mono = is_monocular(config)
         self.camera = camera
         self.map = slam_map
         self.db = database
@@ -88,6 +140,9 @@ class LoopClosing(KeyframeWorker):
         self.merger = merger
         self.verifier = MergeVerifier(camera, config.slam.bf, self.pyr.inv_sigma2, self._match_at)
         self._hints: list[tuple[MergeHint, int]] = []  # (hint, keyframes it is still tried on)
+        # Tracking's (timestamp, reference keyframe, T_c_ref) list (tracker.py wires it): a
+        # monocular loop's scale correction rescales the frames recorded relative to keyframes.
+        self.frame_records: list[tuple[float, KeyFrame, NDArray[np.float64]]] | None = None
         self._pending: list[PendingMerge] = []  # transforms waiting for more keyframes to agree
         self.loops: list[tuple[int, int]] = []
         self.stats = {"loops": 0, "loops_dropped": 0, "global_ba": 0, "global_ba_failed": 0, "pose_graph_failed": 0,
@@ -109,7 +164,9 @@ class LoopClosing(KeyframeWorker):
             self.db.add(kf.id, kf.bow)
             return
         found = self._detect_loop(kf)
-        merged = found is None and self.merger is not None and self.merger.mergeable() and self._detect_merge(kf)
+        # Merges are verified with the sensor's depth (merge_check.py): rigid maps only.
+        merged = (found is None and not self.mono and self.merger is not None and self.merger.mergeable()
+                  and self._detect_merge(kf))
         self.db.add(kf.id, kf.bow)
         if merged or found is None:
             return
@@ -133,7 +190,7 @@ class LoopClosing(KeyframeWorker):
         log.debug("kf %d: consistent candidates %s", kf.id, accepted)
         by_id = {c.kf_id: k for c, k in candidates}
         for cid in accepted:
-            res = self._compute_se3(kf, by_id[cid])
+            res = self._compute_sim3(kf, by_id[cid]) if self.mono else self._compute_se3(kf, by_id[cid])
             if res is not None:
                 return res
         return None
@@ -353,9 +410,9 @@ class LoopClosing(KeyframeWorker):
             found = [self.map.keyframes[i] for i in cand_ids if i in self.map.keyframes]
             return [(Candidate.of(c.id, (k.id for k in c.covisibles_with_weight(0))), c) for c in found]
 
-    def _compute_se3(self, kf: KeyFrame, cand: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
-        """SE(3) between kf and a consistent candidate from BoW matches (RANSAC), verified by
-        projecting the candidate's neighbourhood into kf."""
+    def _bow_matches(self, kf: KeyFrame, cand: KeyFrame) -> _Matches | None:
+        """BoW matches between the map points of kf and cand, in each one's camera frame,
+        with their keypoints and levels' inverse sigma^2; None under 20 (ORB-SLAM ComputeSim3)."""
         with self.map.lock:
             pos1, T1 = _point_positions(kf), kf.T_cw.copy()
             pos2, T2 = _point_positions(cand), cand.T_cw.copy()
@@ -367,13 +424,50 @@ class LoopClosing(KeyframeWorker):
             return None
         x1 = pos1[i1] @ T1[:3, :3].T + T1[:3, 3]
         x2 = pos2[i2] @ T2[:3, :3].T + T2[:3, 3]
-        T12, inl = ransac_similarity(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
-                                     self.pyr.inv_sigma2[cand.keypoints.octave[i2]], self.camera, self.rng,
-                                     with_scale=False)
+        return _Matches(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
+                        self.pyr.inv_sigma2[cand.keypoints.octave[i2]])
+
+    def _compute_se3(self, kf: KeyFrame, cand: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        """SE(3) between kf and a consistent candidate from BoW matches (RANSAC), verified by
+        projecting the candidate's neighbourhood into kf."""
+        m = self._bow_matches(kf, cand)
+        if m is None:
+            return None
+        T12, inl = ransac_similarity(*m, self.camera, self.rng, with_scale=False)
         if T12 is None:
-            log.debug("kf %d vs %d: SE3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(i1), int(inl.sum()))
+            log.debug("kf %d vs %d: SE3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(m.x1), int(inl.sum()))
             return None
         return self._verify_by_projection(kf, cand, T12, int(inl.sum()))
+
+    def _compute_sim3(self, kf: KeyFrame, cand: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        """Monocular ``_compute_se3``: ORB-SLAM ComputeSim3. A 7-DoF RANSAC on the BoW matches
+        (Sim3Solver), refined on the reprojection errors of all of them (OptimizeSim3, which
+        also drops the outliers; at least ``MIN_SIM3_INLIERS`` must stay), then verified by
+        projecting cand's neighbourhood into kf with the similarity (ORB-SLAM also searches
+        more matches with the Sim(3) before OptimizeSim3, SearchBySim3: not done here).
+        Returns S12 (kf <- cand, scale in the rotation block)."""
+        m = self._bow_matches(kf, cand)
+        if m is None:
+            return None
+        S12, inl = ransac_similarity(*m, self.camera, self.rng, with_scale=True)
+        if S12 is None:
+            log.debug("kf %d vs %d: Sim3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(m.x1), int(inl.sum()))
+            return None
+        fit = optimize_similarity(S12, *m, self.camera, fix_scale=False)
+        if fit.n_inliers < MIN_SIM3_INLIERS:
+            log.debug("kf %d vs %d: %d inliers after OptimizeSim3", kf.id, cand.id, fit.n_inliers)
+            return None
+        return self._verify_by_projection(kf, cand, fit.S12, fit.n_inliers)
+
+    def _inverse(self, S: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The inverse of a keyframe transform: a similarity's in a monocular map, else a
+        rigid pose's (``invert``, as the RGB-D path always computed it)."""
+        return sim3_inverse(S) if self.mono else invert(S)
+
+    def _pose_of(self, S_cw: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The camera pose a keyframe keeps of a corrected ``S_cw``: its rigid part in a
+        monocular map (``rigid_part``); RGB-D corrections are rigid already."""
+        return rigid_part(S_cw) if self.mono else S_cw
 
     def _verify_by_projection(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], n_inliers: int = 0,
                               min_matches: int | None = None
@@ -394,7 +488,7 @@ class LoopClosing(KeyframeWorker):
         sel = np.nonzero(inside)[0]
         if len(sel) == 0:
             return None
-        dist = np.linalg.norm(pos[sel] - invert(T_cw_corr)[:3, 3], axis=1)
+        dist = np.linalg.norm(pos[sel] - self._inverse(T_cw_corr)[:3, 3], axis=1)  # in cand's world
         max_d = max_dist[sel]
         level = self.pyr.predict_level(max_d, dist)
         qi, ti = search_by_projection(uv[sel], 10.0 * self.pyr.scales[level], level - 1, level + 1,
@@ -450,7 +544,7 @@ class LoopClosing(KeyframeWorker):
             pts = [p for p in k.valid_points() if p.id not in moved]
             if not pts:
                 continue
-            delta = invert(corrected[k]) @ old[k]
+            delta = self._inverse(corrected[k]) @ old[k]  # Sim(3): the points scale with the loop
             new_pos.append(np.array([p.pos for p in pts]) @ delta[:3, :3].T + delta[:3, 3])
             for p in pts:
                 moved[p.id] = p
@@ -463,7 +557,7 @@ class LoopClosing(KeyframeWorker):
             for p, r in zip(points, new_ref):
                 p.ref_kf = r
             for k in connected:
-                k.set_pose(corrected[k])
+                k.set_pose(self._pose_of(corrected[k]))
         self._write_normals(points)
         # Fuse: the loop's points replace the current keyframe's duplicates, then are
         # searched in every connected keyframe (planned without the lock).
@@ -499,7 +593,7 @@ class LoopClosing(KeyframeWorker):
         index = {k: i for i, k in enumerate(kfs)}
         # Reference (measurement) poses: non-corrected ones where a correction happened.
         ref_wc = {k: invert(old.get(k, k.T_cw)) for k in kfs}
-        init_wc = np.stack([invert(corrected.get(k, k.T_cw)) for k in kfs])
+        init_wc = np.stack([self._inverse(corrected.get(k, k.T_cw)) for k in kfs])
         edges, meas = [], []
         seen: set[tuple[int, int]] = set()
 
@@ -516,8 +610,8 @@ class LoopClosing(KeyframeWorker):
 
         for k, links in new_links.items():
             for other in links:
-                Twk, Twl = invert(corrected.get(k, k.T_cw)), invert(corrected.get(other, other.T_cw))
-                add(k, other, invert(Twk) @ Twl)
+                Twk, Twl = self._inverse(corrected.get(k, k.T_cw)), self._inverse(corrected.get(other, other.T_cw))
+                add(k, other, self._inverse(Twk) @ Twl)
         for k in kfs:
             if k.parent is not None and not k.parent.bad:
                 add(k, k.parent, invert(ref_wc[k]) @ ref_wc[k.parent])
@@ -532,8 +626,11 @@ class LoopClosing(KeyframeWorker):
             return
         weights = np.ones(len(edges))
         fixed = [index[loop_kf]] + ([index[kfs[0]]] if kfs[0] is not loop_kf else [])
+        # Monocular: Sim(3) nodes, so the loop's scale correction spreads along the graph
+        # (ORB-SLAM OptimizeEssentialGraph with bFixScale false).
+        solve = self.ba.run_sim3_pose_graph if self.mono else self.ba.run_pose_graph
         try:
-            poses_wc = self.ba.run_pose_graph(init_wc, np.asarray(edges, np.intp), np.stack(meas), weights, fixed)
+            poses_wc = solve(init_wc, np.asarray(edges, np.intp), np.stack(meas), weights, fixed)
         except PoseGraphFailed as exc:  # keep the loop-corrected poses rather than stop loop closing
             log.warning("essential graph optimisation failed (%s); loop-corrected poses kept", exc)
             self.stats["pose_graph_failed"] += 1
@@ -544,7 +641,7 @@ class LoopClosing(KeyframeWorker):
         for k, T_wc_new in zip(kfs, poses_wc):
             own = [p for p in k.valid_points() if p.ref_kf is k]
             if own:
-                delta = T_wc_new @ invert(init_wc[index[k]])
+                delta = T_wc_new @ self._inverse(init_wc[index[k]])
                 new_pos.append(np.array([p.pos for p in own]) @ delta[:3, :3].T + delta[:3, 3])
                 pts.extend(own)
         positions = np.concatenate(new_pos) if new_pos else np.zeros((0, 3))
@@ -552,7 +649,14 @@ class LoopClosing(KeyframeWorker):
         with self.map.lock:
             self.map.store.pos[rows] = positions
             for k, T_wc_new in zip(kfs, poses_wc):
-                k.set_pose(invert(T_wc_new))
+                k.set_pose(self._pose_of(self._inverse(T_wc_new)))
+            if self.mono and self.frame_records is not None:
+                # S_wc starts from each keyframe's rigid pose before the loop (scale 1, or the
+                # loop's correction): its scale is how much the map around it grew.
+                grown = {k: float(np.cbrt(np.linalg.det(S[:3, :3]))) for k, S in zip(kfs, poses_wc)}
+                n = rescale_frame_records(self.frame_records, grown)
+                log.info("Sim(3) loop: keyframe scales %.3f..%.3f, %d frame records rescaled",
+                         min(grown.values()), max(grown.values()), n)
             all_points = list(self.map.points.values())
         self._write_normals(all_points)
 
@@ -573,7 +677,12 @@ class LoopClosing(KeyframeWorker):
             points = [p for p in candidates if not p.bad and p.n_observers
                       and (map_id is None or p.store.first_observer(p.row).map_id == map_id)]
             rows = np.fromiter((p.row for p in points), np.intp, len(points))
-            free, fixed = kfs[1:], kfs[:1]
+            # Monocular: the two oldest keyframes fixed, not just the origin: with one, the
+            # map's free scale drifted in the BA (room_loop render: the map shrank to 0.57 of
+            # itself, and every frame recorded relative to a keyframe was off by that), as
+            # local mapping found for its BA (ORB-SLAM3's pSecondLowerKF there).
+            n_fixed = 2 if self.mono else 1
+            free, fixed = kfs[n_fixed:], kfs[:n_fixed]
             problem = build_ba_problem(free, fixed, points, self.camera, self.pyr, self.cfg.bf)
             before = {k: k.T_cw.copy() for k in kfs}
         result = self.ba.run(problem, iterations=(10, 0), remove_outliers=False)  # ORB-SLAM GBA: 10 iterations
@@ -586,7 +695,8 @@ class LoopClosing(KeyframeWorker):
                     return
                 self.map.generation += 1
                 after = {k: T for k, T in zip(free, result.poses_cw[: len(free)])}
-                after[kfs[0]] = kfs[0].T_cw
+                for k in fixed:
+                    after[k] = k.T_cw
                 store = self.map.store
                 alive = ~store.bad[rows]
                 store.pos[rows[alive]] = result.points_w[alive]

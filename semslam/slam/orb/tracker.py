@@ -143,6 +143,7 @@ class OrbTracker:
                                  keyframes=self.mapper if use_mapping else indexer, depth=inputs.depth,
                                  dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None,
                                  depth_prior=self.depth_prior)
+        self.closer.frame_records = self.tracking.trajectory_refs  # a monocular loop rescales them
         if slam_map is not None:
             for kf in self.map.all_keyframes():
                 indexer.insert(kf)
