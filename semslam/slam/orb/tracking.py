@@ -707,8 +707,10 @@ class Tracking:
 
     # ------------------------------------------------------------------ relocalisation
     def _relocalise(self, cur: FrameState) -> bool:
-        """Bag-of-words candidates, PnP-RANSAC, pose optimisation, guided search (>= 50 inliers).
-        Off without a vocabulary that tells places apart (float descriptors): stays lost."""
+        """Bag-of-words candidates, PnP-RANSAC, pose optimisation, guided search (>= 50 inliers)
+        (ORB-SLAM's Tracking::Relocalization; monocular as RGB-D, the map points being
+        triangulated). Off without a vocabulary that tells places apart (float descriptors):
+        stays lost."""
         from semslam.place.database import detect_relocalisation_candidates
 
         if not self.voc.recognises_places:
@@ -735,10 +737,14 @@ class Tracking:
             if len(ia) < 15:
                 continue
             pts = np.array([kf.points[a].pos for a in ia])  # type: ignore[union-attr]
+            # Monocular: EPnP, a non-minimal solver as ORB-SLAM3's MLPnP (Tracking::Relocalization);
+            # AP3P and SQPnP relocalised on the same frames with the same poses (blackout and
+            # jump_back renders). RGB-D keeps AP3P.
+            pnp = cv2.SOLVEPNP_EPNP if self.mono else cv2.SOLVEPNP_AP3P
             cv2.setRNGSeed(self.seed)
             ok, rvec, tvec, inl = cv2.solvePnPRansac(pts.reshape(-1, 1, 3), cur.xy[ib].reshape(-1, 1, 2), self.camera.K, None,
                                                      iterationsCount=300, reprojectionError=5.991 ** 0.5 * 2,
-                                                     confidence=0.99, flags=cv2.SOLVEPNP_AP3P)
+                                                     confidence=0.99, flags=pnp)
             if not ok or inl is None or len(inl) < 10:
                 continue
             rot, _ = cv2.Rodrigues(rvec)
