@@ -2,7 +2,7 @@
 
 A refactor must not change what the system computes. This script renders two short
 sequences (static and people walking), runs each preset (the RGB-D ones and the
-monocular `sdf` and `sdf_rgbd`) through the CLI with
+monocular `sdf`, `sdf_paper` and `sdf_rgbd`) through the CLI with
 ``--sequential`` (single-threaded, deterministic) and either stores the trajectories
 (``--record DIR``) or compares a new run against them (``--check DIR``), printing JSON
 and a table with the largest position difference per preset and sequence.
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-PRESETS = ["orb", "default", "stdc", "ddl", "sdf", "sdf_rgbd"]
+PRESETS = ["orb", "default", "stdc", "ddl", "sdf", "sdf_paper", "sdf_rgbd"]
 SEQUENCES = {"static_xyz": 120, "walking_xyz": 150}
 
 

@@ -130,7 +130,7 @@ def test_blank_frames_with_a_learned_detector(seq: Path, capsys: pytest.CaptureF
     pytest.importorskip("torch")
     for p in images(seq)[3:7]:
         cv2.imwrite(str(p), BLANK["black"])
-    r = run(seq, capsys, preset="sdf")
+    r = run(seq, capsys, preset="sdf_paper")
     assert r.rc == 0 and r.stats is not None
     assert r.stats["frames_featureless"] == 4 and r.stats["tracked_frames"] <= FRAMES - 4
 

@@ -67,3 +67,12 @@ def test_a_wrong_depth_network_does_not_make_the_run_worse(static_render: Path, 
         # No structure: never a prior on the map's depths.
         assert stats["depth_prior_keyframes"] == 0, stats["depth_prior_refused"]
         assert stats["depth_prior_refused"].get("keyframe: structure not explained", 0) > 0
+
+
+def test_sdf_preset_is_metric_and_no_worse_than_plain_mono(static_render: Path, plain: dict, tmp_path: Path) -> None:
+    # The shipped SDFCNN (trained in this office) as the prior, its classes masking people.
+    stats = run_cli(static_render, tmp_path, "--preset", "sdf", "--sequential", "--no-report", "--map", "none")
+    assert stats["depth_prior_metric_init"] is True
+    assert abs(1 - stats["ate_sim3_scale"]) < 0.05, stats["ate_sim3_scale"]
+    assert stats["lost_frames"] == 0
+    assert stats["ate"]["rmse"] < NO_WORSE * plain["ate"]["rmse"], (stats["ate"]["rmse"], plain["ate"]["rmse"])

@@ -54,7 +54,7 @@ def test_ground_truth_depth_without_depth_files_is_one_clear_error(tmp_path: Pat
 
 def test_mono_without_a_depth_source_is_refused() -> None:
     with pytest.raises(ConfigError, match="a monocular sequence has no sensor depth"):
-        registry.create("tracker", "sdf_slam", load_config("sdf", ["depth.source=sensor"]), CAM,
+        registry.create("tracker", "sdf_slam", load_config("sdf_paper", ["depth.source=sensor"]), CAM,
                         TrackerInputs(SensorDepth()))
 
 
@@ -78,12 +78,12 @@ def test_a_monocular_image_folder_without_depth_runs(short_render: Path, tmp_pat
         shutil.copy(p, folder / p.name)
     (folder / "calib.txt").write_text((short_render / "calib.txt").read_text())
     out = tmp_path / "out"
-    assert main(["run", str(folder), "--out", str(out), "-q", "--preset", "sdf", "--set", "dynamics.semantic=false",
+    assert main(["run", str(folder), "--out", str(out), "-q", "--preset", "sdf_paper", "--set", "dynamics.semantic=false",
                  "--set", "depth.source=ground_truth_depth"]) == 2
     err = capsys.readouterr().err
     assert "depth.txt" in err and len(err.strip().splitlines()) == 1
     # the refused run wrote what it had: the next one replaces it
-    stats = run_cli(folder, out, "--preset", "sdf", "--set", "slam.sequential=true", "--overwrite")
+    stats = run_cli(folder, out, "--preset", "sdf_paper", "--set", "slam.sequential=true", "--overwrite")
     assert stats["frames"] == stats["tracked_frames"] == 12 and "ate" not in stats
     assert (out / "trajectory.txt").is_file() and (out / "map" / "semantic_cloud.ply").is_file()
 

@@ -227,7 +227,7 @@ NO_TORCH = textwrap.dedent('''
 
     if __name__ == "__main__":
         seq, out, pt = sys.argv[1:4]
-        runs = {p: [] for p in ("orb", "f2kf", "default", "ddl", "stdc", "sdf", "sdf_rgbd")}
+        runs = {p: [] for p in ("orb", "f2kf", "default", "ddl", "stdc", "sdf_paper", "sdf_rgbd")}
         runs["stdc+net"] = ["--preset", "stdc", "--set", "semantics.backend=stdc"]
         runs["ddl+net"] = ["--preset", "ddl", "--set", "semantics.backend=dunet", "--set", "semantics.input_width=160"]
         codes, seconds = {}, {}

@@ -159,7 +159,7 @@ ORACLE_ATE_SIM3_BOUND_M = 0.01
 @pytest.mark.parametrize("extractor", ["fpfdcnn", "sift"])
 def test_sdf_preset_tracks_a_render_with_bounded_sim3_ate(small_static: Path, tmp_path: Path, extractor: str) -> None:
     features = [] if extractor == "fpfdcnn" else ["--set", "features.extractor=sift", "--set", "features.matcher=default"]
-    stats = run_cli(small_static, tmp_path / "run", "--preset", "sdf", "--set", "slam.sequential=true", *features)
+    stats = run_cli(small_static, tmp_path / "run", "--preset", "sdf_paper", "--set", "slam.sequential=true", *features)
     sim3_bound, se3_bound, scale_bound = BOUNDS[extractor]
     assert stats["ate_alignment"] == "sim3" and stats["tracked_frames"] == stats["frames"] == 70
     assert stats["ate"]["rmse"] < sim3_bound
@@ -198,7 +198,7 @@ def test_tracking_recovers_after_frames_without_features(small_static: Path) -> 
     from semslam.api import System
 
     # RootSIFT: the tracker's recovery is under test, not the shipped detector's quality.
-    cfg = load_config("sdf", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false",
+    cfg = load_config("sdf_paper", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false",
                               "depth.source=ground_truth_depth", "features.extractor=sift",
                               "features.matcher=default"])
     seq = open_sequence(small_static, kind="mono")
@@ -282,7 +282,7 @@ def test_depth_alignment_recovers_scale_and_power_among_outliers() -> None:
     from semslam.errors import ConfigError
 
     with pytest.raises(ConfigError, match="sdf_slam.depth_alignment"):
-        load_config("sdf", ["sdf_slam.depth_alignment=affine"])
+        load_config("sdf_paper", ["sdf_slam.depth_alignment=affine"])
 
 
 class _DriftingDepth:
@@ -319,7 +319,7 @@ def test_depth_alignment_keeps_the_map_scale_under_drifting_depth(small_static: 
     gt = read_trajectory(small_static / "groundtruth.txt")
     errors = {}
     for mode in ("none", alignment):
-        cfg = load_config("sdf", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false",
+        cfg = load_config("sdf_paper", ["slam.sequential=true", "maps.builders=[]", "dynamics.semantic=false",
                                   "depth.source=ground_truth_depth", "features.extractor=sift",
                                   "features.matcher=default", f"sdf_slam.depth_alignment={mode}",
                                   "sdf_slam.min_parallax_deg=0"])

