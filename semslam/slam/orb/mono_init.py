@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.backend.bundle_adjustment import BAProblem, bundle_adjust
 from semslam.core.protocols import Matcher
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.two_view import TwoViewParams, TwoViewResult, normalise_initial_map, reconstruct
@@ -28,6 +29,8 @@ from semslam.slam.orb.search import rotation_consistent
 #: ORB-SLAM's constants (Tracking::MonocularInitialization, SearchForInitialization).
 MIN_KEYPOINTS = 100
 MIN_MATCHES = 100
+#: Fewest points the refined initial map may keep (ORB-SLAM: TrackedMapPoints(1) < 50 resets).
+MIN_REFINED = 50
 WINDOW_PX = 100.0
 RATIO = 0.9
 
@@ -50,8 +53,12 @@ class MonocularInitializer:
     """Keeps the reference frame between attempts; ``attempt`` says when a pair holds."""
 
     def __init__(self, camera: PinholeCamera, matcher: Matcher, th_low: float, seed: int,
-                 params: TwoViewParams | None = None) -> None:
+                 params: TwoViewParams | None = None, inv_sigma2: NDArray[np.float64] | None = None) -> None:
         self.camera = camera
+        # Per pyramid level 1 / sigma^2 of a keypoint: with it, the pair is refined by a
+        # two-view bundle adjustment before the map starts (ORB-SLAM's
+        # CreateInitialMapMonocular runs GlobalBundleAdjustment, 20 iterations, first).
+        self.inv_sigma2 = inv_sigma2
         self.matcher = matcher
         self.th_low = th_low
         self.rng = np.random.default_rng(seed)
@@ -104,10 +111,40 @@ class MonocularInitializer:
         if not res.ok:
             self.reasons[res.reason] = self.reasons.get(res.reason, 0) + 1
             return None
-        good = res.triangulated
+        good = np.flatnonzero(res.triangulated)
+        points, T_21 = res.points[good], res.T_21
+        if self.inv_sigma2 is not None:
+            keep, points, T_21 = self.refine(ref, cur, i_ref[good], i_cur[good], points, T_21)
+            if keep.sum() < MIN_REFINED:  # ORB-SLAM: fewer than 50 tracked points resets
+                self.reasons["too few points after bundle adjustment"] = (
+                    self.reasons.get("too few points after bundle adjustment", 0) + 1)
+                self.reset()
+                return None
+            good, points = good[keep], points[keep]
         try:
-            pts, T_21, _ = normalise_initial_map(res.points[good], res.T_21)
+            pts, T_21, _ = normalise_initial_map(points, T_21)
         except ValueError:
             self.reset()
             return None
         return InitialPair(ref, i_ref[good], i_cur[good], pts, T_21, res)
+
+    def refine(self, ref: FrameState, cur: FrameState, i_ref: NDArray[np.intp], i_cur: NDArray[np.intp],
+               points: NDArray[np.float64], T_21: NDArray[np.float64]
+               ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
+        """Two-view bundle adjustment of the pair (the reference fixed, 20 robust iterations as
+        ORB-SLAM's initial global BA): the points that stay inliers in both views, all points'
+        refined positions and the refined ``T_21``."""
+        assert self.inv_sigma2 is not None
+        n = len(points)
+        cam = self.camera
+        octave = np.concatenate([ref.keypoints.octave[i_ref], cur.keypoints.octave[i_cur]]).astype(np.intp)
+        problem = BAProblem(
+            poses_cw=np.stack([np.eye(4), T_21]), pose_fixed=np.array([True, False]), points_w=points,
+            obs_pose=np.repeat(np.array([0, 1], np.intp), n), obs_point=np.tile(np.arange(n, dtype=np.intp), 2),
+            uv=np.concatenate([ref.xy[i_ref], cur.xy[i_cur]]), ur=np.full(2 * n, -1.0),
+            inv_sigma2=self.inv_sigma2[octave], fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy, bf=0.0)
+        result = bundle_adjust(problem, iterations=(20, 0), remove_outliers=False)
+        if not result.converged:
+            return np.ones(n, bool), points, T_21
+        keep = result.inlier_obs[:n] & result.inlier_obs[n:]
+        return keep, result.points_w, result.poses_cw[1]

@@ -97,7 +97,8 @@ class Tracking:
         # Monocular (no depth at all): two-view initialisation and ORB-SLAM's monocular
         # thresholds where they differ from RGB-D's.
         self.mono = isinstance(self.builder, MonocularFrameBuilder)
-        self.mono_init = (MonocularInitializer(camera, slam_map.matcher, self.spec.th_low, config.seed)
+        self.mono_init = (MonocularInitializer(camera, slam_map.matcher, self.spec.th_low, config.seed,
+                                               inv_sigma2=self.pyr.inv_sigma2)
                           if self.mono else None)
         self.depth_prior = depth_prior  # a depth network's, checked: scales the initial map
         self.sharpness = SharpnessHistory()
