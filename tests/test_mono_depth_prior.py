@@ -7,10 +7,11 @@ Deliberately wrong networks (io/standin_depth.py) must not make the run worse: a
 depth are refused as priors on the map's depths. The oracle (the render's own depth) makes
 the map metric. Sim(3) ATE is checked against evo's scale-corrected alignment.
 
-Measured here (90 frames, --sequential): plain 0.29 cm; oracle 0.28 cm, Sim(3) scale 1.01;
-scaled 0.29 cm, scale 0.50; constant and shuffled as plain. A different initial scale
-changes a run's numbers a little (float rounding through RANSAC and keyframe decisions):
-over 5 renders of other seeds and layouts, plain / oracle / SDFCNN: docs/results/monocular_sdf.md.
+Measured here (90 frames, --sequential): plain 0.365 cm; oracle 0.370 cm, Sim(3) scale 0.997;
+scaled 0.370 cm, scale 0.498; constant 0.364 and shuffled 0.342 cm, no keyframe given a prior;
+``--preset sdf`` 0.382 cm, scale 1.007. A different initial scale changes a run's numbers a
+little (float rounding through RANSAC and keyframe decisions): over other renders, seeds and
+layouts see docs/results/monocular_sdf.md.
 """
 
 from __future__ import annotations
