@@ -10,7 +10,8 @@ passes the loop-corrected poses as the initial estimate, as ORB-SLAM does.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -51,7 +52,6 @@ def optimize_pose_graph(
     edges = np.asarray(edges, dtype=np.intp).reshape(-1, 2)
     measurements = np.asarray(measurements, dtype=np.float64).reshape(-1, 4, 4)
     n_e = edges.shape[0]
-    K = poses_wc.shape[0]
     fixed_idx = np.unique(np.asarray(fixed, dtype=np.intp).reshape(-1))
 
     graph = gtsam.NonlinearFactorGraph()
@@ -69,16 +69,25 @@ def optimize_pose_graph(
         for (i, j), T, li in zip(edges.tolist(), measurements, idx.tolist()):
             add(BF(i, j, P3(T), models[li]))
 
-    used = np.zeros(K, bool)
+    return _solve(graph, poses_wc, edges, fixed_idx, 6, P3, gtsam.PriorFactorPose3,
+                  lambda result, keys: poses_from_rows(gtsam.utilities.extractPose3(result)), iterations)
+
+
+def _solve(graph: gtsam.NonlinearFactorGraph, poses_wc: Array, edges: NDArray[np.intp], fixed_idx: NDArray[np.intp],
+           dim: int, value_of: Callable[[Array], Any], prior_factor: Callable[..., Any],
+           read: Callable[[gtsam.Values, NDArray[np.intp]], Array], iterations: int) -> Array:
+    """The fixed nodes' tight priors, the initial values of the nodes an edge touches, GTSAM's
+    LM; the optimised ``T_wc`` (or Sim(3)) of those nodes, the others and the fixed ones as given."""
+    used = np.zeros(poses_wc.shape[0], bool)
     used[edges.reshape(-1)] = True
-    prior = gtsam.noiseModel.Isotropic.Sigma(6, _FIXED_SIGMA)
+    prior = gtsam.noiseModel.Isotropic.Sigma(dim, _FIXED_SIGMA)
     for k in fixed_idx[used[fixed_idx]].tolist():
-        add(gtsam.PriorFactorPose3(k, P3(poses_wc[k]), prior))
+        graph.push_back(prior_factor(k, value_of(poses_wc[k]), prior))
 
     keys = np.flatnonzero(used)
     values = gtsam.Values()
     for k in keys.tolist():
-        values.insert(k, P3(poses_wc[k]))
+        values.insert(k, value_of(poses_wc[k]))
     params = lm_params(iterations)
     params.setRelativeErrorTol(1e-10)
     try:
@@ -87,7 +96,7 @@ def optimize_pose_graph(
         raise PoseGraphFailed(str(exc).strip()[:200]) from exc
 
     out = poses_wc.copy()
-    out[keys] = poses_from_rows(gtsam.utilities.extractPose3(result))
+    out[keys] = read(result, keys)
     out[fixed_idx] = poses_wc[fixed_idx]
     return out
 
@@ -145,7 +154,6 @@ def optimize_sim3_pose_graph(
     edges = np.asarray(edges, dtype=np.intp).reshape(-1, 2)
     measurements = np.asarray(measurements, dtype=np.float64).reshape(-1, 4, 4)
     n_e = edges.shape[0]
-    K = poses_wc.shape[0]
     fixed_idx = np.unique(np.asarray(fixed, dtype=np.intp).reshape(-1))
 
     graph = gtsam.NonlinearFactorGraph()
@@ -155,28 +163,10 @@ def optimize_sim3_pose_graph(
     for (i, j), S, li in zip(edges.tolist(), measurements, idx.tolist()):
         graph.push_back(gtsam.BetweenFactorSimilarity3(i, j, _to_similarity3(S), models[li]))
 
-    used = np.zeros(K, bool)
-    used[edges.reshape(-1)] = True
-    prior = gtsam.noiseModel.Isotropic.Sigma(7, _FIXED_SIGMA)
-    for k in fixed_idx[used[fixed_idx]].tolist():
-        graph.push_back(gtsam.PriorFactorSimilarity3(k, _to_similarity3(poses_wc[k]), prior))
-
-    keys = np.flatnonzero(used)
-    values = gtsam.Values()
-    for k in keys.tolist():
-        values.insert(k, _to_similarity3(poses_wc[k]))
-    params = lm_params(iterations)
-    params.setRelativeErrorTol(1e-10)
-    try:
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-    except RuntimeError as exc:
-        raise PoseGraphFailed(str(exc).strip()[:200]) from exc
-
-    out = poses_wc.copy()
-    for k in keys.tolist():
-        out[k] = _from_similarity3(result.atSimilarity3(k))
-    out[fixed_idx] = poses_wc[fixed_idx]
-    return out
+    return _solve(graph, poses_wc, edges, fixed_idx, 7, _to_similarity3, gtsam.PriorFactorSimilarity3,
+                  lambda result, keys: np.array([_from_similarity3(result.atSimilarity3(k)) for k in keys.tolist()],
+                                                np.float64).reshape(-1, 4, 4),
+                  iterations)
 
 
 def correct_points_with_poses(points_w: Array, ref_index: NDArray[np.intp], poses_before: Array,
