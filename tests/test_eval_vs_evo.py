@@ -355,3 +355,30 @@ def test_bad_rpe_settings_are_errors() -> None:
     with pytest.raises(EvalError, match="unknown alignment"):
         ate(gt, est, align="affine")
     assert rpe(gt, est, delta=0.5, delta_unit="seconds").trans_stats["max"] < 1e-12
+
+
+# --- EuRoC ground truth as the camera's trajectory (stereo inputs, issue 41) -------------
+
+#: EuRoC V1's cam0 T_BS (mav0/cam0/sensor.yaml): cam0's pose in the body (IMU) frame.
+EUROC_V1_T_BS_CAM0 = np.array([
+    [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
+    [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
+    [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
+    [0.0, 0.0, 0.0, 1.0]])
+
+
+def test_euroc_camera_groundtruth_equals_evo_transform(shared_data: Path) -> None:
+    """The cam0 trajectory of V1_02's body ground truth, T_WB @ T_BS, is what evo gives for
+    ``transform(T_BS, right_mul=True)`` on its own reading of the file."""
+    from semslam.io.stereo_sequence import euroc_camera_trajectory
+    from semslam.io.trajectory import read_euroc_csv
+
+    path = shared_data / "trajectories" / "V102_groundtruth.csv"
+    ours = euroc_camera_trajectory(read_euroc_csv(path), EUROC_V1_T_BS_CAM0)
+    theirs = fi.read_euroc_csv_trajectory(str(path))
+    theirs.transform(EUROC_V1_T_BS_CAM0, right_mul=True)
+    np.testing.assert_array_equal(ours.timestamps, theirs.timestamps)
+    np.testing.assert_allclose(ours.poses, np.array(theirs.poses_se3), rtol=0, atol=1e-12)
+    # the camera is off the body by T_BS's lever arm (about 7 cm), everywhere
+    lever = np.linalg.norm(ours.positions - read_euroc_csv(path).positions, axis=1)
+    np.testing.assert_allclose(lever, np.linalg.norm(EUROC_V1_T_BS_CAM0[:3, 3]), rtol=1e-9)

@@ -22,7 +22,10 @@ from semslam.core.results import (BLOCKS, AtlasCounters, DynamicsCounters, Input
 # ---------------------------------------------------------------------------- frames
 @dataclass
 class Frame:
-    """One time step: colour image (RGB, uint8), depth in metres (0 = none) and timestamp."""
+    """One time step: colour image (RGB, uint8), depth in metres (0 = none) and timestamp.
+
+    A stereo frame also carries the right image (``right``, in ``rgb``'s form, rectified
+    with the left so that a point lies on the same row in both); None for other sensors."""
 
     index: int
     timestamp: float
@@ -30,6 +33,8 @@ class Frame:
     depth: NDArray[np.float32] | None = None
     rgb_path: Path | None = None
     depth_path: Path | None = None
+    right: NDArray[np.uint8] | None = field(default=None, repr=False)
+    right_path: Path | None = None
     _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
 
     @property
