@@ -374,6 +374,8 @@ def test_tum_like_folder(tmp_path: Path) -> None:
     # explicit values win over the folder's file
     seq = open_stereo_sequence(tmp_path, camera="50,50,31.5,23.5", baseline=0.2)
     assert seq.calibration.bf == pytest.approx(10.0)
+    with pytest.raises(ConfigError, match="needs both --camera fx,fy,cx,cy and --baseline"):
+        open_stereo_sequence(tmp_path, camera="50,50,31.5,23.5")
 
 
 def test_bad_folders(tmp_path: Path) -> None:

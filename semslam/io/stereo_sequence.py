@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from semslam.core.trajectory import Trajectory
 from semslam.core.types import Frame
-from semslam.errors import DataError
+from semslam.errors import ConfigError, DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.association import match_timestamps
 from semslam.io.images import FrameReadError, read_rgb
@@ -283,7 +283,7 @@ def open_stereo_sequence(path: str | Path, camera: str | PinholeCamera | None = 
         calibration = read_orbslam3_settings(settings)
     if calibration is None and (camera is not None or baseline is not None):
         if camera is None or baseline is None:
-            raise DataError(root, "explicit stereo calibration needs both --camera fx,fy,cx,cy and --baseline")
+            raise ConfigError("explicit stereo calibration needs both --camera fx,fy,cx,cy and --baseline")
         calibration = stereo_from_values(camera, baseline)
     layout = stereo_layout(root)
     if layout == "euroc":
