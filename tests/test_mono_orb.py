@@ -82,7 +82,7 @@ def test_reference_is_dropped_when_too_few_matches(real_gray: np.ndarray) -> Non
 def test_mono_preset_builds_a_depthless_tracker() -> None:
     cfg = load_config("mono", ["slam.sequential=true"])
     assert cfg.sensor == "mono" and cfg.depth.source == "sensor" and is_monocular(cfg)
-    assert cfg.slam.loop_closing and cfg.slam.new_map_after_s == 0  # Sim(3) loops; no new maps yet
+    assert cfg.slam.loop_closing and cfg.slam.new_map_after_s == 1.5  # Sim(3) loops and merges (test_mono_atlas.py)
     camera = PinholeCamera(520.9, 521.0, 325.1, 249.7, width=640, height=480)
     tracker = create_tracker(cfg, camera)  # refused before issue 40
     try:

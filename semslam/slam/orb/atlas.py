@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.backend.pose_graph import rigid_part
+from semslam.backend.sim3 import sim3_inverse
 from semslam.geometry.se3 import invert
 from semslam.slam.orb.map import KeyFrame, Map
 
@@ -222,10 +224,14 @@ class AtlasFollower:
         return False
 
     def apply_world_change(self, frame: "FrameState | None") -> None:
-        """Map ``frame`` into its map's world if a merge moved that map."""
+        """Map ``frame`` into its map's world if a merge moved that map. A monocular merge's
+        ``S`` is a similarity: the frame keeps the rigid part, as the moved keyframes do."""
         S = self.atlas.take_world_change()
         if S is not None and frame is not None and frame.T_cw is not None:
-            frame.T_cw = frame.T_cw @ invert(S)
+            if abs(np.linalg.det(S[:3, :3]) - 1.0) > 1e-9:
+                frame.T_cw = rigid_part(frame.T_cw @ sim3_inverse(S))
+            else:
+                frame.T_cw = frame.T_cw @ invert(S)
 
     def tracked(self, timestamp: float, T_cw: NDArray[np.float64], velocity: NDArray[np.float64] | None,
                 velocity_dt: float) -> None:

@@ -7,7 +7,9 @@ RGB-D fixes the scale, so ORB-SLAM's Sim3 becomes SE(3) there. A monocular map
 7-DoF RANSAC refined by ``optimize_similarity`` (Sim3Solver + Optimizer::OptimizeSim3),
 the correction propagated as similarities (CorrectLoop's g2oCorrectedSiw) and the essential
 graph solved in Sim(3) (``pose_graph.optimize_sim3_pose_graph``); keyframes keep the rigid
-part of their similarity and points move with the full similarity.
+part of their similarity and points move with the full similarity. Merges of monocular atlas
+maps likewise (ORB-SLAM3 MergeLocal with a Sim3): found with the 7-DoF RANSAC, checked by
+reprojection only (merge_check.py's monocular mode), the newer map moved by the similarity.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from semslam.slam.orb.search import search_by_bow, search_by_projection
 
 if TYPE_CHECKING:
     from semslam.place.database import KeyframeDatabase
-    from semslam.slam.orb.map_merging import MapMerger
+    from semslam.slam.orb.map_merging import MapMerger, MergeResult
 
 #: New keyframes of the map tracking relocalised in on which a merge hint is tried (``_merge_on_hints``).
 HINT_KEYFRAMES = 5
@@ -138,7 +140,7 @@ class LoopClosing(KeyframeWorker):
         # candidate must pass slam/orb/merge_check.py (spread, depth, agreement of COINCIDENCES
         # keyframes) before maps are welded: a wrong merge offsets a whole map for good.
         self.merger = merger
-        self.verifier = MergeVerifier(camera, config.slam.bf, self.pyr.inv_sigma2, self._match_at)
+        self.verifier = MergeVerifier(camera, config.slam.bf, self.pyr.inv_sigma2, self._match_at, self.mono)
         self._hints: list[tuple[MergeHint, int]] = []  # (hint, keyframes it is still tried on)
         # Tracking's (timestamp, reference keyframe, T_c_ref) list (tracker.py wires it): a
         # monocular loop's scale correction rescales the frames recorded relative to keyframes.
@@ -164,9 +166,7 @@ class LoopClosing(KeyframeWorker):
             self.db.add(kf.id, kf.bow)
             return
         found = self._detect_loop(kf)
-        # Merges are verified with the sensor's depth (merge_check.py): rigid maps only.
-        merged = (found is None and not self.mono and self.merger is not None and self.merger.mergeable()
-                  and self._detect_merge(kf))
+        merged = found is None and self.merger is not None and self.merger.mergeable() and self._detect_merge(kf)
         self.db.add(kf.id, kf.bow)
         if merged or found is None:
             return
@@ -204,10 +204,17 @@ class LoopClosing(KeyframeWorker):
     def _detect_merge(self, kf: KeyFrame) -> bool:
         """ORB-SLAM3 DetectCommonRegionsFromBoW for merges: the loop query, keeping the
         candidates of other maps (the 3 best groups, as its DetectNBestCandidates), the same
-        SE(3) RANSAC and verification as a loop, then ``_check_merge``; True if merged."""
+        SE(3) RANSAC (monocular: Sim(3)) and verification as a loop, then ``_check_merge``;
+        True if merged."""
         from semslam.place.database import detect_loop_candidates
 
         covis_ids, min_score = self._query_bounds(kf)
+        if self.mono:
+            # No minimum score, as ORB-SLAM3's DetectNBestCandidates: a young monocular map's
+            # covisibles are its initial pair, views so alike that no keyframe of another map
+            # reaches their score (threaded blackout renders: 1 of 6 merged). The Sim(3) and
+            # the merge checks stay as strict.
+            min_score = 0.0
         cand_ids = detect_loop_candidates(self.db, kf.id, kf.bow, covis_ids, min_score, self._best_covisibles)
         cand_ids = self._in_map(cand_ids, kf.map_id, same=False)
         log.debug("kf %d: merge candidates %s", kf.id, cand_ids)
@@ -215,7 +222,7 @@ class LoopClosing(KeyframeWorker):
         with self.map.lock:
             candidates = [self.map.keyframes[i] for i in cand_ids[:3] if i in self.map.keyframes]
         for cand in candidates:
-            res = self._compute_se3(kf, cand)
+            res = self._compute_sim3(kf, cand) if self.mono else self._compute_se3(kf, cand)
             outcome = self._check_merge(kf, *res) if res is not None else None
             if outcome is not None:
                 return outcome == "merged"
@@ -262,7 +269,10 @@ class LoopClosing(KeyframeWorker):
         for recent, near, bridge in attempts:
             for cand in near:
                 for left_kf in recent:
-                    res, source = self._compute_se3(left_kf, cand), "hint"
+                    if self.mono:  # the bridge is rigid: it has no scale to give a monocular map
+                        res, source, bridge = self._compute_sim3(left_kf, cand), "hint", None
+                    else:
+                        res, source = self._compute_se3(left_kf, cand), "hint"
                     if res is None and bridge is not None:
                         # left_kf in cand's world by the motion model's bridge, checked as a loop is.
                         with self.map.lock:
@@ -307,7 +317,7 @@ class LoopClosing(KeyframeWorker):
         self._pending = [q for q in self._pending if q not in same]  # this check supersedes them
         if not enough(agree, later):
             atlas.merge_checked(kf, cand, v.T12, "pending", len(agree), source)
-            self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree, later))
+            self._pending.append(PendingMerge(kf, cand, v.S, v.points, agree, later, mono=self.mono))
             return "pending"
         atlas.merge_checked(kf, cand, v.T12, "merged", len(agree), source)
         self._merge_maps(kf, cand, v.T12, v.matched)
@@ -330,7 +340,7 @@ class LoopClosing(KeyframeWorker):
             if here not in (a, b):
                 keep.append(p)
                 continue
-            other, S = (p.cand, p.S) if here == a else (p.kf, invert(p.S))
+            other, S = (p.cand, p.S) if here == a else (p.kf, self.verifier.inverse(p.S))
             fit = self.verifier.confirm(kf, other, S)
             if fit is None:
                 p.misses += 1
@@ -342,7 +352,7 @@ class LoopClosing(KeyframeWorker):
             p.confirmers.add((kf.map_id, kf.id))
             p.later = True
             p.misses = 0
-            T12 = fit.T_cw @ other.T_wc
+            T12 = self.verifier.relative(fit, other, S)
             if not p.enough:
                 atlas.merge_checked(kf, other, T12, "pending", p.coincidences, "pending")
                 keep.append(p)
@@ -378,8 +388,12 @@ class LoopClosing(KeyframeWorker):
         with self.mapping.paused():
             if self._culled_meanwhile(kf, cand, "merge"):
                 return
-            res = self.merger.merge(kf, cand, T12, matched)
-            # The merged map moved rigidly: measurements are its poses now (nothing "old").
+            records = self.frame_records
+            rescale = (partial(rescale_frame_records, records) if self.mono and records is not None else None)
+            res = self.merger.merge(kf, cand, T12, matched, mono=self.mono, rescale=rescale)
+            if self.mono:
+                self._after_similarity_merge(res)
+            # The merged map moved as a whole: measurements are its poses now (nothing "old").
             self._optimize_essential_graph(res.anchor, {}, {}, res.new_links)
         self.consistency.reset()
         self.last_loop_kf_id = kf.id
@@ -387,6 +401,14 @@ class LoopClosing(KeyframeWorker):
         self.stats["pose_graph_ms"].append((time.perf_counter() - t0) * 1e3)
         if self.cfg.global_ba:
             self.global_bundle_adjustment(res.kept)
+
+    def _after_similarity_merge(self, res: "MergeResult") -> None:
+        """A monocular merge scaled the moved map by ``res.scale`` (the frames recorded relative
+        to its keyframes were rescaled with the move, ``rescale_frame_records``): the points'
+        normals and scale-invariance distances are recomputed, as after a Sim(3) loop."""
+        with self.map.lock:
+            points = [p for k in self.map.all_keyframes() if k.id in res.moved_ids for p in k.valid_points()]
+        self._write_normals(list({p.id: p for p in points}.values()))
 
     def _query_bounds(self, kf: KeyFrame) -> tuple[set[int], float]:
         """The keyframes a loop must not be (kf's covisibles) and the lowest BoW score among

@@ -5,8 +5,11 @@ verification by projection, as for a loop), slam/orb/merge_check.py verifies it 
 depths, several keyframes agreeing) and loop closing hands the result here; afterwards it runs the essential graph and global BA over the
 merged map, as after a loop.
 
-RGB-D observes scale, so the merge is one rigid SE(3) (ORB-SLAM3 solves a Sim3 for
-monocular maps). Deviation from ORB-SLAM3: the whole newer map is moved by that transform
+RGB-D observes scale, so the merge is one rigid SE(3). Monocular maps each have their own
+scale, so their merge is a similarity, as ORB-SLAM3's MergeLocal solves a Sim3 for them: the
+moved map's points move with the full similarity, its keyframes keep the rigid part
+(``rigid_part``, as a Sim(3) loop correction does) and loop closing rescales the frames
+recorded relative to them and runs the essential graph in Sim(3). Deviation from ORB-SLAM3: the whole newer map is moved by that transform
 at once, in one critical section, instead of the welding window first and the rest after a
 welding BA; the window is then welded (duplicate points fused, as loop closing does) and
 global BA spreads the residual over both maps. The older map keeps its frame, so the first
@@ -16,12 +19,15 @@ map's frame stays the trajectory's frame.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.backend.pose_graph import rigid_part
+from semslam.backend.sim3 import sim3_inverse
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.slam.orb.atlas import Atlas
@@ -41,6 +47,8 @@ class MergeResult:
     merged: int  # the map moved into it
     anchor: KeyFrame  # the keyframe of the kept map at the weld (fixed in the essential graph)
     new_links: dict[KeyFrame, set[KeyFrame]]  # covisibility links across the weld
+    scale: float = 1.0  # the similarity's scale (kept map's units per moved map's unit)
+    moved_ids: frozenset[int] = frozenset()  # the moved map's keyframes (ids)
 
 
 def merge_transform(kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], move_kf_map: bool) -> NDArray[np.float64]:
@@ -52,6 +60,14 @@ def merge_transform(kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64], move
     if move_kf_map:
         return invert(T12 @ cand.T_cw) @ kf.T_cw
     return invert(invert(T12) @ kf.T_cw) @ cand.T_cw
+
+
+def merge_similarity(kf: KeyFrame, cand: KeyFrame, S12: NDArray[np.float64], move_kf_map: bool) -> NDArray[np.float64]:
+    """Monocular ``merge_transform``: ``S12`` (kf camera <- cand camera) is a similarity, so
+    is ``S`` (kept world <- moved world)."""
+    if move_kf_map:
+        return sim3_inverse(S12 @ cand.T_cw) @ kf.T_cw
+    return sim3_inverse(sim3_inverse(S12) @ kf.T_cw) @ cand.T_cw
 
 
 def _path_to_root(kf: KeyFrame) -> list[KeyFrame]:
@@ -111,15 +127,20 @@ class MapMerger:
         return self.atlas.enabled and len(self.atlas.live_maps()) > 1
 
     def merge(self, kf: KeyFrame, cand: KeyFrame, T12: NDArray[np.float64],
-              matched: dict[int, MapPoint]) -> MergeResult:
+              matched: dict[int, MapPoint], mono: bool = False,
+              rescale: Callable[[dict[KeyFrame, float]], object] | None = None) -> MergeResult:
         """Merge kf's map and cand's map (verified by loop closing and slam/orb/merge_check.py:
         ``T12`` kf <- cand, and ``matched`` kf keypoint -> cand-side point). Local mapping is
-        paused by the caller."""
+        paused by the caller. ``mono``: ``T12`` is a similarity (monocular maps); ``rescale``
+        gets the moved keyframes' scale in the same critical section as the move, so that
+        tracking's records relative to them change units together with them."""
         move_kf_map = kf.map_id > cand.map_id  # the newer map moves into the older one's frame
         kept, moved = (cand.map_id, kf.map_id) if move_kf_map else (kf.map_id, cand.map_id)
-        S = merge_transform(kf, cand, T12, move_kf_map)
-        R, t = S[:3, :3], S[:3, 3]
-        S_inv = invert(S)
+        S = merge_similarity(kf, cand, T12, move_kf_map) if mono else merge_transform(kf, cand, T12, move_kf_map)
+        R, t = S[:3, :3], S[:3, 3]  # a similarity's R holds its scale: points scale with it
+        scale = float(np.cbrt(np.linalg.det(R))) if mono else 1.0
+        R_normal = R / scale if mono else R
+        S_inv = sim3_inverse(S) if mono else invert(S)
         with self.map.lock:
             self.map.generation += 1  # a local BA computed before the move is discarded
             kfs = self.atlas.keyframes_of(moved)
@@ -128,17 +149,20 @@ class MapMerger:
             rows = rows[~self.map.store.bad[rows]]
             store = self.map.store
             store.pos[rows] = store.pos[rows] @ R.T + t
-            store.normal[rows] = store.normal[rows] @ R.T
+            store.normal[rows] = store.normal[rows] @ R_normal.T
             for k in kfs:
-                k.set_pose(k.T_cw @ S_inv)
+                k.set_pose(rigid_part(k.T_cw @ S_inv) if mono else k.T_cw @ S_inv)
                 k.map_id = kept
+            if rescale is not None:
+                rescale({k: scale for k in kfs})
             root = self.map.origins[moved]
             mover, anchor = (kf, cand) if move_kf_map else (cand, kf)
             _reroot(mover, anchor)
             root.origin = False
             self.atlas.record_merge(kept, moved, S)
-        log.info("maps merged: map %d into map %d at keyframes %d <-> %d", moved, kept, kf.id, cand.id)
-        return MergeResult(kept, moved, anchor, self._weld(kf, cand, matched))
+        log.info("maps merged: map %d into map %d at keyframes %d <-> %d (scale %.3f)", moved, kept, kf.id,
+                 cand.id, scale)
+        return MergeResult(kept, moved, anchor, self._weld(kf, cand, matched), scale, frozenset(k.id for k in kfs))
 
     def _weld(self, kf: KeyFrame, cand: KeyFrame, matched: dict[int, MapPoint]) -> dict[KeyFrame, set[KeyFrame]]:
         """Fuse the duplicated points of the two windows, as loop closing fuses a loop's

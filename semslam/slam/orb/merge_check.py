@@ -23,6 +23,16 @@ in the same map confirm a pending transform the same way (``PendingMerge``), as
 ORB-SLAM3's DetectAndReffineSim3FromLastKF does; ``PENDING_MISSES`` failures in a row
 drop it.
 
+Monocular maps (``MergeVerifier(mono=True)``): the transform is a similarity (ORB-SLAM3
+MergeLocal's Sim3 for a monocular map; its scale from loop closing's 7-DoF RANSAC and
+OptimizeSim3) and there is no depth to compare with. A keyframe is placed in the other map's
+world by the similarity's rigid part (``place``), refitted pose-only on reprojection alone,
+and the scale rides along from the Sim(3); the depth agreement is left out, the rest holds:
+inliers, spread in the image and in (predicted) depth, and ``COINCIDENCES`` keyframes of
+both maps whose refits land where the similarity put them (a wrong scale puts a keyframe
+away from the finder at the wrong distance, so its refit moves). ``AGREE_M`` is then in the
+other map's units (a monocular map starts at median depth 1, so 5 % of the scene's depth).
+
 Pure numpy here; the map-side matching is passed in by loop closing.
 """
 
@@ -35,7 +45,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.backend.pose_graph import rigid_part
 from semslam.backend.pose_only import optimize_pose
+from semslam.backend.sim3 import sim3_inverse
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize, rotation_angle
 from semslam.slam.orb.map import KeyFrame
@@ -121,6 +133,27 @@ def scene_shift(A: NDArray[np.float64], B: NDArray[np.float64], pts_w: NDArray[n
     return float(np.median(np.linalg.norm(pts_w @ D[:3, :3].T + D[:3, 3], axis=1)))
 
 
+def similarity_scale(S: NDArray[np.float64]) -> float:
+    """The scale ``s`` of ``S = [[s R, t], [0, 1]]`` (1 for a rigid transform)."""
+    return float(np.cbrt(np.linalg.det(S[:3, :3])))
+
+
+def place(T_cw: NDArray[np.float64], S: NDArray[np.float64], mono: bool) -> NDArray[np.float64]:
+    """The camera pose ``T_cw`` (its map's world) in another map's world, ``S`` (this world
+    <- that world): ``T_cw @ S``, of which a monocular map keeps the rigid part (the camera
+    in the other map's units, seeing every point at the same pixel)."""
+    return rigid_part(T_cw @ S) if mono else T_cw @ S
+
+
+def with_scale(T: NDArray[np.float64], s: float) -> NDArray[np.float64]:
+    """``diag(s, s, s, 1) @ T``: a rigid camera transform in another map's units made the
+    similarity into this map's (camera coordinates scaled by ``s``)."""
+    out = T.copy()
+    out[:3] *= s
+    out[3] = (0.0, 0.0, 0.0, 1.0)
+    return out
+
+
 def pose_difference(A: NDArray[np.float64], B: NDArray[np.float64]) -> tuple[float, float]:
     """(metres, degrees) between two camera poses T_cw: the centres' distance and the angle
     of the relative rotation."""
@@ -170,6 +203,7 @@ class PendingMerge:
     confirmers: set[tuple[int, int]]  # (map, keyframe id) of those that agreed so far (each counts once)
     later: bool = False  # a keyframe made after the finding agreed
     misses: int = 0
+    mono: bool = False  # S is a similarity (monocular maps)
 
     @property
     def coincidences(self) -> int:
@@ -181,19 +215,33 @@ class PendingMerge:
 
     def agrees(self, S: NDArray[np.float64]) -> bool:
         """Does ``S`` (a's world <- b's world) show the finder the scene where this one does?"""
-        A, B = self.kf.T_cw @ S, self.kf.T_cw @ self.S
+        A, B = place(self.kf.T_cw, S, self.mono), place(self.kf.T_cw, self.S, self.mono)
         return scene_shift(A, B, self.points) <= AGREE_M and pose_difference(A, B)[1] <= AGREE_DEG
 
 
 class MergeVerifier:
     """Checks candidate merge transforms; ``match`` projects cand's neighbourhood into a
-    keyframe placed at a pose (loop closing's verification by projection)."""
+    keyframe placed at a pose (loop closing's verification by projection). ``mono``: the
+    maps are monocular (similarities, no depth check)."""
 
-    def __init__(self, camera: PinholeCamera, bf: float, inv_sigma2: NDArray[np.float64], match: Matcher) -> None:
+    def __init__(self, camera: PinholeCamera, bf: float, inv_sigma2: NDArray[np.float64], match: Matcher,
+                 mono: bool = False) -> None:
         self.camera = camera
         self.bf = bf
         self.inv_sigma2 = inv_sigma2
         self.match = match
+        self.mono = mono
+
+    def inverse(self, S: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The inverse of a transform between two maps' worlds."""
+        return sim3_inverse(S) if self.mono else invert(S)
+
+    def relative(self, fit: "Fit", other: KeyFrame, S: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``T12`` (the refitted keyframe's camera <- other's camera) of a refit whose
+        keyframe was placed by ``S`` (its world <- other's world): with the similarity's
+        scale in a monocular map (the refit is in other's units)."""
+        T12 = fit.T_cw @ other.T_wc
+        return with_scale(T12, similarity_scale(S)) if self.mono else T12
 
     def fit(self, kf: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint]) -> Fit | None:
         """Pose-only refit of kf from ``T_cw0`` (kf in the other map's world) on ``matched``
@@ -209,9 +257,10 @@ class MergeVerifier:
         T = orthonormalize(res.T_cw)
         inl = np.asarray(res.inliers, bool)
         z_pred = pos[inl] @ T[2, :3] + T[2, 3]
+        # Monocular: no measured depth to compare with (0: the depth check passes by construction).
+        err = 0.0 if self.mono else depth_error(kf.depth[idx[inl]].astype(np.float64), z_pred)
         return Fit(T, {int(i): p for (i, p), ok in zip(pairs, inl) if ok}, pos[inl],
-                   grid_cells(kf.xy[idx[inl]], cam.image_size), depth_spread(z_pred),
-                   depth_error(kf.depth[idx[inl]].astype(np.float64), z_pred))
+                   grid_cells(kf.xy[idx[inl]], cam.image_size), depth_spread(z_pred), err)
 
     def converge(self, kf: KeyFrame, cand: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint]
                  ) -> Fit | None:
@@ -248,7 +297,7 @@ class MergeVerifier:
         """Keyframe ``k``, placed in cand's world by ``S`` (k's world <- cand's world): its
         refit on cand's neighbourhood if it finds it, passes the depth check and lands within
         ``AGREE_M`` / ``AGREE_DEG`` of where ``S`` put it; else None."""
-        T_pred = k.T_cw @ S
+        T_pred = place(k.T_cw, S, self.mono)
         matched = self.match(k, cand, T_pred @ cand.T_wc)
         fit = self.fit(k, T_pred, matched) if matched else None
         if fit is None or len(fit.matched) < MIN_PROJECTED or fit.depth_err > MAX_DEPTH_ERROR:
@@ -266,25 +315,29 @@ class MergeVerifier:
         """Check a candidate (``T12``: kf camera <- cand camera, ``matched``: kf keypoint ->
         cand-side point) on kf, then count the keyframes that confirm it: kf's covisibles
         placed in cand's world, and cand's covisibles placed in kf's world (``enough``: some
-        of each map; a young map may have no covisibles yet)."""
-        fit = self.converge(kf, cand, T12 @ cand.T_cw, matched)
+        of each map; a young map may have no covisibles yet). Monocular: ``T12`` is a
+        similarity; kf is refitted rigidly in cand's units and keeps its scale."""
+        s12 = similarity_scale(T12) if self.mono else 1.0
+        T_cw0 = rigid_part(T12 @ cand.T_cw) if self.mono else T12 @ cand.T_cw
+        fit = self.converge(kf, cand, T_cw0, matched)
         reason = self.check_finder(fit) if fit is not None else "not_converged"
         if fit is not None:
             log.debug("merge check kf %d vs %d: %d inliers, %d cells, depth spread %.2f, depth error %.3f: %s",
                       kf.id, cand.id, len(fit.matched), fit.cells, fit.spread, fit.depth_err, reason or "passed")
         if reason is not None or fit is None:
             return Verdict(reason)
-        S = kf.T_wc @ fit.T_cw  # kf's world <- cand's world
+        # kf's world <- cand's world (monocular: the refit's camera coordinates times the scale)
+        S = kf.T_wc @ with_scale(fit.T_cw, s12) if self.mono else kf.T_wc @ fit.T_cw
         agree = {(kf.map_id, kf.id)}
         for k in covisibles[:COVISIBLES]:
             if enough(agree):
                 break
             if self.confirm(k, cand, S) is not None:
                 agree.add((k.map_id, k.id))
-        S_inv = invert(S)
+        S_inv = self.inverse(S)
         for k in cand_covisibles[:COVISIBLES]:
             if enough(agree):
                 break
             if self.confirm(k, kf, S_inv) is not None:
                 agree.add((k.map_id, k.id))
-        return Verdict(None, S, fit.points, fit.T_cw @ cand.T_wc, fit.matched, agree)
+        return Verdict(None, S, fit.points, self.relative(fit, cand, S), fit.matched, agree)
