@@ -107,6 +107,15 @@ def synth_command(
         None, "--photo-textures", help="Folder of photographs laid on a seeded share of the surfaces "
         "(renders for training; fill one with `python -m semslam.synth.textures DIR`)."
     ),
+    stereo_baseline: float | None = typer.Option(
+        None, "--stereo-baseline", help="Also render a right camera this far (metres) along the left "
+        "camera's x axis, a rectified pair: rgb_right/, rgb_right.txt and camera.yaml (ORB-SLAM3 "
+        "settings) (default: 0, none)."
+    ),
+    layout_format: str = typer.Option(
+        "tum", "--layout-format", help="tum (the TUM RGB-D folder) or euroc (EuRoC ASL: mav0/cam0, "
+        "mav0/cam1, the body's ground truth in mav0/state_groundtruth_estimate0)."
+    ),
     workers: int = typer.Option(2, "--workers", help="Frames rendered in parallel (threads)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -148,12 +157,15 @@ def synth_command(
         occluder_kind=occluder_kind,
         white_balance_swing=white_balance_swing,
         photo_textures=str(photo_textures) if photo_textures is not None else None,
+        stereo_baseline=stereo_baseline,
     ).validate()
     start = time.perf_counter()
-    path = render_sequence(cfg, out, progress=not quiet, workers=workers)
+    path = render_sequence(cfg, out, progress=not quiet, workers=workers, layout_format=layout_format)
     secs = time.perf_counter() - start
     mover_note = (", mover" if cfg.mover else "") + (", background" if cfg.background else "")
     mover_note += f", layout {cfg.layout}" if cfg.layout else ""
+    mover_note += f", stereo {cfg.stereo_baseline:g} m" if cfg.stereo_baseline else ""
+    mover_note += ", EuRoC layout" if layout_format == "euroc" else ""
     typer.echo(
         f"synth: {cfg.frames} frames ({cfg.motion}, {cfg.people} people{mover_note}) "
         f"in {secs:.1f} s ({secs / cfg.frames:.3f} s/frame) -> {path}"

@@ -251,12 +251,16 @@ def billboard_aabb(
 
 
 def cast_billboard(
-    buf: Buffers, rgb: NDArray[np.uint8], cam: Camera, pose: NDArray[np.float64], bb: Billboard
+    buf: Buffers, rgb: NDArray[np.uint8], cam: Camera, pose: NDArray[np.float64], bb: Billboard,
+    facing: NDArray[np.float64] | None = None,
 ) -> None:
-    """Draw a billboard over ``rgb`` with alpha, depth test against and update ``buf``."""
+    """Draw a billboard over ``rgb`` with alpha, depth test against and update ``buf``.
+
+    The billboard turns to face ``facing`` (default: the camera's centre); a stereo rig's right
+    camera passes the left one's centre so that both see the same plane (the same scene)."""
     c = pose[:3, 3]
     up = np.array([0.0, 0.0, 1.0])
-    frame = _billboard_frame(bb, c)
+    frame = _billboard_frame(bb, c if facing is None else facing)
     if frame is None:
         return
     n, right, corners = frame

@@ -25,7 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 import semslam
-from semslam.synth import imaging, occluder, writer
+from semslam.errors import ConfigError, DataError
+from semslam.synth import euroc_writer, imaging, occluder, stereo, writer
 from semslam.synth.texture_atlas import TextureAtlas, build_texture_atlas
 from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
@@ -50,7 +51,9 @@ IN_PROGRESS = ".rendering.json"
 #: SynthConfig fields added after renders were first cached (absent there = default).
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
                  "blackout_start_s", "blackout_s", "layout", "occluder_s", "occluder_start_s",
-                 "occluder_kind", "white_balance_swing", "photo_textures")
+                 "occluder_kind", "white_balance_swing", "photo_textures", "stereo_baseline")
+#: File layouts of a render: the TUM RGB-D folder (``rgb_right/`` added for stereo) or EuRoC ASL.
+LAYOUT_FORMATS = ("tum", "euroc")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -91,6 +94,7 @@ class Renderer:
         self.boxes, self.atlas = scene_for_seed(cfg.seed, cfg.box_carrier, cfg.layout, cfg.photo_textures)
         self.times = np.arange(cfg.frames) / cfg.fps
         self.poses = camera_trajectory(cfg.motion, self.times, cfg.duration, cfg.seed)
+        self.left_to_right = stereo.left_to_right(cfg.stereo_baseline)  # T_LR: right camera in the left's frame
         self.people = People(
             cfg.people, cfg.people_mode, cfg.seed, cfg.people_dir, carrier=cfg.box_carrier
         )
@@ -146,6 +150,27 @@ class Renderer:
         bg_depth = kinect_depth(static.z, static.cos, None)
         return frame, Frame(bg_img, bg_depth, static.label, static.z)
 
+    def render_right(self, i: int) -> Frame:
+        """Frame ``i`` of the right camera of a stereo rig (``cfg.stereo_baseline``): the same
+        scene state at the same instant (people face the left camera, the rig's reference),
+        the same exposure, rolling shutter, gain, white balance, occluder and blackout, sensor
+        noise from its own seeded stream. Its ``depth`` is exact (no depth sensor there)."""
+        cfg = self.cfg
+        t = float(self.times[i])
+        pose = self.poses[i]
+        buf, rgb8, _ = self._scene(t, pose, False, eye=pose @ self.left_to_right)
+        if self._hard:
+            rgb8 = self._integrated_rgb(t, rgb8, right=True)
+        cover = self._occluder(t)
+        if cover is not None:  # over the whole rig, both lenses alike
+            rgb8 = occluder.cover_rgb(rgb8, *cover)
+        gain = imaging.exposure_gain(cfg.seed, t, cfg.gain_swing)
+        gain = gain * imaging.white_balance_gains(cfg.seed, t, cfg.white_balance_swing)
+        img, _, _ = self._sensor_rgb(rgb8, i, gain, stream=stereo.RIGHT_NOISE_STREAM)
+        if cfg.blackout_start_s <= t < cfg.blackout_start_s + cfg.blackout_s:
+            img = np.zeros_like(img)
+        return Frame(img, kinect_depth(buf.z, buf.cos, None), buf.label, buf.z)
+
     def _occluder(self, t: float) -> tuple[NDArray[np.float32], NDArray[np.float32]] | None:
         """(alpha, colour) of what is over the lens at ``t``, or None."""
         start, end = self.cfg.occluder_window()
@@ -162,11 +187,19 @@ class Renderer:
     def _pose_at(self, t: float) -> NDArray[np.float64]:
         return camera_trajectory(self.cfg.motion, np.array([t]), self.cfg.duration, self.cfg.seed)[0]
 
-    def _scene(self, t: float, pose: NDArray[np.float64], background: bool
-               ) -> tuple[Buffers, NDArray[np.uint8], Buffers | None]:
+    def poses_at(self, times: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The (left) camera's T_WC at ``times`` (seconds from the first frame)."""
+        return camera_trajectory(self.cfg.motion, np.asarray(times, np.float64), self.cfg.duration, self.cfg.seed)
+
+    def _scene(self, t: float, pose: NDArray[np.float64], background: bool,
+               eye: NDArray[np.float64] | None = None) -> tuple[Buffers, NDArray[np.uint8], Buffers | None]:
         """Everything at time ``t`` seen from ``pose``: the buffers (depth, labels), the
-        textured RGB with people, and a copy of the static scene alone if asked."""
+        textured RGB with people, and a copy of the static scene alone if asked. With ``eye``
+        (a stereo rig's right camera) it is seen from there, the scene still that of ``pose``
+        (people are billboards turned to it)."""
         cfg = self.cfg
+        facing = None if eye is None else pose[:3, 3]
+        pose = pose if eye is None else eye
         buf = Buffers(cfg.height, cfg.width)
         for box, table, ppm in zip(self.boxes, self.atlas.tables, self.atlas.ppm):
             cast_box(buf, self.cam, pose, box, table, ppm)
@@ -177,8 +210,8 @@ class Renderer:
         if cfg.box_carrier:
             cast_box(buf, self.cam, pose, carried_box(t), self.atlas.tables[-1], self.atlas.ppm[-1])
         rgb8 = sample_atlas(self.atlas.levels, buf)
-        for bb in self.people.billboards(t, pose[:3, 3]):
-            cast_billboard(buf, rgb8, self.cam, pose, bb)
+        for bb in self.people.billboards(t, pose[:3, 3] if facing is None else facing):
+            cast_billboard(buf, rgb8, self.cam, pose, bb, facing)
         return buf, rgb8, static
 
     def _image_speed(self, t: float, span: float) -> float:
@@ -193,28 +226,32 @@ class Renderer:
         speed = f * (angle + float(np.linalg.norm(rel[:3, 3]))) / max(span, 1e-6)
         return max(speed, f * 0.7 if self.cfg.people or self.cfg.box_carrier or self.cfg.mover else 0.0)
 
-    def _integrated_rgb(self, t: float, centre_rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
-        """The RGB image exposed with the config's exposure and rolling-shutter readout."""
+    def _integrated_rgb(self, t: float, centre_rgb: NDArray[np.uint8], right: bool = False) -> NDArray[np.uint8]:
+        """The RGB image exposed with the config's exposure and rolling-shutter readout (of the
+        right camera with ``right``: same sub-frame times, shutters in sync)."""
         cfg = self.cfg
         exposure, readout = cfg.exposure_ms / 1e3, cfg.rolling_shutter_ms / 1e3
         offsets = imaging.sub_frame_offsets(exposure, readout, self._image_speed(t, exposure + readout))
         if len(offsets) == 1:
             return centre_rgb
         poses = camera_trajectory(cfg.motion, t + offsets, cfg.duration, cfg.seed)
-        images = [self._scene(t + o, p, False)[1] for o, p in zip(offsets, poses)]
+        if right:
+            images = [self._scene(t + o, p, False, eye=p @ self.left_to_right)[1] for o, p in zip(offsets, poses)]
+        else:
+            images = [self._scene(t + o, p, False)[1] for o, p in zip(offsets, poses)]
         return imaging.blend_rows(images, imaging.row_weights(offsets, cfg.height, exposure, readout))
 
     def _sensor_rgb(
-        self, rgb8: NDArray[np.uint8], i: int, gain: float | NDArray[np.float32] = 1.0
+        self, rgb8: NDArray[np.uint8], i: int, gain: float | NDArray[np.float32] = 1.0, stream: int = 5
     ) -> tuple[NDArray[np.uint8], np.random.Generator | None, NDArray[np.float32] | None]:
         """Optics, exposure ``gain`` and sensor noise of frame ``i``: (RGB, the frame's random
         stream after the noise windows were drawn, the depth noise window); the same for any
-        content."""
+        content. ``stream`` seeds the noise (another one for a stereo rig's right camera)."""
         rgb = cv2.GaussianBlur(rgb8, (0, 0), BLUR_SIGMA).astype(np.float32)
         rgb *= self.vignette
         if np.any(np.asarray(gain) != 1.0):  # a scalar, or per-channel gains (white balance)
             rgb *= np.asarray(gain, np.float32)
-        rng = np.random.default_rng([self.cfg.seed, i, 5]) if self.cfg.noise else None
+        rng = np.random.default_rng([self.cfg.seed, i, stream]) if self.cfg.noise else None
         depth_noise = None
         if rng is not None:  # read noise + shot noise
             rgb += (np.float32(1.2) + np.float32(0.012) * rgb) * self._noise(self.rgb_noise, rng)
@@ -277,6 +314,8 @@ def _first_to_render(out: Path, cfg: SynthConfig, rgb_stamps: list[str], depth_s
     def complete(i: int) -> bool:
         names = [out / "rgb" / f"{rgb_stamps[i]}.png", out / "depth" / f"{depth_stamps[i]}.png",
                  out / "semantic" / f"{rgb_stamps[i]}.png"]
+        if cfg.stereo_baseline > 0:
+            names.append(out / stereo.RIGHT_DIR / f"{rgb_stamps[i]}.png")
         if cfg.background:
             names += [out / "background" / "rgb" / f"{rgb_stamps[i]}.png",
                       out / "background" / "depth" / f"{depth_stamps[i]}.png"]
@@ -293,9 +332,17 @@ def _first_to_render(out: Path, cfg: SynthConfig, rgb_stamps: list[str], depth_s
 
 
 def render_sequence(
-    cfg: SynthConfig, out_dir: str | Path, progress: bool = False, workers: int = 2, resume: bool = False
+    cfg: SynthConfig, out_dir: str | Path, progress: bool = False, workers: int = 2, resume: bool = False,
+    layout_format: str = "tum",
 ) -> Path:
     """Render ``cfg`` into a TUM RGB-D folder at ``out_dir``; return its path.
+
+    With ``cfg.stereo_baseline`` the right camera's images go to ``rgb_right/`` (listed in
+    ``rgb_right.txt`` with the RGB stamps) and ``camera.yaml`` holds the rig as ORB-SLAM3
+    settings (``synth/stereo.py``). ``layout_format="euroc"`` writes the EuRoC ASL layout
+    instead (``synth/euroc_writer.py``: the cameras' images, no depth or semantics, and the
+    body's ground truth), with ``sequence.json``, ``scene.json`` and ``movers.json`` beside
+    ``mav0``; it renders from the start (no ``resume``).
 
     ``workers`` frames are rendered concurrently in threads (numpy and OpenCV release the
     GIL); results do not depend on it. ``resume`` keeps the frames an earlier, interrupted or
@@ -303,16 +350,37 @@ def render_sequence(
     only, not on ``cfg.frames``) and renders from the first one missing: hours of rendering
     for a long benchmark are not lost to one interruption.
     """
+    if layout_format not in LAYOUT_FORMATS:
+        raise ConfigError(f"synth: unknown layout format {layout_format!r} (choose from {', '.join(LAYOUT_FORMATS)})")
+    euroc = layout_format == "euroc"
+    if euroc and cfg.background:
+        raise ConfigError("synth: background renders need the tum layout format (EuRoC has no depth folder)")
     out = Path(out_dir)
+    other = out / (euroc_writer.MAV if not euroc else "rgb.txt")
+    if other.exists():  # two layouts in one folder would be read as whichever a reader tries first
+        raise DataError(other, f"the output folder holds a render in another layout; {layout_format} "
+                               "renders go to a folder without it")
     renderer = Renderer(cfg)
+    has_right = cfg.stereo_baseline > 0
     rgb_stamps, depth_stamps = _stamps(cfg)
-    first = _first_to_render(out, cfg, rgb_stamps, depth_stamps, workers) if resume else 0
-    if first == 0:
-        writer.prepare_dir(out, background=cfg.background)
+    ns = euroc_writer.ns_stamps(cfg.start_time, cfg.frames, cfg.fps)
+    first = _first_to_render(out, cfg, rgb_stamps, depth_stamps, workers) if resume and not euroc else 0
+    if euroc:
+        out.mkdir(parents=True, exist_ok=True)
+        euroc_writer.prepare(out, 2 if has_right else 1)
+    elif first == 0:
+        writer.prepare_dir(out, background=cfg.background, right=has_right)
     writer.write_json(out / IN_PROGRESS, {"config": cfg.to_dict()})
 
     def job(i: int) -> int:
+        if euroc:  # left and right RGB only; the render's depth is not written
+            euroc_writer.write_frame(out, 0, int(ns[i]), renderer.render(i).rgb)
+            if has_right:
+                euroc_writer.write_frame(out, 1, int(ns[i]), renderer.render_right(i).rgb)
+            return i
         fr, bg = renderer.render_with_background(i, cfg.background)
+        if has_right:
+            writer.write_png(out / stereo.RIGHT_DIR / f"{rgb_stamps[i]}.png", renderer.render_right(i).rgb)
         writer.write_png(out / "rgb" / f"{rgb_stamps[i]}.png", fr.rgb)
         writer.write_png(out / "depth" / f"{depth_stamps[i]}.png", fr.depth)
         writer.write_png(out / "semantic" / f"{rgb_stamps[i]}.png", fr.semantic)
@@ -340,12 +408,20 @@ def render_sequence(
     finally:
         if bar is not None:
             bar.close()
-    writer.write_list(out / "rgb.txt", "color", rgb_stamps, "rgb")
-    writer.write_list(out / "depth.txt", "depth", depth_stamps, "depth")
-    writer.write_groundtruth(out / "groundtruth.txt", rgb_stamps, renderer.poses)
-    writer.write_calib(out / "calib.txt", cfg.intrinsics())
     labels = writer.labels_for(renderer.boxes)
-    writer.write_json(out / "semantic" / "labels.json", labels)
+    if euroc:
+        euroc_writer.write_layout(out, ns, renderer.poses, renderer.poses_at, renderer.times, cfg.intrinsics(),
+                                  cfg.width, cfg.height, cfg.fps, cfg.stereo_baseline)
+    else:
+        writer.write_list(out / "rgb.txt", "color", rgb_stamps, "rgb")
+        writer.write_list(out / "depth.txt", "depth", depth_stamps, "depth")
+        writer.write_groundtruth(out / "groundtruth.txt", rgb_stamps, renderer.poses)
+        writer.write_calib(out / "calib.txt", cfg.intrinsics())
+        writer.write_json(out / "semantic" / "labels.json", labels)
+    if has_right and not euroc:
+        writer.write_list(out / stereo.RIGHT_LIST, "right color", rgb_stamps, stereo.RIGHT_DIR)
+        stereo.write_settings(out / stereo.SETTINGS_FILE, cfg.intrinsics(), cfg.width, cfg.height, cfg.fps,
+                              cfg.stereo_baseline)
     writer.write_json(out / SCENE_FILE, scene_json(renderer.boxes))
     movers = [renderer.mover_boxes(i) for i in range(cfg.frames)]
     writer.write_json(out / MOVERS_FILE, movers_json(rgb_stamps, movers), indent=None)
@@ -369,6 +445,10 @@ def render_sequence(
                 if cfg.background
                 else {}
             ),
+            **({"stereo": {"baseline_m": cfg.stereo_baseline, "right_camera": "left + baseline along the "
+                           "left camera's x axis, same intrinsics and orientation (rectified)"}}
+               if has_right else {}),
+            **({"layout_format": "euroc", "euroc_T_BS_cam0": euroc_writer.T_BS_CAM0.tolist()} if euroc else {}),
         },
     )
     (out / IN_PROGRESS).unlink(missing_ok=True)

@@ -80,6 +80,9 @@ class SynthConfig:
     # Issue 40: a folder of photographs laid on a seeded share of the surfaces
     # (synth/texture_atlas.py), renders for training SDFCNN; None = procedural textures only.
     photo_textures: str | None = None
+    # Issue 41: a right camera this far (metres) along the left camera's x axis, a rectified
+    # pair (same intrinsics and orientation; synth/stereo.py); 0 = none (RGB-D only).
+    stereo_baseline: float = 0.0
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""
@@ -121,6 +124,8 @@ class SynthConfig:
                               f"{self.white_balance_swing}")
         if not 0.0 <= self.gain_swing < 1.0:
             raise ConfigError(f"synth: gain_swing must be in [0, 1), got {self.gain_swing}")
+        if not 0.0 <= self.stereo_baseline <= 2.0:
+            raise ConfigError(f"synth: stereo_baseline must be between 0 and 2 m, got {self.stereo_baseline}")
         return self
 
     def intrinsics(self) -> tuple[float, float, float, float]:
@@ -140,7 +145,12 @@ class SynthConfig:
         return self.frames / self.fps
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """The fields, as ``sequence.json`` holds them; ``stereo_baseline`` only when set, so
+        that RGB-D renders stay byte-identical to those made before stereo existed."""
+        out = dataclasses.asdict(self)
+        if not self.stereo_baseline:
+            del out["stereo_baseline"]
+        return out
 
     def replace(self, **changes: Any) -> SynthConfig:
         """A copy with some fields changed (``None`` values are ignored, for CLI overrides)."""

@@ -18,6 +18,7 @@ from semslam.core.labels import SYNTH_CLASSES
 from semslam.errors import DataError
 from semslam.geometry.se3 import pose_to_tum
 from semslam.synth.scene import Box, static_boxes, static_class_names
+from semslam.synth.stereo import RIGHT_DIR, RIGHT_LIST, SETTINGS_FILE
 
 
 def labels_for(boxes: list[Box]) -> dict[str, str]:
@@ -41,17 +42,22 @@ IMAGE_DIRS = ("rgb", "depth", "semantic")
 BACKGROUND_DIRS = ("background/rgb", "background/depth")
 
 
-def prepare_dir(out: Path, background: bool = False) -> None:
+def prepare_dir(out: Path, background: bool = False, right: bool = False) -> None:
     """Create ``out`` and its image folders; remove PNGs of an earlier rendering there
-    (the background folders too, so that a render without them leaves none behind)."""
+    (the background and stereo folders too, so that a render without them leaves none
+    behind; and a stereo render's lists, which would announce a right camera)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
-        for sub in IMAGE_DIRS + BACKGROUND_DIRS:
+        for sub in IMAGE_DIRS + BACKGROUND_DIRS + (RIGHT_DIR,):
             d = out / sub
-            if sub in IMAGE_DIRS or background:
+            wanted = right if sub == RIGHT_DIR else (sub in IMAGE_DIRS or background)
+            if wanted:
                 d.mkdir(parents=True, exist_ok=True)
             for old in d.glob("*.png"):
                 old.unlink()
+        if not right:
+            for name in (RIGHT_LIST, SETTINGS_FILE):
+                (out / name).unlink(missing_ok=True)
     except OSError as exc:
         raise DataError(out, f"cannot create the output folder: {exc.strerror or exc}") from exc
 
