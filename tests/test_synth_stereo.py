@@ -173,8 +173,10 @@ def test_tum_like_layout(renders: dict[str, Path]) -> None:
         assert fs.getNode(key).isReal() and fs.getNode(key).real() == pytest.approx(want, abs=1e-6)
     assert fs.getNode("Stereo.b").isReal() and fs.getNode("Stereo.b").real() == pytest.approx(B, abs=1e-12)
     assert fs.getNode("Stereo.ThDepth").real() == 40.0
-    for key, want in (("Camera.width", 320), ("Camera.height", 240), ("Camera.fps", 30)):
-        assert fs.getNode(key).isInt() and int(fs.getNode(key).real()) == want
+    for key, want in (("Camera.width", 320), ("Camera.height", 240), ("Camera.fps", 30), ("Camera.RGB", 1),
+                      ("ORBextractor.nFeatures", 1200), ("ORBextractor.nLevels", 8)):
+        assert fs.getNode(key).isInt() and int(fs.getNode(key).real()) == want, key
+    assert fs.getNode("ORBextractor.scaleFactor").isReal() and fs.getNode("Viewer.ViewpointF").isReal()
     fs.release()
     # the right images are the renderer's right camera (exact down to the PNG)
     r = Renderer(CFG)

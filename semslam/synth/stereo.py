@@ -56,6 +56,23 @@ def settings_yaml(intrinsics: tuple[float, float, float, float], width: int, hei
         "Camera.RGB: 1",
         f"Stereo.b: {baseline:.9f}",
         f"Stereo.ThDepth: {TH_DEPTH:.1f}",
+        "",
+        "# ORB-SLAM3 stops on a missing ORB or (with its viewer) Viewer key: its EuRoC stereo values",
+        "ORBextractor.nFeatures: 1200",
+        "ORBextractor.scaleFactor: 1.2",
+        "ORBextractor.nLevels: 8",
+        "ORBextractor.iniThFAST: 20",
+        "ORBextractor.minThFAST: 7",
+        "Viewer.KeyFrameSize: 0.05",
+        "Viewer.KeyFrameLineWidth: 1.0",
+        "Viewer.GraphLineWidth: 0.9",
+        "Viewer.PointSize: 2.0",
+        "Viewer.CameraSize: 0.08",
+        "Viewer.CameraLineWidth: 3.0",
+        "Viewer.ViewpointX: 0.0",
+        "Viewer.ViewpointY: -0.7",
+        "Viewer.ViewpointZ: -1.8",
+        "Viewer.ViewpointF: 500.0",
     ]
     return "\n".join(lines) + "\n"
 
