@@ -408,3 +408,29 @@ def test_bad_folders(tmp_path: Path) -> None:
         open_stereo_sequence(d)
     with pytest.raises(DataError, match="not a stereo sequence"):
         open_stereo_sequence(tmp_path)
+
+
+def test_a_euroc_pair_that_is_already_rectified_is_not_resampled(tmp_path: Path) -> None:
+    # Same intrinsics, no distortion, no rotation, the right camera 11 cm along x (what
+    # `semslam synth --layout-format euroc` writes): the images are used as they are.
+    from semslam.io.stereo_calibration import read_euroc_calibration
+
+    t_bs0 = np.array([[0.0, -1.0, 0.0, -0.02], [1.0, 0.0, 0.0, -0.06], [0.0, 0.0, 1.0, 0.01], [0, 0, 0, 1.0]])
+    shift = np.eye(4)
+    shift[0, 3] = 0.11
+    for cam, t_bs in (("cam0", t_bs0), ("cam1", t_bs0 @ shift)):
+        (tmp_path / cam).mkdir()
+        rows = ", ".join(f"{v:.17g}" for v in t_bs.reshape(-1))
+        (tmp_path / cam / "sensor.yaml").write_text(
+            "sensor_type: camera\ncomment: test\n"
+            f"T_BS:\n  cols: 4\n  rows: 4\n  data: [{rows}]\n"
+            "rate_hz: 20\nresolution: [320, 240]\ncamera_model: pinhole\n"
+            "intrinsics: [267.7, 251.4, 160.0, 120.0]\ndistortion_model: radial-tangential\n"
+            "distortion_coefficients: [0.0, 0.0, 0.0, 0.0]\n")
+    calib, _ = read_euroc_calibration(tmp_path)
+    assert calib.rectified_input and calib.maps is None
+    assert calib.baseline == pytest.approx(0.11, abs=1e-12)
+    assert (calib.camera.fx, calib.camera.fy) == (267.7, 251.4)  # not resampled to one focal length
+    left = np.random.default_rng(0).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    out_l, out_r = calib.rectify(left, left[:, ::-1].copy())
+    assert np.array_equal(out_l, left)

@@ -272,7 +272,17 @@ def read_euroc_calibration(mav0: str | Path) -> tuple[StereoCalibration, Array]:
     left, t_bs0 = read_euroc_sensor(mav0 / "cam0" / "sensor.yaml")
     right, t_bs1 = read_euroc_sensor(mav0 / "cam1" / "sensor.yaml")
     t_lr = np.linalg.inv(t_bs0) @ t_bs1
-    return StereoCalibration(left, right, t_lr, str(mav0 / "cam0" / "sensor.yaml")), t_bs0
+    # EuRoC's format cannot say "already rectified"; a pair that is (same intrinsics, no
+    # distortion, no rotation, the right camera on the left's x axis) is not resampled.
+    return StereoCalibration(left, right, t_lr, str(mav0 / "cam0" / "sensor.yaml"),
+                             rectified_input=_is_rectified(left, right, t_lr)), t_bs0
+
+
+def _is_rectified(left: PinholeCamera, right: PinholeCamera, t_lr: Array, tol: float = 1e-6) -> bool:
+    """Whether a pair's images are rectified as they are (nothing to remap)."""
+    same = np.allclose(left.K, right.K, rtol=0.0, atol=tol) and (left.width, left.height) == (right.width, right.height)
+    return bool(same and not left.is_distorted and not right.is_distorted
+                and np.allclose(t_lr[:3, :3], np.eye(3), atol=tol) and np.allclose(t_lr[1:3, 3], 0.0, atol=tol))
 
 
 # ---------------------------------------------------------------------------- ORB-SLAM3 settings
