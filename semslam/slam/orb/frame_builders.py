@@ -3,6 +3,7 @@ a right-image coordinate per keypoint where the sensor gives one, empty map-poin
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -14,6 +15,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.slam.orb.frame_state import FrameState
 from semslam.frontend.keypoint_depth import sample_depth
 from semslam.slam.orb.map import PointSlots
+from semslam.slam.orb.stereo_matching import compute_stereo_matches, stereo_pyramid
 
 
 class FrameBuilder(Protocol):
@@ -66,6 +68,42 @@ class MonocularFrameBuilder:
         if depth_img is not None:
             frame.prior_depth = sample_depth(depth_img, kps.xy).astype(np.float32)
         return frame
+
+
+@dataclass
+class StereoViews:
+    """What a stereo frame adds to its left keypoints: the right image's keypoints and both
+    rectified images (grey, same size), whose pyramids the SAD refinement reads."""
+
+    right_kps: Keypoints
+    left_gray: NDArray[np.uint8]
+    right_gray: NDArray[np.uint8]
+
+
+class StereoFrameBuilder:
+    """A rectified stereo pair: ORB-SLAM2's stereo matching (``stereo_matching``) gives each
+    left keypoint a depth and its matched right coordinate ``ur``; unmatched ones keep depth 0
+    and ``ur`` -1. The depth image is not read. ``right`` is the stereo part of the frame;
+    without it every keypoint is unmatched. Close/far (ThDepth) stays tracking's job."""
+
+    def __init__(self, camera: PinholeCamera, bf: float, scale_factor: float, n_levels: int) -> None:
+        self.camera = camera
+        self.bf = bf
+        self.baseline = bf / camera.fx  # ORB-SLAM2's minZ: the nearest depth searched
+        self.scale_factor = scale_factor
+        self.n_levels = n_levels
+
+    def build(self, index: int, timestamp: float, kps: Keypoints,
+              depth_img: NDArray[np.float32] | None = None, right: StereoViews | None = None) -> FrameState:
+        n = len(kps)
+        # Rectified images: undistortion is the identity unless the camera says otherwise.
+        xy = self.camera.undistort_points(kps.xy)
+        if right is None:
+            return _frame(index, timestamp, kps, xy, np.zeros(n, np.float32), np.full(n, -1.0))
+        pyr_l = stereo_pyramid(right.left_gray, self.n_levels, self.scale_factor)
+        pyr_r = stereo_pyramid(right.right_gray, self.n_levels, self.scale_factor)
+        m = compute_stereo_matches(kps, right.right_kps, pyr_l, pyr_r, self.scale_factor, self.bf, self.baseline)
+        return _frame(index, timestamp, kps, xy, m.depth, m.ur)
 
 
 def is_monocular(config: SystemConfig) -> bool:
