@@ -9,7 +9,8 @@ the correction propagated as similarities (CorrectLoop's g2oCorrectedSiw) and th
 graph solved in Sim(3) (``pose_graph.optimize_sim3_pose_graph``); keyframes keep the rigid
 part of their similarity and points move with the full similarity. Merges of monocular atlas
 maps likewise (ORB-SLAM3 MergeLocal with a Sim3): found with the 7-DoF RANSAC, checked by
-reprojection only (merge_check.py's monocular mode), the newer map moved by the similarity.
+reprojection and the keyframes' own points' depths (merge_check.py's monocular mode), the
+newer map moved by the similarity.
 """
 
 from __future__ import annotations

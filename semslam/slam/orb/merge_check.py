@@ -27,11 +27,13 @@ Monocular maps (``MergeVerifier(mono=True)``): the transform is a similarity (OR
 MergeLocal's Sim3 for a monocular map; its scale from loop closing's 7-DoF RANSAC and
 OptimizeSim3) and there is no depth to compare with. A keyframe is placed in the other map's
 world by the similarity's rigid part (``place``), refitted pose-only on reprojection alone,
-and the scale rides along from the Sim(3); the depth agreement is left out, the rest holds:
-inliers, spread in the image and in (predicted) depth, and ``COINCIDENCES`` keyframes of
-both maps whose refits land where the similarity put them (a wrong scale puts a keyframe
-away from the finder at the wrong distance, so its refit moves). ``AGREE_M`` is then in the
-other map's units (a monocular map starts at median depth 1, so 5 % of the scene's depth).
+and the scale rides along from the Sim(3). The depth agreement compares the refit's depths
+with the keyframe's own map points at the same keypoints, divided by the similarity's scale
+(``own_depths``, ``MAX_MONO_DEPTH_ERROR``): keyframes near each other agree on a wrong
+scale (their refits hardly move), the depths do not. The rest holds as for RGB-D: inliers,
+spread in the image and in depth, and ``COINCIDENCES`` keyframes of both maps whose refits
+land where the similarity put them. ``AGREE_M`` is then in the other map's units (a
+monocular map starts at median depth 1, so 5 % of the scene's depth).
 
 Pure numpy here; the map-side matching is passed in by loop closing.
 """
@@ -68,6 +70,10 @@ MIN_CELLS = 5
 MIN_DEPTH_SPREAD = 0.10
 #: Median |measured - predicted| / measured depth of the inliers, at most.
 MAX_DEPTH_ERROR = 0.04
+#: Monocular: the same against the keyframe's own triangulated points, which scatter more
+#: (right merges measured 0.036-0.044 on blackout_xyz renders; the same with the scale 15 %
+#: off: 0.15).
+MAX_MONO_DEPTH_ERROR = 0.08
 #: Keyframes that must agree on the transform (the finder included).
 COINCIDENCES = 3
 #: A confirming keyframe's refit may move the scene it sees (``scene_shift``) and turn
@@ -131,6 +137,18 @@ def scene_shift(A: NDArray[np.float64], B: NDArray[np.float64], pts_w: NDArray[n
         return float("inf")
     D = A - B
     return float(np.median(np.linalg.norm(pts_w @ D[:3, :3].T + D[:3, 3], axis=1)))
+
+
+def own_depths(kf: KeyFrame, idx: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Depths in kf's camera of kf's own map points at keypoints ``idx`` (0 where it has none):
+    a monocular keyframe's stand-in for measured depths."""
+    z = np.zeros(len(idx))
+    R, t = kf.T_cw[:3, :3], kf.T_cw[:3, 3]
+    for j, i in enumerate(idx.tolist()):
+        p = kf.points[i]
+        if p is not None and not p.bad:
+            z[j] = float(R[2] @ p.pos + t[2])
+    return z
 
 
 def similarity_scale(S: NDArray[np.float64]) -> float:
@@ -231,6 +249,7 @@ class MergeVerifier:
         self.inv_sigma2 = inv_sigma2
         self.match = match
         self.mono = mono
+        self.max_depth_error = MAX_MONO_DEPTH_ERROR if mono else MAX_DEPTH_ERROR
 
     def inverse(self, S: NDArray[np.float64]) -> NDArray[np.float64]:
         """The inverse of a transform between two maps' worlds."""
@@ -243,9 +262,11 @@ class MergeVerifier:
         T12 = fit.T_cw @ other.T_wc
         return with_scale(T12, similarity_scale(S)) if self.mono else T12
 
-    def fit(self, kf: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint]) -> Fit | None:
+    def fit(self, kf: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint], scale: float = 1.0
+            ) -> Fit | None:
         """Pose-only refit of kf from ``T_cw0`` (kf in the other map's world) on ``matched``
-        (kf keypoint -> point of the other map); None without enough valid matches."""
+        (kf keypoint -> point of the other map); None without enough valid matches.
+        ``scale``: kf's map units per the other map's (monocular)."""
         pairs = [(i, p) for i, p in matched.items() if not p.bad]
         if len(pairs) < MIN_PROJECTED:
             return None
@@ -257,19 +278,23 @@ class MergeVerifier:
         T = orthonormalize(res.T_cw)
         inl = np.asarray(res.inliers, bool)
         z_pred = pos[inl] @ T[2, :3] + T[2, 3]
-        # Monocular: no measured depth to compare with (0: the depth check passes by construction).
-        err = 0.0 if self.mono else depth_error(kf.depth[idx[inl]].astype(np.float64), z_pred)
+        if self.mono:
+            # No sensor depth: kf's own map's points at the same keypoints stand in for it,
+            # brought to the other map's units by the similarity's scale (a wrong scale fails here).
+            err = depth_error(own_depths(kf, idx[inl]) / scale, z_pred)
+        else:
+            err = depth_error(kf.depth[idx[inl]].astype(np.float64), z_pred)
         return Fit(T, {int(i): p for (i, p), ok in zip(pairs, inl) if ok}, pos[inl],
                    grid_cells(kf.xy[idx[inl]], cam.image_size), depth_spread(z_pred), err)
 
-    def converge(self, kf: KeyFrame, cand: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint]
-                 ) -> Fit | None:
+    def converge(self, kf: KeyFrame, cand: KeyFrame, T_cw0: NDArray[np.float64], matched: dict[int, MapPoint],
+                 scale: float = 1.0) -> Fit | None:
         """Refit kf on cand's neighbourhood until the pose stops moving (ORB-SLAM3 matches
         again by projection at the optimised Sim3 and optimises once more): a pose-only fit
         from a transform 10-20 cm off stops short of the truth on the matches found near the
         wrong pose. None if it still moves the scene by over ``CONVERGED_M`` after
         ``REFITS`` rounds (or finds nothing); a fit too small to pass is returned as is."""
-        fit = self.fit(kf, T_cw0, matched)
+        fit = self.fit(kf, T_cw0, matched, scale)
         for _ in range(REFITS):
             if fit is None or len(fit.matched) < MIN_INLIERS:
                 return fit
@@ -278,7 +303,7 @@ class MergeVerifier:
                 return fit
             T_cw0 = fit.T_cw
             again = self.match(kf, cand, T_cw0 @ cand.T_wc)
-            fit = self.fit(kf, T_cw0, again) if again else None
+            fit = self.fit(kf, T_cw0, again, scale) if again else None
         return None
 
     def check_finder(self, fit: Fit | None) -> str | None:
@@ -289,7 +314,7 @@ class MergeVerifier:
             return "image_spread"
         if fit.spread < MIN_DEPTH_SPREAD:
             return "depth_spread"
-        if fit.depth_err > MAX_DEPTH_ERROR:
+        if fit.depth_err > self.max_depth_error:
             return "depth_agreement"
         return None
 
@@ -299,8 +324,9 @@ class MergeVerifier:
         ``AGREE_M`` / ``AGREE_DEG`` of where ``S`` put it; else None."""
         T_pred = place(k.T_cw, S, self.mono)
         matched = self.match(k, cand, T_pred @ cand.T_wc)
-        fit = self.fit(k, T_pred, matched) if matched else None
-        if fit is None or len(fit.matched) < MIN_PROJECTED or fit.depth_err > MAX_DEPTH_ERROR:
+        scale = similarity_scale(S) if self.mono else 1.0
+        fit = self.fit(k, T_pred, matched, scale) if matched else None
+        if fit is None or len(fit.matched) < MIN_PROJECTED or fit.depth_err > self.max_depth_error:
             log.debug("kf %d does not confirm vs %d: %s", k.id, cand.id,
                       "no matches" if fit is None else f"{len(fit.matched)} inliers, depth error {fit.depth_err:.3f}")
             return None
@@ -319,7 +345,7 @@ class MergeVerifier:
         similarity; kf is refitted rigidly in cand's units and keeps its scale."""
         s12 = similarity_scale(T12) if self.mono else 1.0
         T_cw0 = rigid_part(T12 @ cand.T_cw) if self.mono else T12 @ cand.T_cw
-        fit = self.converge(kf, cand, T_cw0, matched)
+        fit = self.converge(kf, cand, T_cw0, matched, s12)
         reason = self.check_finder(fit) if fit is not None else "not_converged"
         if fit is not None:
             log.debug("merge check kf %d vs %d: %d inliers, %d cells, depth spread %.2f, depth error %.3f: %s",
