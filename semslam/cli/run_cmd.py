@@ -51,7 +51,8 @@ PRESET_LINES = {
            "the bundled mediapipe model, the paper's DUNet with --set semantics.backend=dunet)",
     "stdc": "STDC-SLAM: orb + segmentation thread + mask refinement + improved Qtree-ORB (RGB-D; people "
             "by the bundled mediapipe model, the paper's STDC net with --set semantics.backend=stdc)",
-    "mono": "ORB core on a monocular camera: two-view initialisation, no depth, loop closing in Sim(3)",
+    "mono": "ORB core on a monocular camera: two-view initialisation, no depth, loop closing and map "
+            "merging in Sim(3)",
     "mono_dynamic": "mono with people walking: person mask before extraction + the multi-view check in "
                     "two-view form (epipolar / reprojection against keyframes)",
     "sdf": "SDF-SLAM's networks on the monocular ORB core: SDFCNN's depth as a checked prior (metric "
