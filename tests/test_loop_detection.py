@@ -162,7 +162,7 @@ class _ProbedLoopClosing(LoopClosing):
         self.n_candidates.append(len(found))
         return found
 
-    def _compute_se3(self, kf: KeyFrame, cand: KeyFrame) -> None:
+    def _compute_transform(self, kf: KeyFrame, cand: KeyFrame) -> None:
         self.se3_checks += 1
 
 

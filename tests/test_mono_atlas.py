@@ -23,7 +23,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from semslam.backend.pose_graph import rigid_part
+from semslam.backend.sim3 import rigid_part
 from semslam.backend.sim3 import sim3_inverse
 from semslam.geometry.se3 import make_pose, so3_exp
 from semslam.experiments.merge_error import WRONG_DEG, WRONG_M
@@ -233,7 +233,7 @@ def _metres_per_unit(seq: Path, kf: object) -> float:
 @pytest.mark.slow
 def test_monocular_merge_check_refuses_wrong_scales_and_offsets(two_mono_maps) -> None:
     """For new-map keyframes whose true view is within 50 cm of a first-map keyframe's: the
-    Sim(3) found by ``_compute_sim3``, and the same moved sideways / along the view / turned
+    Sim(3) found by ``_compute_transform``, and the same moved sideways / along the view / turned
     or scaled by 0.85, 1.2, 0.7, through the monocular check. Every accepted one is within
     5 cm / 2 deg of the truth at the weld (``merge_error.weld_error``, with metres per unit
     of kf's map from the render's depth at its points); every wrong scale is refused (the
@@ -255,7 +255,7 @@ def test_monocular_merge_check_refuses_wrong_scales_and_offsets(two_mono_maps) -
     closer = core.closer
     found_accepted, tried = 0, 0
     for k1, k0 in pairs[:6]:
-        res = closer._compute_sim3(k1, k0)
+        res = closer._compute_transform(k1, k0)
         if res is None:
             continue
         tried += 1

@@ -52,7 +52,7 @@ STAGES: dict[str, tuple[str, ...]] = {
     "local BA (build/apply)": ("_local_bundle_adjustment",),
     "keyframe culling": ("_cull_keyframes",),
     "loop detection": ("_detect_loop",),
-    "loop SE3": ("_compute_se3",),
+    "loop SE3": ("_compute_transform",),
     "loop correction": ("_correct_loop",),
     "global BA (build/apply)": ("global_bundle_adjustment",),
     "bundle adjustment (GTSAM)": ("bundle_adjust",),

@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_graph import PoseGraphFailed, rigid_part
-from semslam.backend.sim3 import optimize_similarity, ransac_similarity, sim3_inverse
+from semslam.backend.pose_graph import PoseGraphFailed
+from semslam.backend.sim3 import optimize_similarity, ransac_similarity, rigid_part, sim3_inverse, sim3_parts
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.geometry.camera import PinholeCamera
@@ -191,7 +191,7 @@ class LoopClosing(KeyframeWorker):
         log.debug("kf %d: consistent candidates %s", kf.id, accepted)
         by_id = {c.kf_id: k for c, k in candidates}
         for cid in accepted:
-            res = self._compute_sim3(kf, by_id[cid]) if self.mono else self._compute_se3(kf, by_id[cid])
+            res = self._compute_transform(kf, by_id[cid])
             if res is not None:
                 return res
         return None
@@ -223,7 +223,7 @@ class LoopClosing(KeyframeWorker):
         with self.map.lock:
             candidates = [self.map.keyframes[i] for i in cand_ids[:3] if i in self.map.keyframes]
         for cand in candidates:
-            res = self._compute_sim3(kf, cand) if self.mono else self._compute_se3(kf, cand)
+            res = self._compute_transform(kf, cand)
             outcome = self._check_merge(kf, *res) if res is not None else None
             if outcome is not None:
                 return outcome == "merged"
@@ -263,17 +263,16 @@ class LoopClosing(KeyframeWorker):
                 recent = [k for k in atlas.keyframes_of(left) if not k.bad][-3:][::-1]
                 first = tries == HINT_KEYFRAMES
                 near = [kf, hint.reloc_kf, *hint.reloc_kf.best_covisibles(4)] if first else [kf]
-                attempts.append((recent, [k for k in dict.fromkeys(near) if not k.bad], hint.bridge))
+                # The bridge is rigid: it has no scale to give a monocular map.
+                attempts.append((recent, [k for k in dict.fromkeys(near) if not k.bad],
+                                 None if self.mono else hint.bridge))
                 if tries > 1:
                     kept.append((hint, tries - 1))
             self._hints = kept
         for recent, near, bridge in attempts:
             for cand in near:
                 for left_kf in recent:
-                    if self.mono:  # the bridge is rigid: it has no scale to give a monocular map
-                        res, source, bridge = self._compute_sim3(left_kf, cand), "hint", None
-                    else:
-                        res, source = self._compute_se3(left_kf, cand), "hint"
+                    res, source = self._compute_transform(left_kf, cand), "hint"
                     if res is None and bridge is not None:
                         # left_kf in cand's world by the motion model's bridge, checked as a loop is.
                         with self.map.lock:
@@ -450,37 +449,30 @@ class LoopClosing(KeyframeWorker):
         return _Matches(x1, x2, kf.xy[i1], cand.xy[i2], self.pyr.inv_sigma2[kf.keypoints.octave[i1]],
                         self.pyr.inv_sigma2[cand.keypoints.octave[i2]])
 
-    def _compute_se3(self, kf: KeyFrame, cand: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
-        """SE(3) between kf and a consistent candidate from BoW matches (RANSAC), verified by
-        projecting the candidate's neighbourhood into kf."""
+    def _compute_transform(self, kf: KeyFrame, cand: KeyFrame
+                           ) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
+        """kf <- cand from BoW matches, verified by projecting cand's neighbourhood into kf.
+        RGB-D: an SE(3) RANSAC. Monocular: ORB-SLAM ComputeSim3, a 7-DoF RANSAC (Sim3Solver)
+        refined on the reprojection errors of all matches (OptimizeSim3, which also drops the
+        outliers; at least ``MIN_SIM3_INLIERS`` must stay), the scale in the rotation block
+        (ORB-SLAM also searches more matches with the Sim(3) before OptimizeSim3,
+        SearchBySim3: not done here)."""
         m = self._bow_matches(kf, cand)
         if m is None:
             return None
-        T12, inl = ransac_similarity(*m, self.camera, self.rng, with_scale=False)
+        T12, inl = ransac_similarity(*m, self.camera, self.rng, with_scale=self.mono)
         if T12 is None:
-            log.debug("kf %d vs %d: SE3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(m.x1), int(inl.sum()))
+            log.debug("kf %d vs %d: %s RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id,
+                      "Sim3" if self.mono else "SE3", len(m.x1), int(inl.sum()))
             return None
-        return self._verify_by_projection(kf, cand, T12, int(inl.sum()))
-
-    def _compute_sim3(self, kf: KeyFrame, cand: KeyFrame) -> tuple[KeyFrame, NDArray[np.float64], dict[int, MapPoint]] | None:
-        """Monocular ``_compute_se3``: ORB-SLAM ComputeSim3. A 7-DoF RANSAC on the BoW matches
-        (Sim3Solver), refined on the reprojection errors of all of them (OptimizeSim3, which
-        also drops the outliers; at least ``MIN_SIM3_INLIERS`` must stay), then verified by
-        projecting cand's neighbourhood into kf with the similarity (ORB-SLAM also searches
-        more matches with the Sim(3) before OptimizeSim3, SearchBySim3: not done here).
-        Returns S12 (kf <- cand, scale in the rotation block)."""
-        m = self._bow_matches(kf, cand)
-        if m is None:
-            return None
-        S12, inl = ransac_similarity(*m, self.camera, self.rng, with_scale=True)
-        if S12 is None:
-            log.debug("kf %d vs %d: Sim3 RANSAC failed (%d matches, best %d inliers)", kf.id, cand.id, len(m.x1), int(inl.sum()))
-            return None
-        fit = optimize_similarity(S12, *m, self.camera, fix_scale=False)
-        if fit.n_inliers < MIN_SIM3_INLIERS:
-            log.debug("kf %d vs %d: %d inliers after OptimizeSim3", kf.id, cand.id, fit.n_inliers)
-            return None
-        return self._verify_by_projection(kf, cand, fit.S12, fit.n_inliers)
+        n_inliers = int(inl.sum())
+        if self.mono:
+            fit = optimize_similarity(T12, *m, self.camera, fix_scale=False)
+            if fit.n_inliers < MIN_SIM3_INLIERS:
+                log.debug("kf %d vs %d: %d inliers after OptimizeSim3", kf.id, cand.id, fit.n_inliers)
+                return None
+            T12, n_inliers = fit.S12, fit.n_inliers
+        return self._verify_by_projection(kf, cand, T12, n_inliers)
 
     def _inverse(self, S: NDArray[np.float64]) -> NDArray[np.float64]:
         """The inverse of a keyframe transform: a similarity's in a monocular map, else a
@@ -676,7 +668,7 @@ class LoopClosing(KeyframeWorker):
             if self.mono and self.frame_records is not None:
                 # S_wc starts from each keyframe's rigid pose before the loop (scale 1, or the
                 # loop's correction): its scale is how much the map around it grew.
-                grown = {k: float(np.cbrt(np.linalg.det(S[:3, :3]))) for k, S in zip(kfs, poses_wc)}
+                grown = {k: sim3_parts(S)[2] for k, S in zip(kfs, poses_wc)}
                 n = rescale_frame_records(self.frame_records, grown)
                 log.info("Sim(3) loop: keyframe scales %.3f..%.3f, %d frame records rescaled",
                          min(grown.values()), max(grown.values()), n)
