@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from semslam.backend.pose_graph import optimize_pose_graph, optimize_sim3_pose_graph, rigid_part
+from semslam.backend.pose_graph import optimize_pose_graph, optimize_sim3_pose_graph
+from semslam.backend.sim3 import rigid_part
 from semslam.backend.sim3 import sim3_inverse, sim3_parts
 from semslam.geometry.se3 import invert, make_pose, so3_exp
 

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from semslam.backend.gtsam_utils import lm_params, poses_from_rows
+from semslam.backend.sim3 import sim3_parts
 from semslam.geometry.se3 import invert
 
 Array = NDArray[np.float64]
@@ -101,24 +102,11 @@ def _solve(graph: gtsam.NonlinearFactorGraph, poses_wc: Array, edges: NDArray[np
     return out
 
 
-def rigid_part(S: Array) -> Array:
-    """The camera pose ``[[R, t / s], [0, 1]]`` of a similarity ``S_cw = [[s R, t], [0, 1]]``:
-    what a keyframe keeps of its Sim(3) after a loop correction (ORB-SLAM CorrectLoop /
-    OptimizeEssentialGraph: ``eigt *= 1 / s``); it sees every point at the same pixel."""
-    A = S[:3, :3]
-    s = float(np.cbrt(np.linalg.det(A)))
-    out = np.eye(4)
-    out[:3, :3] = A / s
-    out[:3, 3] = S[:3, 3] / s
-    return out
-
-
 def _to_similarity3(S: Array) -> gtsam.Similarity3:
     """GTSAM's ``Similarity3`` of our ``S = [[s R, t], [0, 1]]`` (``x -> s R x + t``).
     GTSAM's acts as ``x -> s (R x + t')``, so ``t' = t / s``."""
-    A = S[:3, :3]
-    s = float(np.cbrt(np.linalg.det(A)))
-    return gtsam.Similarity3(gtsam.Rot3(A / s), np.ascontiguousarray(S[:3, 3] / s), s)
+    R, t, s = sim3_parts(S)
+    return gtsam.Similarity3(gtsam.Rot3(R), np.ascontiguousarray(t / s), s)
 
 
 def _from_similarity3(S: gtsam.Similarity3) -> Array:

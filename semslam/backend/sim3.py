@@ -44,6 +44,14 @@ def sim3_parts(S: Array) -> tuple[Array, Array, float]:
     return A / s, S[:3, 3].copy(), s
 
 
+def rigid_part(S: Array) -> Array:
+    """The camera pose ``[[R, t / s], [0, 1]]`` of a similarity ``S_cw = [[s R, t], [0, 1]]``:
+    what a keyframe keeps of its Sim(3) after a loop correction (ORB-SLAM CorrectLoop /
+    OptimizeEssentialGraph: ``eigt *= 1 / s``); it sees every point at the same pixel."""
+    R, t, s = sim3_parts(S)
+    return make_pose(R, t / s)
+
+
 def sim3_inverse(S: Array) -> Array:
     """``S^-1 = [[R^T / s, -R^T t / s], [0, 1]]`` (maps frame-1 points into frame 2)."""
     R, t, s = sim3_parts(S)
@@ -147,7 +155,7 @@ def optimize_similarity(S12: Array, x1: Array, x2: Array, uv1: Array, uv2: Array
     def unpack(p: Array) -> tuple[Array, Array]:
         R = so3_exp(p[:3]) @ R0
         s = s0 if fix_scale else s0 * float(np.exp(p[6]))
-        return make_pose(s * R, p[3:6]), make_pose(R.T / s, -(R.T @ p[3:6]) / s)
+        return _hypothesis(R, p[3:6], s, with_scale=True)
 
     def errors(p: Array, keep: NDArray[np.bool_]) -> tuple[Array, Array, NDArray[np.bool_]]:
         S, S_inv = unpack(p)

@@ -79,8 +79,6 @@ class BundleAdjustmentRunner:
     def run_sim3_pose_graph(self, *args: Any, **kwargs: Any) -> NDArray[np.float64]:
         """``pose_graph.optimize_sim3_pose_graph`` (monocular maps) in the worker, as
         ``run_pose_graph``."""
-        if self._pool is None:
-            return optimize_sim3_pose_graph(*args, **kwargs)
         return self._in_worker(optimize_sim3_pose_graph, *args, **kwargs)
 
     def _in_worker(self, fn: Callable[..., R], *args: Any, **kwargs: Any) -> R:

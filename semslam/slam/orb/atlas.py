@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_graph import rigid_part
+from semslam.backend.sim3 import rigid_part
 from semslam.backend.sim3 import sim3_inverse
 from semslam.geometry.se3 import invert
 from semslam.slam.orb.map import KeyFrame, Map

@@ -26,8 +26,7 @@ from functools import partial
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_graph import rigid_part
-from semslam.backend.sim3 import sim3_inverse
+from semslam.backend.sim3 import rigid_part, sim3_inverse, sim3_parts
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert
 from semslam.slam.orb.atlas import Atlas
@@ -138,7 +137,7 @@ class MapMerger:
         kept, moved = (cand.map_id, kf.map_id) if move_kf_map else (kf.map_id, cand.map_id)
         S = merge_similarity(kf, cand, T12, move_kf_map) if mono else merge_transform(kf, cand, T12, move_kf_map)
         R, t = S[:3, :3], S[:3, 3]  # a similarity's R holds its scale: points scale with it
-        scale = float(np.cbrt(np.linalg.det(R))) if mono else 1.0
+        scale = sim3_parts(S)[2] if mono else 1.0
         R_normal = R / scale if mono else R
         S_inv = sim3_inverse(S) if mono else invert(S)
         with self.map.lock:

@@ -47,9 +47,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_graph import rigid_part
 from semslam.backend.pose_only import optimize_pose
-from semslam.backend.sim3 import sim3_inverse
+from semslam.backend.sim3 import rigid_part, sim3_inverse, sim3_parts
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize, rotation_angle
 from semslam.slam.orb.map import KeyFrame
@@ -153,7 +152,7 @@ def own_depths(kf: KeyFrame, idx: NDArray[np.intp]) -> NDArray[np.float64]:
 
 def similarity_scale(S: NDArray[np.float64]) -> float:
     """The scale ``s`` of ``S = [[s R, t], [0, 1]]`` (1 for a rigid transform)."""
-    return float(np.cbrt(np.linalg.det(S[:3, :3])))
+    return sim3_parts(S)[2]
 
 
 def place(T_cw: NDArray[np.float64], S: NDArray[np.float64], mono: bool) -> NDArray[np.float64]:
