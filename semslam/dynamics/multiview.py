@@ -42,7 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol, TypeVar
 
 import cv2
 import numpy as np
@@ -105,13 +105,28 @@ class ReferenceKeyframe(Protocol):
     def best_covisibles(self, n: int) -> Sequence["ReferenceKeyframe"]: ...
 
 
-def reference_views(ref: ReferenceKeyframe, now: float, n: int, min_age_s: float) -> list[Reference]:
-    """The ``n`` views to test a frame at ``now`` against: among ``ref`` (the tracking
+class _Candidate(Protocol):
+    bad: bool
+    timestamp: float
+
+    def best_covisibles(self, n: int) -> Sequence[Any]: ...
+
+
+RK = TypeVar("RK", bound=_Candidate)
+
+
+def reference_keyframes(ref: RK, now: float, n: int, min_age_s: float) -> list[RK]:
+    """The ``n`` keyframes to test a frame at ``now`` against: among ``ref`` (the tracking
     reference keyframe) and its best covisibles, those with the highest overlap, preferring
     those old enough for a mover to have moved since (``pick_references``)."""
     cands = [k for k in (ref, *ref.best_covisibles(CANDIDATES - 1)) if not k.bad]
     pick = pick_references([k.timestamp for k in cands], now, n, min_age_s)
-    return [(cands[i].T_cw, cands[i].xy, cands[i].depth) for i in pick]
+    return [cands[i] for i in pick]
+
+
+def reference_views(ref: ReferenceKeyframe, now: float, n: int, min_age_s: float) -> list[Reference]:
+    """``reference_keyframes``' pose, keypoints and depths."""
+    return [(k.T_cw, k.xy, k.depth) for k in reference_keyframes(ref, now, n, min_age_s)]
 
 
 def project_references(T_cw: NDArray[np.float64], depth: NDArray[np.float32], camera: PinholeCamera,

@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 
 from semslam.config import DynamicsConfig
 from semslam.core.types import FeatureSpec, Keypoints
-from semslam.dynamics.multiview import CANDIDATES, pick_references
+from semslam.dynamics.multiview import reference_keyframes
 from semslam.geometry.camera import PinholeCamera
 
 #: Chi-square 95 % for one (epipolar distance) and two (reprojection) degrees of freedom.
@@ -279,6 +279,4 @@ def mono_views(cur: PosedFeatures, ref: MonoKeyframe, now: float, n: int, min_ag
                ) -> tuple[MonoView, list[MonoView]]:
     """The current frame's view and the ``n`` reference keyframes' (``multiview.reference_views``'
     choice: best overlap with ``ref``'s covisibility, old enough first)."""
-    cands = [k for k in (ref, *ref.best_covisibles(CANDIDATES - 1)) if not k.bad]
-    pick = pick_references([k.timestamp for k in cands], now, n, min_age_s)
-    return view_of(cur), [view_of(cands[i]) for i in pick]
+    return view_of(cur), [view_of(k) for k in reference_keyframes(ref, now, n, min_age_s)]

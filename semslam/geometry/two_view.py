@@ -554,8 +554,9 @@ def reconstruct(uv1: ArrayLike, uv2: ArrayLike, K: ArrayLike,
     empty["inliers"] = fit.inliers
 
     if not use_h:
-        hyp = decompose_essential(K.T @ fit.matrix @ K)
-        if p.refine:
+        if not p.refine:
+            hyp = decompose_essential(K.T @ fit.matrix @ K)
+        else:
             # The 4 hypotheses share one E: refining it on the essential manifold (from every
             # start, the best optimum) refines E, and the refined E's decomposition is checked
             # as ORB-SLAM checks F's.
