@@ -73,10 +73,6 @@ class StereoCalibration:
         return self.camera.fx * self.baseline
 
     @property
-    def R(self) -> Array:  # noqa: N802
-        return self.T_lr[:3, :3]
-
-    @property
     def t(self) -> Array:
         return self.T_lr[:3, 3]
 

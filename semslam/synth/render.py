@@ -132,17 +132,12 @@ class Renderer:
                 later = self._pose_at(t + delay)
                 depth_buf, _, _ = self._scene(t + delay, later, False)
                 buf.z, buf.cos = depth_buf.z, depth_buf.cos
-        cover = self._occluder(t)
-        if cover is not None:
-            rgb8 = occluder.cover_rgb(rgb8, *cover)
-        gain = imaging.exposure_gain(cfg.seed, t, cfg.gain_swing)
-        gain = gain * imaging.white_balance_gains(cfg.seed, t, cfg.white_balance_swing)
-        img, rng, depth_noise = self._sensor_rgb(rgb8, i, gain)
+        img, rng, depth_noise, cover = self._exposed(t, i, rgb8)
         depth = kinect_depth(buf.z, buf.cos, rng, depth_noise)
         if cover is not None:
             depth = occluder.cover_depth(depth, cover[0])
         frame = Frame(img, depth, buf.label, buf.z)
-        if cfg.blackout_start_s <= t < cfg.blackout_start_s + cfg.blackout_s:  # lens covered
+        if self._blacked_out(t):  # lens covered
             frame = Frame(np.zeros_like(img), np.zeros_like(depth), buf.label, buf.z)
         if static is None:
             return frame, None
@@ -155,21 +150,33 @@ class Renderer:
         scene state at the same instant (people face the left camera, the rig's reference),
         the same exposure, rolling shutter, gain, white balance, occluder and blackout, sensor
         noise from its own seeded stream. Its ``depth`` is exact (no depth sensor there)."""
-        cfg = self.cfg
         t = float(self.times[i])
         pose = self.poses[i]
         buf, rgb8, _ = self._scene(t, pose, False, eye=pose @ self.left_to_right)
         if self._hard:
             rgb8 = self._integrated_rgb(t, rgb8, right=True)
+        # The occluder covers the whole rig, both lenses alike.
+        img, _, _, _ = self._exposed(t, i, rgb8, stream=stereo.RIGHT_NOISE_STREAM)
+        if self._blacked_out(t):
+            img = np.zeros_like(img)
+        return Frame(img, kinect_depth(buf.z, buf.cos, None), buf.label, buf.z)
+
+    def _exposed(self, t: float, i: int, rgb8: NDArray[np.uint8], stream: int = 5
+                 ) -> tuple[NDArray[np.uint8], Any, Any, tuple[NDArray[np.float32], NDArray[np.float32]] | None]:
+        """What reaches the sensor at ``t``: the occluder over the scene, then the exposure gain
+        and white balance, then the sensor (``_sensor_rgb`` with noise ``stream``); returns its
+        image, noise generator and depth noise, and the occluder layer (None without one)."""
+        cfg = self.cfg
         cover = self._occluder(t)
-        if cover is not None:  # over the whole rig, both lenses alike
+        if cover is not None:
             rgb8 = occluder.cover_rgb(rgb8, *cover)
         gain = imaging.exposure_gain(cfg.seed, t, cfg.gain_swing)
         gain = gain * imaging.white_balance_gains(cfg.seed, t, cfg.white_balance_swing)
-        img, _, _ = self._sensor_rgb(rgb8, i, gain, stream=stereo.RIGHT_NOISE_STREAM)
-        if cfg.blackout_start_s <= t < cfg.blackout_start_s + cfg.blackout_s:
-            img = np.zeros_like(img)
-        return Frame(img, kinect_depth(buf.z, buf.cos, None), buf.label, buf.z)
+        img, rng, depth_noise = self._sensor_rgb(rgb8, i, gain, stream=stream)
+        return img, rng, depth_noise, cover
+
+    def _blacked_out(self, t: float) -> bool:
+        return self.cfg.blackout_start_s <= t < self.cfg.blackout_start_s + self.cfg.blackout_s
 
     def _occluder(self, t: float) -> tuple[NDArray[np.float32], NDArray[np.float32]] | None:
         """(alpha, colour) of what is over the lens at ``t``, or None."""
@@ -185,7 +192,7 @@ class Renderer:
         return cfg.exposure_ms > 0 or cfg.rolling_shutter_ms > 0 or cfg.depth_delay_ms > 0
 
     def _pose_at(self, t: float) -> NDArray[np.float64]:
-        return camera_trajectory(self.cfg.motion, np.array([t]), self.cfg.duration, self.cfg.seed)[0]
+        return self.poses_at(np.array([t]))[0]
 
     def poses_at(self, times: NDArray[np.float64]) -> NDArray[np.float64]:
         """The (left) camera's T_WC at ``times`` (seconds from the first frame)."""
@@ -198,7 +205,7 @@ class Renderer:
         (a stereo rig's right camera) it is seen from there, the scene still that of ``pose``
         (people are billboards turned to it)."""
         cfg = self.cfg
-        facing = None if eye is None else pose[:3, 3]
+        centre = pose[:3, 3]  # people face the rig's reference camera
         pose = pose if eye is None else eye
         buf = Buffers(cfg.height, cfg.width)
         for box, table, ppm in zip(self.boxes, self.atlas.tables, self.atlas.ppm):
@@ -210,8 +217,8 @@ class Renderer:
         if cfg.box_carrier:
             cast_box(buf, self.cam, pose, carried_box(t), self.atlas.tables[-1], self.atlas.ppm[-1])
         rgb8 = sample_atlas(self.atlas.levels, buf)
-        for bb in self.people.billboards(t, pose[:3, 3] if facing is None else facing):
-            cast_billboard(buf, rgb8, self.cam, pose, bb, facing)
+        for bb in self.people.billboards(t, centre):
+            cast_billboard(buf, rgb8, self.cam, pose, bb, centre)
         return buf, rgb8, static
 
     def _image_speed(self, t: float, span: float) -> float:
@@ -234,11 +241,9 @@ class Renderer:
         offsets = imaging.sub_frame_offsets(exposure, readout, self._image_speed(t, exposure + readout))
         if len(offsets) == 1:
             return centre_rgb
-        poses = camera_trajectory(cfg.motion, t + offsets, cfg.duration, cfg.seed)
-        if right:
-            images = [self._scene(t + o, p, False, eye=p @ self.left_to_right)[1] for o, p in zip(offsets, poses)]
-        else:
-            images = [self._scene(t + o, p, False)[1] for o, p in zip(offsets, poses)]
+        poses = self.poses_at(t + offsets)
+        images = [self._scene(t + o, p, False, eye=p @ self.left_to_right if right else None)[1]
+                  for o, p in zip(offsets, poses)]
         return imaging.blend_rows(images, imaging.row_weights(offsets, cfg.height, exposure, readout))
 
     def _sensor_rgb(
