@@ -267,7 +267,7 @@ def test_bad_stereo_options(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="stereo_baseline"):
         CFG.replace(stereo_baseline=-0.1).validate()
     with pytest.raises(ConfigError, match="layout format"):
-        render_sequence(CFG, tmp_path / "x", layout_format="kitti")
+        render_sequence(CFG, tmp_path / "x", layout_format="bogus")
     with pytest.raises(ConfigError, match="background"):
         render_sequence(CFG.replace(background=True), tmp_path / "x", layout_format="euroc")
     small = CFG.replace(frames=1, people=0, width=64, height=48)
@@ -292,5 +292,5 @@ def test_cli_stereo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["synth", str(tmp_path / "e"), *args, "--layout-format", "euroc"]) == 0
     assert "stereo 0.2 m, EuRoC layout" in capsys.readouterr().out
     assert len(list((tmp_path / "e" / "mav0" / "cam1" / "data").glob("*.png"))) == 2
-    assert main(["synth", str(tmp_path / "x"), *args, "--layout-format", "kitti"]) == 2
+    assert main(["synth", str(tmp_path / "x"), *args, "--layout-format", "bogus"]) == 2
     assert main(["synth", str(tmp_path / "x"), "--stereo-baseline", "-1"]) == 2

@@ -113,8 +113,10 @@ def synth_command(
         "settings) (default: 0, none)."
     ),
     layout_format: str = typer.Option(
-        "tum", "--layout-format", help="tum (the TUM RGB-D folder) or euroc (EuRoC ASL: mav0/cam0, "
-        "mav0/cam1, the body's ground truth in mav0/state_groundtruth_estimate0)."
+        "tum", "--layout-format", help="tum (the TUM RGB-D folder), euroc (EuRoC ASL: mav0/cam0, "
+        "mav0/cam1, the body's ground truth in mav0/state_groundtruth_estimate0) or kitti (KITTI odometry, "
+        "needs --stereo-baseline: grey image_0/ and image_1/, calib.txt, times.txt and poses.txt, the left "
+        "camera's poses relative to the first)."
     ),
     workers: int = typer.Option(2, "--workers", help="Frames rendered in parallel (threads)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),

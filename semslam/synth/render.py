@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 import semslam
 from semslam.errors import ConfigError, DataError
-from semslam.synth import euroc_writer, imaging, occluder, stereo, writer
+from semslam.synth import euroc_writer, imaging, kitti_writer, occluder, stereo, writer
 from semslam.synth.texture_atlas import TextureAtlas, build_texture_atlas
 from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
@@ -52,8 +52,9 @@ IN_PROGRESS = ".rendering.json"
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
                  "blackout_start_s", "blackout_s", "layout", "occluder_s", "occluder_start_s",
                  "occluder_kind", "white_balance_swing", "photo_textures", "stereo_baseline")
-#: File layouts of a render: the TUM RGB-D folder (``rgb_right/`` added for stereo) or EuRoC ASL.
-LAYOUT_FORMATS = ("tum", "euroc")
+#: File layouts of a render: the TUM RGB-D folder (``rgb_right/`` added for stereo), EuRoC ASL or
+#: KITTI odometry (stereo only).
+LAYOUT_FORMATS = ("tum", "euroc", "kitti")
 BLUR_SIGMA = 0.55  # optics/demosaicing softness; also anti-aliases geometry edges
 VIGNETTE = 0.18  # relative darkening in the corners
 NOISE_MARGIN = 48  # pixels of slack around the noise banks for random offsets
@@ -347,7 +348,10 @@ def render_sequence(
     settings (``synth/stereo.py``). ``layout_format="euroc"`` writes the EuRoC ASL layout
     instead (``synth/euroc_writer.py``: the cameras' images, no depth or semantics, and the
     body's ground truth), with ``sequence.json``, ``scene.json`` and ``movers.json`` beside
-    ``mav0``; it renders from the start (no ``resume``).
+    ``mav0``; ``layout_format="kitti"`` (a stereo render only) the KITTI odometry layout
+    (``synth/kitti_writer.py``: grey ``image_0``/``image_1``, ``calib.txt``, ``times.txt`` and
+    ``poses.txt`` relative to the first pose) in ``out_dir`` itself. Both render from the
+    start (no ``resume``).
 
     ``workers`` frames are rendered concurrently in threads (numpy and OpenCV release the
     GIL); results do not depend on it. ``resume`` keeps the frames an earlier, interrupted or
@@ -357,22 +361,30 @@ def render_sequence(
     """
     if layout_format not in LAYOUT_FORMATS:
         raise ConfigError(f"synth: unknown layout format {layout_format!r} (choose from {', '.join(LAYOUT_FORMATS)})")
-    euroc = layout_format == "euroc"
-    if euroc and cfg.background:
-        raise ConfigError("synth: background renders need the tum layout format (EuRoC has no depth folder)")
+    euroc, kitti = layout_format == "euroc", layout_format == "kitti"
+    tum = not (euroc or kitti)
+    if not tum and cfg.background:
+        raise ConfigError(f"synth: background renders need the tum layout format ({layout_format} has no depth "
+                          "folder)")
+    if kitti and cfg.stereo_baseline <= 0:
+        raise ConfigError("synth: the kitti layout format is a stereo pair (image_0, image_1): it needs a stereo "
+                          "baseline (--stereo-baseline METRES)")
     out = Path(out_dir)
-    other = out / (euroc_writer.MAV if not euroc else "rgb.txt")
-    if other.exists():  # two layouts in one folder would be read as whichever a reader tries first
-        raise DataError(other, f"the output folder holds a render in another layout; {layout_format} "
-                               "renders go to a folder without it")
+    marks = {"tum": "rgb.txt", "euroc": euroc_writer.MAV, "kitti": kitti_writer.IMAGE_DIRS[0]}
+    for other in (out / name for fmt, name in marks.items() if fmt != layout_format):
+        if other.exists():  # two layouts in one folder would be read as whichever a reader tries first
+            raise DataError(other, f"the output folder holds a render in another layout; {layout_format} "
+                                   "renders go to a folder without it")
     renderer = Renderer(cfg)
     has_right = cfg.stereo_baseline > 0
     rgb_stamps, depth_stamps = _stamps(cfg)
     ns = euroc_writer.ns_stamps(cfg.start_time, cfg.frames, cfg.fps)
-    first = _first_to_render(out, cfg, rgb_stamps, depth_stamps, workers) if resume and not euroc else 0
+    first = _first_to_render(out, cfg, rgb_stamps, depth_stamps, workers) if resume and tum else 0
     if euroc:
         out.mkdir(parents=True, exist_ok=True)
         euroc_writer.prepare(out, 2 if has_right else 1)
+    elif kitti:
+        kitti_writer.prepare(out)
     elif first == 0:
         writer.prepare_dir(out, background=cfg.background, right=has_right)
     writer.write_json(out / IN_PROGRESS, {"config": cfg.to_dict()})
@@ -382,6 +394,10 @@ def render_sequence(
             euroc_writer.write_frame(out, 0, int(ns[i]), renderer.render(i).rgb)
             if has_right:
                 euroc_writer.write_frame(out, 1, int(ns[i]), renderer.render_right(i).rgb)
+            return i
+        if kitti:  # grey left and right only
+            kitti_writer.write_frame(out, 0, i, renderer.render(i).rgb)
+            kitti_writer.write_frame(out, 1, i, renderer.render_right(i).rgb)
             return i
         fr, bg = renderer.render_with_background(i, cfg.background)
         if has_right:
@@ -417,13 +433,15 @@ def render_sequence(
     if euroc:
         euroc_writer.write_layout(out, ns, renderer.poses, renderer.poses_at, renderer.times, cfg.intrinsics(),
                                   cfg.width, cfg.height, cfg.fps, cfg.stereo_baseline)
+    elif kitti:
+        kitti_writer.write_layout(out, renderer.times, renderer.poses, cfg.intrinsics(), cfg.stereo_baseline)
     else:
         writer.write_list(out / "rgb.txt", "color", rgb_stamps, "rgb")
         writer.write_list(out / "depth.txt", "depth", depth_stamps, "depth")
         writer.write_groundtruth(out / "groundtruth.txt", rgb_stamps, renderer.poses)
         writer.write_calib(out / "calib.txt", cfg.intrinsics())
         writer.write_json(out / "semantic" / "labels.json", labels)
-    if has_right and not euroc:
+    if has_right and tum:
         writer.write_list(out / stereo.RIGHT_LIST, "right color", rgb_stamps, stereo.RIGHT_DIR)
         stereo.write_settings(out / stereo.SETTINGS_FILE, cfg.intrinsics(), cfg.width, cfg.height, cfg.fps,
                               cfg.stereo_baseline)
@@ -454,6 +472,7 @@ def render_sequence(
                            "left camera's x axis, same intrinsics and orientation (rectified)"}}
                if has_right else {}),
             **({"layout_format": "euroc", "euroc_T_BS_cam0": euroc_writer.T_BS_CAM0.tolist()} if euroc else {}),
+            **({"layout_format": "kitti", "kitti_T_W_C0": renderer.poses[0].tolist()} if kitti else {}),
         },
     )
     (out / IN_PROGRESS).unlink(missing_ok=True)
