@@ -22,7 +22,8 @@ What is taken from the bag:
 
 Timestamps are the messages' header stamps (what TUM's ``rgb.txt`` lists), and colour and
 depth are paired by nearest stamp as for a folder (``io/association.match_timestamps``).
-Opening a bag reads it once (stamps, camera, tf); frames are decoded on demand.
+Opening a bag reads it once (stamps, camera, tf); frames are decoded on demand. Bags with
+a stereo pair of image topics are read by ``io/rosbag_stereo.py``, which reuses this reader.
 """
 
 from __future__ import annotations
@@ -100,24 +101,35 @@ class RosbagSequence(Sequence):
         info_topic: str | None = None,
     ) -> None:
         super().__init__()
-        self.root = Path(path)
-        if not self.root.is_file():
-            raise DataError(self.root, "bag file not found")
-        self.name = self.root.stem
+        self._open(path)
         self.has_depth = with_depth
         self.depth_scale = float(depth_scale)  # 16UC1 units per metre (REP 118: millimetres)
-        self._reader = self._open_reader()
-        self._closer = weakref.finalize(self, self._reader.close)
         topics = self._reader.topics
         self._rgb = self._stream(topics, rgb_topic, COLOUR_TOPICS, "colour image")
         self._depth = self._stream(topics, depth_topic, DEPTH_TOPICS, "depth image") if with_depth else None
         info = info_topic or next((t for t in INFO_TOPICS if t in topics), None)
         if info_topic and info_topic not in topics:
             raise DataError(self.root, f"no topic {info_topic} in the bag")
-        info_msg, transforms, image_frame = self._scan(info, [t for t in TF_TOPICS if t in topics])
+        streams = [s for s in (self._rgb, self._depth) if s is not None]
+        infos, transforms, image_frame = self._scan(streams, [info] if info else [],
+                                                    [t for t in TF_TOPICS if t in topics])
         self._pairs = self._associate(max_diff)
         self._timestamps = np.array([self._rgb.stamps[i] for i, _ in self._pairs])
-        self.camera = self._camera(camera, info_msg)
+        self.camera = self._camera(camera, infos.get(info or ""))
+        self._set_groundtruth(transforms, image_frame)
+
+    # ------------------------------------------------------------------ opening
+    def _open(self, path: str | Path) -> None:
+        """The bag's reader (closed with the sequence)."""
+        self.root = Path(path)
+        if not self.root.is_file():
+            raise DataError(self.root, "bag file not found")
+        self.name = self.root.stem
+        self._reader = self._open_reader()
+        self._closer = weakref.finalize(self, self._reader.close)
+
+    def _set_groundtruth(self, transforms: list[tuple[float, str, str, Any]], image_frame: str) -> None:
+        """Ground truth from /tf, written as a TUM file that lives as long as the sequence."""
         self.groundtruth: Trajectory | None = _groundtruth_from_tf(transforms, image_frame, self.root)
         self._gt_dir: tempfile.TemporaryDirectory[str] | None = None
         self.groundtruth_path: Path | None = None
@@ -126,7 +138,6 @@ class RosbagSequence(Sequence):
             self.groundtruth_path = Path(self._gt_dir.name) / "groundtruth.txt"
             write_tum(self.groundtruth_path, self.groundtruth)
 
-    # ------------------------------------------------------------------ opening
     def _open_reader(self) -> Any:
         from rosbags.highlevel import AnyReader, AnyReaderError
 
@@ -152,12 +163,14 @@ class RosbagSequence(Sequence):
             raise DataError(self.root, f"{topic} has no messages")
         return _Stream(topic, list(info.connections), info.msgtype)
 
-    def _scan(self, info_topic: str | None, tf_topics: list[str]) -> tuple[Any, list[tuple[float, str, str, Any]], str]:
-        """One pass over the bag: image stamps, the first camera info, every tf transform."""
-        streams = {s.topic: s for s in (self._rgb, self._depth) if s is not None}
+    def _scan(self, image_streams: list[_Stream], info_topics: list[str],
+              tf_topics: list[str]) -> tuple[dict[str, Any], list[tuple[float, str, str, Any]], str]:
+        """One pass over the bag: image stamps, the first message of each camera info topic,
+        every tf transform; the image frame is the colour (left) image's ``frame_id``."""
+        streams = {s.topic: s for s in image_streams}
         conns = [c for s in streams.values() for c in s.connections]
-        conns += [c for t in ([info_topic] if info_topic else []) + tf_topics for c in self._reader.topics[t].connections]
-        info_msg: Any = None
+        conns += [c for t in [*info_topics, *tf_topics] for c in self._reader.topics[t].connections]
+        infos: dict[str, Any] = {}
         transforms: list[tuple[float, str, str, Any]] = []
         image_frame = ""
         last: dict[str, tuple[int, int]] = {}
@@ -175,8 +188,9 @@ class RosbagSequence(Sequence):
                     stamp = _stamp(msg.header)
                     s.keys.append(key)
                     s.stamps.append(stamp if stamp > 0 else t_ns * 1e-9)  # unstamped: the record time
-                elif conn.topic == info_topic:
-                    info_msg = info_msg or self._reader.deserialize(raw, conn.msgtype)
+                elif conn.topic in info_topics:
+                    if conn.topic not in infos:
+                        infos[conn.topic] = self._reader.deserialize(raw, conn.msgtype)
                 else:
                     for tr in self._reader.deserialize(raw, conn.msgtype).transforms:
                         transforms.append((_stamp(tr.header), _frame_id(tr.header.frame_id),
@@ -187,15 +201,15 @@ class RosbagSequence(Sequence):
             raise DataError(self.root, f"damaged bag ({exc.__class__.__name__}: {exc})") from None
         for s in streams.values():
             self._sort(s)
-        return info_msg, transforms, _frame_id(image_frame)
+        return infos, transforms, _frame_id(image_frame)
 
     def _check_encoding(self, s: _Stream, msg: Any) -> str:
         if s.msgtype.endswith("CompressedImage"):
-            if s is not self._rgb:
+            if s is self._depth:
                 raise DataError(self.root, f"{s.topic}: compressed depth is not supported (use the raw depth topic)")
             return "compressed"
         enc = str(msg.encoding).lower()
-        allowed = COLOUR_ENCODINGS if s is self._rgb else DEPTH_ENCODINGS
+        allowed = DEPTH_ENCODINGS if s is self._depth else COLOUR_ENCODINGS
         if enc not in allowed:
             raise DataError(self.root, f"{s.topic}: encoding {msg.encoding!r} is not supported ({', '.join(allowed)})")
         return enc
@@ -309,8 +323,9 @@ class RosbagSequence(Sequence):
         rows = data[: h * step].reshape(h, step)[:, : w * channels * dtype.itemsize]
         return rows.copy().view(dtype).reshape(h, w, channels)
 
-    def _decode_colour(self, msg: Any, i: int) -> NDArray[np.uint8]:
-        s = self._rgb
+    def _decode_colour(self, msg: Any, i: int, stream: _Stream | None = None) -> NDArray[np.uint8]:
+        """RGB pixels of a colour (or grey, expanded) message of ``stream`` (default: the colour topic)."""
+        s = stream or self._rgb
         if s.encoding == "compressed":
             bgr = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_COLOR)
             if bgr is None:
