@@ -16,7 +16,9 @@ from semslam.config import SystemConfig
 from semslam.core import registry
 from semslam.core.protocols import DepthSource, DynamicStage, MapStage, Tracker, TrackerInputs
 from semslam.dynamics.stage import create_dynamic_stage
+from semslam.errors import ConfigError
 from semslam.features.jit import warm_up as warm_up_kernels
+from semslam.frontend.stereo_depth import StereoDepth
 from semslam.geometry.camera import PinholeCamera
 
 
@@ -30,6 +32,28 @@ class RunParts:
     tracker: Tracker
     #: Seconds spent building (or loading) the compiled kernels before the first frame.
     jit_warmup_s: float
+    #: A stereo run's dense depth from the pair (None: not a stereo run, or nothing reads it).
+    stereo_depth: StereoDepth | None = None
+
+
+def wants_stereo_depth(config: SystemConfig) -> bool:
+    """Whether a stereo run needs a depth image (``depth.stereo_dense``): ``auto`` when a part
+    that reads one is on (the semantic stage's SRM and mask warping, the multi-view check,
+    depth odometry, the rolling-shutter correction, inpainting and the maps)."""
+    if config.sensor != "stereo" or config.depth.stereo_dense == "never":
+        return False
+    if config.depth.stereo_dense == "always":
+        return True
+    slam = config.slam
+    return bool(config.dynamics.semantic or config.dynamics.multiview or config.maps.builders
+                or config.maps.save_inpainted or slam.depth_odometry != "none" or slam.rolling_shutter_ms > 0)
+
+
+def check_sensor(config: SystemConfig) -> None:
+    """A stereo run's depth comes from the pair: refuse a depth network as its source."""
+    if config.sensor == "stereo" and config.depth.source != "sensor":
+        raise ConfigError(f"depth.source: {config.depth.source} with sensor: stereo; a stereo camera's depth comes "
+                          "from the pair (depth.source: sensor)")
 
 
 def create_map_stage(config: SystemConfig) -> MapStage | None:
@@ -49,9 +73,13 @@ def create_map_stage(config: SystemConfig) -> MapStage | None:
 
 def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None) -> RunParts:
     """Every part of the run; what was built is closed again when a later part fails."""
+    check_sensor(config)
     create_tracker = registry.load("tracker", config.tracking.method)
     # Compiled kernels are built (or loaded from disk) now, not inside the first frames.
-    jit_warmup_s = warm_up_kernels(("semslam.dynamics.multiview_kernels", "semslam.slam.orb.row_kernels"))
+    kernels = ("semslam.dynamics.multiview_kernels", "semslam.slam.orb.row_kernels")
+    if config.sensor == "stereo":
+        kernels += ("semslam.slam.orb.stereo_matching",)
+    jit_warmup_s = warm_up_kernels(kernels)
     depth: DepthSource = registry.create("depth_source", config.depth.source, config.depth.resolved(config.semantics))
     maps = create_map_stage(config)
     dynamics = None
@@ -65,4 +93,7 @@ def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None 
         if dynamics is not None:
             dynamics.close()
         raise
-    return RunParts(depth, dynamics, maps, tracker, jit_warmup_s)
+    stereo_depth = None
+    if wants_stereo_depth(config):
+        stereo_depth = StereoDepth(config.slam.bf, camera.width, camera.height, downscale=config.depth.stereo_downscale)
+    return RunParts(depth, dynamics, maps, tracker, jit_warmup_s, stereo_depth)

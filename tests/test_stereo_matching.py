@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from semslam.config import load_config
-from semslam.core.types import Keypoints
+from semslam.core.types import Keypoints, orb_spec
 from semslam.features import create_extractor
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.orb.frame_builders import StereoFrameBuilder, StereoViews
@@ -204,7 +204,7 @@ def test_frame_builder(features, stereo_frames) -> None:
     bf, frames = stereo_frames
     gl, gr, kl, kr, _ = frames[1]
     cam = PinholeCamera(bf / B, bf / B, 159.5, 119.5, width=320, height=240)
-    builder = StereoFrameBuilder(cam, bf, features.scale_factor, features.n_levels)
+    builder = StereoFrameBuilder(cam, bf, orb_spec(features.scale_factor, features.n_levels))
     m = _match(features, gl, gr, kl, kr, bf)
     f = builder.build(3, 0.5, kl, None, right=StereoViews(kr, gl, gr))
     np.testing.assert_array_equal(f.depth, m.depth)

@@ -202,7 +202,8 @@ RULES: dict[type, dict[str, Rule]] = {
     },
     s.DepthConfig: {"source": Backend("depth_source"), "weights": Text(), "use": OneOf(("measurement", "prior")),
                     "prior_sigma": Num(0.01, 2.0), "prior_max_spread": POSITIVE, "prior_max_jump": POSITIVE,
-                    "prior_max_unexplained": POSITIVE},
+                    "prior_max_unexplained": POSITIVE, "stereo_dense": OneOf(s.STEREO_DENSE),
+                    "stereo_downscale": Num(1, 8)},
     s.InpaintingConfig: {
         "keyframes": AT_LEAST_1,
         "depth_tolerance_m": POSITIVE,

@@ -16,7 +16,9 @@ from semslam.errors import ConfigError
 DEPTH_ODOMETRY_METHODS = ("rgbd", "icp", "rgbd_icp")
 
 #: Sensors the schema knows; a tracker refuses the ones it cannot run yet.
-SENSORS = ("rgbd", "mono")
+SENSORS = ("rgbd", "mono", "stereo")
+#: When a stereo run computes a dense depth image from the pair (depth.stereo_dense).
+STEREO_DENSE = ("auto", "always", "never")
 #: Values of features.matcher.
 FEATURE_MATCHERS = ("default", "range")
 
@@ -354,6 +356,13 @@ class DepthConfig:
     # ... or the ratios' spread above this share of the spread of the map's log depths (the
     # prediction must explain the structure, not only the mean depth).
     prior_max_unexplained: float = 0.5
+    # A stereo camera's depth image, computed from the rectified pair (OpenCV's SGBM,
+    # frontend/stereo_depth.py) for what reads one: SRM, the multi-view check, the dynamic
+    # stage's mask warping, depth odometry, inpainting and the maps. "auto": only when one
+    # of them is on; "always"; "never" (keypoints' depths come from ORB-SLAM2's sparse stereo
+    # matching either way). Computed at 1/stereo_downscale of the image size.
+    stereo_dense: str = "auto"
+    stereo_downscale: int = 2
 
     def resolved(self, semantics: SemanticsConfig) -> DepthConfig:
         """This config with ``weights`` filled in from the segmenter's when it is the same network."""
@@ -435,8 +444,9 @@ class SystemConfig:
     """Root of the config tree."""
 
     preset: str = "custom"
-    # rgbd, or mono (image folders, TUM folders read without depth: tracking.method sdf_slam,
-    # or orb_slam with a depth network as depth.source).
+    # rgbd, stereo (a rectified pair: EuRoC, KITTI, a TUM-like folder with rgb_right/; a
+    # stereo input switches rgbd to it) or mono (image folders, TUM folders read without
+    # depth: tracking.method sdf_slam, or orb_slam with a depth network as depth.source).
     sensor: str = "rgbd"
     seed: int = 0
     depth_scale: float = 5000.0

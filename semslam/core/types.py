@@ -36,12 +36,20 @@ class Frame:
     right: NDArray[np.uint8] | None = field(default=None, repr=False)
     right_path: Path | None = None
     _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
+    _right_gray: NDArray[np.uint8] | None = field(default=None, repr=False)
 
     @property
     def gray(self) -> NDArray[np.uint8]:
         if self._gray is None:
             self._gray = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
         return self._gray
+
+    @property
+    def right_gray(self) -> NDArray[np.uint8] | None:
+        """The right image in grey (None without one), converted once."""
+        if self._right_gray is None and self.right is not None:
+            self._right_gray = cv2.cvtColor(self.right, cv2.COLOR_RGB2GRAY)
+        return self._right_gray
 
     @property
     def shape(self) -> tuple[int, int]:

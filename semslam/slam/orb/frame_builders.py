@@ -3,6 +3,7 @@ a right-image coordinate per keypoint where the sensor gives one, empty map-poin
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -10,7 +11,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SystemConfig
-from semslam.core.types import Keypoints
+from semslam.core.protocols import Extractor
+from semslam.core.types import DescriptorKind, FeatureSpec, Frame, Keypoints
+from semslam.errors import ConfigError
+from semslam.frontend.stereo_depth import right_view_mask
 from semslam.geometry.camera import PinholeCamera
 from semslam.slam.orb.frame_state import FrameState
 from semslam.frontend.keypoint_depth import sample_depth
@@ -20,12 +24,28 @@ from semslam.slam.orb.stereo_matching import compute_stereo_matches, stereo_pyra
 
 class FrameBuilder(Protocol):
     """Turns one frame's keypoints (and the depth image, where there is one) into a
-    ``FrameState``."""
+    ``FrameState``. ``begin`` comes first, with the frame and the mask its keypoints are
+    extracted under, for work that can run beside the extraction (a stereo pair's right
+    image); ``close`` ends what the builder started."""
 
     camera: PinholeCamera
 
+    def begin(self, frame: Frame, mask: NDArray[np.bool_] | NDArray[np.uint8] | None) -> None: ...
+
     def build(self, index: int, timestamp: float, kps: Keypoints,
               depth_img: NDArray[np.float32] | None) -> FrameState: ...
+
+    def close(self) -> None: ...
+
+
+class _SingleImage:
+    """Builders of one image per frame: nothing to start beside the extraction."""
+
+    def begin(self, frame: Frame, mask: NDArray[np.bool_] | NDArray[np.uint8] | None) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
 
 
 def _frame(index: int, timestamp: float, kps: Keypoints, xy: NDArray[np.float64], z: NDArray[np.float32],
@@ -34,7 +54,7 @@ def _frame(index: int, timestamp: float, kps: Keypoints, xy: NDArray[np.float64]
     return FrameState(index, timestamp, kps, xy, z, ur, PointSlots([None] * n), np.zeros(n, bool))
 
 
-class RgbdFrameBuilder:
+class RgbdFrameBuilder(_SingleImage):
     """Depth read at each keypoint; the right coordinate a stereo camera of baseline
     ``bf / fx`` would see (ORB-SLAM2's virtual right image), -1 without depth."""
 
@@ -53,7 +73,7 @@ class RgbdFrameBuilder:
         return _frame(index, timestamp, kps, xy, z, ur)
 
 
-class MonocularFrameBuilder:
+class MonocularFrameBuilder(_SingleImage):
     """No depth: every keypoint's depth is 0 and its right coordinate -1 (none). A depth
     network's image, where there is one, is read at the keypoints as ``prior_depth`` only."""
 
@@ -83,27 +103,75 @@ class StereoViews:
 class StereoFrameBuilder:
     """A rectified stereo pair: ORB-SLAM2's stereo matching (``stereo_matching``) gives each
     left keypoint a depth and its matched right coordinate ``ur``; unmatched ones keep depth 0
-    and ``ur`` -1. The depth image is not read. ``right`` is the stereo part of the frame;
-    without it every keypoint is unmatched. Close/far (ThDepth) stays tracking's job."""
+    and ``ur`` -1. The depth image is not read. Close/far (ThDepth) stays tracking's job.
 
-    def __init__(self, camera: PinholeCamera, bf: float, scale_factor: float, n_levels: int) -> None:
+    With ``right_extractor`` (an extractor of its own: one is not shared by threads), ``begin``
+    extracts the right image's keypoints on a second thread while tracking extracts the left
+    one's (ORB-SLAM2 runs both extractions in parallel too), and ``build`` takes them; the
+    mask of dynamic classes is carried to the right image along the dense stereo depth where
+    the frame has one, so a right keypoint on a person cannot pair with a static left one.
+    ``build`` with ``right`` given (tests, tools) uses those views instead."""
+
+    def __init__(self, camera: PinholeCamera, bf: float, spec: FeatureSpec,
+                 right_extractor: Extractor | None = None) -> None:
         self.camera = camera
         self.bf = bf
         self.baseline = bf / camera.fx  # ORB-SLAM2's minZ: the nearest depth searched
-        self.scale_factor = scale_factor
-        self.n_levels = n_levels
+        self.spec = spec
+        self.right_extractor = right_extractor
+        self._pool = (ThreadPoolExecutor(max_workers=1, thread_name_prefix="right-features")
+                      if right_extractor is not None else None)
+        self._pending: tuple[Future[Keypoints], NDArray[np.uint8], NDArray[np.uint8]] | None = None
+
+    def begin(self, frame: Frame, mask: NDArray[np.bool_] | NDArray[np.uint8] | None) -> None:
+        right_gray = frame.right_gray
+        if self._pool is None or right_gray is None:
+            self._pending = None
+            return
+        self._pending = (self._pool.submit(self._extract_right, right_gray, mask, frame.depth), frame.gray, right_gray)
+
+    def _extract_right(self, right_gray: NDArray[np.uint8], mask: NDArray[np.bool_] | NDArray[np.uint8] | None,
+                       depth: NDArray[np.float32] | None) -> Keypoints:
+        """The right image's keypoints, under the left mask carried across the pair (where
+        stereo misses part of a masked region, it moves with the rest of its region)."""
+        assert self.right_extractor is not None
+        right_mask = None
+        if mask is not None and depth is not None:
+            right_mask = right_view_mask(np.asarray(mask) != 0, depth, self.bf, missing="component")
+        return self.right_extractor.extract(right_gray, right_mask)
 
     def build(self, index: int, timestamp: float, kps: Keypoints,
               depth_img: NDArray[np.float32] | None = None, right: StereoViews | None = None) -> FrameState:
         n = len(kps)
         # Rectified images: undistortion is the identity unless the camera says otherwise.
         xy = self.camera.undistort_points(kps.xy)
+        if right is None and self._pending is not None:
+            job, left_gray, right_gray = self._pending
+            self._pending = None
+            right = StereoViews(job.result(), left_gray, right_gray)
         if right is None:
             return _frame(index, timestamp, kps, xy, np.zeros(n, np.float32), np.full(n, -1.0))
-        pyr_l = stereo_pyramid(right.left_gray, self.n_levels, self.scale_factor)
-        pyr_r = stereo_pyramid(right.right_gray, self.n_levels, self.scale_factor)
-        m = compute_stereo_matches(kps, right.right_kps, pyr_l, pyr_r, self.scale_factor, self.bf, self.baseline)
+        sf, levels = self.spec.scale_factor, self.spec.n_levels
+        pyr_l = stereo_pyramid(right.left_gray, levels, sf)
+        pyr_r = stereo_pyramid(right.right_gray, levels, sf)
+        m = compute_stereo_matches(kps, right.right_kps, pyr_l, pyr_r, sf, self.bf, self.baseline,
+                                   th_low=self.spec.th_low, th_high=self.spec.th_high)
         return _frame(index, timestamp, kps, xy, m.depth, m.ur)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+
+
+def stereo_builder(config: SystemConfig, camera: PinholeCamera, spec: FeatureSpec,
+                   right_extractor: Extractor | None) -> StereoFrameBuilder:
+    """The stereo builder of a run, or a ``ConfigError`` where the features cannot be matched
+    across the pair (ORB-SLAM2's matcher compares binary descriptors by Hamming distance)."""
+    if spec.kind is not DescriptorKind.BINARY or spec.dim % 8:
+        raise ConfigError(f"sensor: stereo matches binary descriptors across the pair (ORB); features.extractor: "
+                          f"{config.features.extractor} makes {spec.kind.value} ones; use an ORB extractor "
+                          "(orb_slam2, qtree_orb, orb)")
+    return StereoFrameBuilder(camera, config.slam.bf, spec, right_extractor)
 
 
 def is_monocular(config: SystemConfig) -> bool:
@@ -112,9 +180,16 @@ def is_monocular(config: SystemConfig) -> bool:
     return config.sensor == "mono" and (config.depth.source == "sensor" or config.depth.use == "prior")
 
 
-def frame_builder(config: SystemConfig, camera: PinholeCamera) -> FrameBuilder:
-    """The builder for the frames ``config`` gives: RGB-D whenever they come with depth, the
-    sensor's or a depth network's (a monocular camera as pseudo-RGB-D)."""
+def frame_builder(config: SystemConfig, camera: PinholeCamera, spec: FeatureSpec | None = None,
+                  right_extractor: Extractor | None = None) -> FrameBuilder:
+    """The builder for the frames ``config`` gives: stereo pairs (``spec``: the extractor's,
+    ``right_extractor``: a second extractor for the right images), monocular, else RGB-D
+    whenever they come with depth, the sensor's or a depth network's (a monocular camera as
+    pseudo-RGB-D)."""
+    if config.sensor == "stereo":
+        if spec is None:
+            raise ValueError("a stereo frame builder needs the extractor's FeatureSpec")
+        return stereo_builder(config, camera, spec, right_extractor)
     if is_monocular(config):
         return MonocularFrameBuilder(camera)
     return RgbdFrameBuilder(camera, config.slam.bf)

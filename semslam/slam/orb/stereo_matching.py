@@ -176,12 +176,13 @@ def _stereo_match(lx: NDArray[np.float32], ly: NDArray[np.float32], loct: NDArra
 
 def compute_stereo_matches(left: Keypoints, right: Keypoints, pyr_left: StackedPyramid,
                            pyr_right: StackedPyramid, scale_factor: float, bf: float,
-                           baseline: float) -> StereoMatches:
+                           baseline: float, th_low: float = TH_LOW, th_high: float = TH_HIGH) -> StereoMatches:
     """ORB-SLAM2's ``ComputeStereoMatches``: keypoints of the left and the right image of a
     rectified pair (level-0 pixels, ``octave`` = pyramid level, 32-byte ORB descriptors),
     the two images' ``stereo_pyramid``s, ``bf`` = fx * baseline (pixels * metres). The
     nearest depth searched is ``baseline`` (ORB-SLAM2's minZ), so disparities in
-    [0, bf / baseline)."""
+    [0, bf / baseline). ``th_low`` / ``th_high``: the extractor's TH_LOW / TH_HIGH (its
+    ``FeatureSpec``'s); a match needs a distance under their mean."""
     if pyr_left.widths[0] != pyr_right.widths[0] or pyr_left.heights[0] != pyr_right.heights[0]:
         raise ValueError(f"stereo images differ in size: left {pyr_left.widths[0]}x{pyr_left.heights[0]}, "
                          f"right {pyr_right.widths[0]}x{pyr_right.heights[0]}")
@@ -203,7 +204,7 @@ def compute_stereo_matches(left: Keypoints, right: Keypoints, pyr_left: StackedP
         np.ascontiguousarray(right.octave, np.int32), rdesc, order, ry[order],
         pyr_left.buffer, pyr_left.rows, pyr_left.pad, pyr_right.buffer, pyr_right.rows, pyr_right.pad,
         pyr_left.widths[:levels], pyr_left.heights[:levels], scales, float(bf), 0.0, float(bf) / float(baseline),
-        (TH_HIGH + TH_LOW) // 2, TH_HIGH, SAD_W, SAD_L, int(pyr_left.heights[0]))
+        int(th_high + th_low) // 2, int(th_high), SAD_W, SAD_L, int(pyr_left.heights[0]))
     matched = np.flatnonzero(depth > 0)
     if len(matched):
         # Outliers by SAD: ORB-SLAM2 sorts (SAD, index) pairs and takes the middle one.

@@ -40,7 +40,7 @@ from semslam.place.flat import vocabulary_for
 from semslam.place.vocabulary import Vocabulary
 from semslam.slam.orb.atlas import Atlas
 from semslam.slam.orb.depth_prior import DepthPrior
-from semslam.slam.orb.frame_builders import is_monocular
+from semslam.slam.orb.frame_builders import frame_builder, is_monocular
 from semslam.slam.orb.fusion import PointFusion
 from semslam.slam.orb.keyframe_worker import KeyframeInbox
 from semslam.slam.orb.local_mapping import LocalMapping
@@ -139,10 +139,14 @@ class OrbTracker:
                             if is_monocular(config) and config.depth.source != "sensor" else None)
         self.mapper = LocalMapping(config, camera, self.map, self.vocabulary, self.ba_runner, fusion, mapping_inbox,
                                    next_stage=self.closer if use_loops else indexer, depth_prior=self.depth_prior)
+        # A stereo pair's right image gets an extractor of its own (extracted beside the left).
+        right_extractor = (create_extractor(config.features, _image_size(camera))
+                           if config.sensor == "stereo" else None)
+        builder = frame_builder(config, camera, extractor.spec, right_extractor)
         self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database, extractor,
                                  keyframes=self.mapper if use_mapping else indexer, depth=inputs.depth,
                                  dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None,
-                                 depth_prior=self.depth_prior)
+                                 builder=builder, depth_prior=self.depth_prior)
         self.closer.frame_records = self.tracking.trajectory_refs  # a monocular loop rescales them
         if slam_map is not None:
             for kf in self.map.all_keyframes():
@@ -194,6 +198,7 @@ class OrbTracker:
             for worker in (self.mapper, self.closer):
                 worker.stop()
         finally:
+            self.tracking.builder.close()
             self.ba_runner.close()
         self._raise_worker_error()
 

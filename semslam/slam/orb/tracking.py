@@ -163,6 +163,7 @@ class Tracking:
                 timings["semantic_wait"] = wait_ms
         t0 = time.perf_counter()
         self._dropped = None  # set by _remove_moving
+        self.builder.begin(frame, mask)  # a stereo pair's right image, extracted beside the left
         kps = self.extractor.extract(frame.gray, mask)
         depth = self.depth.depth(frame)
         images = FrameImages(frame, depth)

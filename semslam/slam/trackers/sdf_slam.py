@@ -81,6 +81,9 @@ def create_tracker(config: SystemConfig, camera: PinholeCamera, inputs: TrackerI
         raise ConfigError("--load-map: the sdf_slam tracker keeps no saveable map (use --preset orb)")
     if config.dynamics.multiview:
         raise ConfigError("dynamics.multiview: not supported by tracking.method=sdf_slam (set it false)")
+    if config.sensor == "stereo":
+        raise ConfigError("sensor: stereo runs on tracking.method: orb_slam (its stereo matching); sdf_slam is "
+                          "monocular (give --sensor mono to run it on the left images)")
     if config.sensor == "mono" and config.depth.source == "sensor":
         raise ConfigError("depth.source: a monocular sequence has no sensor depth; tracking.method=sdf_slam needs "
                           "a depth network (depth.source: sdfcnn) or, to test the tracker, ground_truth_depth")
