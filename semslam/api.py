@@ -51,6 +51,7 @@ from semslam.frontend.sharpness import sharpness
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
 from semslam.io.input_health import InputHealth
+from semslam.io.stereo_calibration import StereoCalibration, read_orbslam3_settings, stereo_from_values
 from semslam.io.trajectory import write_tum
 from semslam.run_record import Evaluation, RunTiming, evaluate, timing_stats, write_run_report
 from semslam.thread_clock import thread_times
@@ -81,8 +82,19 @@ class System:
     def __init__(self, preset: str | Path | SystemConfig = "default", camera: CameraLike | None = None, *,
                  sensor: str | None = None, overrides: Mapping[str, Any] | Sequence[str] | None = None,
                  depth_scale: float | None = None, bgr: bool = False, image_size: tuple[int, int] | None = None,
-                 out: str | Path | None = None, load_map: str | Path | None = None, name: str = "live") -> None:
+                 out: str | Path | None = None, load_map: str | Path | None = None, name: str = "live",
+                 baseline: float | None = None) -> None:
+        if isinstance(camera, StereoCalibration) and sensor is None:
+            sensor = "stereo"
         self.config = make_config(preset, overrides, sensor, depth_scale)
+        # A stereo pair: its rectification (None when the images come rectified) and bf.
+        self._stereo: StereoCalibration | None = None
+        if self.config.sensor == "stereo":
+            self._stereo = make_stereo_calibration(camera, baseline)
+            self.config = make_config(self.config, [f"slam.bf={self._stereo.bf!r}"])
+            camera = self._stereo.camera
+        elif baseline is not None:
+            raise ConfigError(f"baseline is for sensor='stereo'; this system's sensor is {self.config.sensor!r}")
         cam = make_camera(camera)
         self.camera = cam.with_image_size(*image_size) if image_size is not None else cam
         self.bgr = bool(bgr)
@@ -165,21 +177,34 @@ class System:
         """Track one frame: ``rgb`` HxWx3 uint8 (RGB, or BGR with ``bgr``; HxW grey is
         accepted), ``depth`` HxW uint16 (``depth_scale`` units per metre) or float (metres,
         0 / NaN = no measurement) or None for monocular presets, ``timestamp`` in seconds,
-        increasing. Returns the ``TrackResult``: ``pose_wc`` (4x4 camera-to-world, None while
-        not initialised or lost), ``state``, inlier counts, per-stage timings."""
+        increasing. A stereo system takes ``track(left, right, timestamp)``: the right image
+        in the left's form, in place of the depth (rectified here when the calibration says
+        the pair is not). Returns the ``TrackResult``: ``pose_wc`` (4x4 camera-to-world, None
+        while not initialised or lost), ``state``, inlier counts, per-stage timings."""
         where = f"System.track (frame {self._n_given}, t={timestamp})"
         if self.closed:
             raise SemslamError(f"{where}: the system is closed (save() or close() ended the run)")
         t = check_timestamp(timestamp, self._last_t, where)
-        image = as_rgb(rgb, self.bgr if bgr is None else bgr, where)
-        metres = self._as_depth(depth, image.shape[:2], where)
+        as_bgr = self.bgr if bgr is None else bgr
+        image = as_rgb(rgb, as_bgr, where)
+        metres, right = None, None
+        if self._stereo is not None:
+            if depth is None:
+                raise DataError(where, "no right image: a stereo system takes track(left, right, timestamp)")
+            right = as_rgb(depth, as_bgr, where.replace("System.track", "System.track, right image"))
+            if right.shape != image.shape:
+                raise DataError(where, f"right image is {right.shape[1]}x{right.shape[0]} but the left one is "
+                                       f"{image.shape[1]}x{image.shape[0]}")
+            image, right = self._stereo.rectify(image, right)
+        else:
+            metres = self._as_depth(depth, image.shape[:2], where)
         if self.camera.width > 0 and (self.camera.width, self.camera.height) != (image.shape[1], image.shape[0]):
             raise DataError(where, f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
                                    f"{self.camera.width}x{self.camera.height}")
         if self._parts is None:
             self.camera = self.camera.with_image_size(image.shape[1], image.shape[0])
         self._last_t = t
-        frame = Frame(self._n_given, t, image, metres)
+        frame = Frame(self._n_given, t, image, metres, right=right)
         self._n_given += 1
         return self.track_frame(self.prepare(frame))
 
@@ -198,6 +223,9 @@ class System:
         """Start the work that can run ahead of tracking (segmentation) on a decoded frame;
         ``pipeline.run_slam`` calls it from its reader thread."""
         parts = self._start()
+        if parts.stereo_depth is not None and frame.depth is None and frame.right_gray is not None:
+            # A stereo pair's depth image, before segmentation starts (SRM reads it).
+            frame.depth = parts.stereo_depth.compute(frame.gray, frame.right_gray)
         if parts.dynamics is not None:
             parts.dynamics.prepare(frame)
         # Work that depends on the image alone runs here too, off the tracking thread: the grey
@@ -510,6 +538,25 @@ def make_config(preset: str | Path | SystemConfig, overrides: Mapping[str, Any] 
     if isinstance(preset, SystemConfig):  # a copy, checked as a preset is (a user may have set any field)
         return config_from_dict(config_to_dict(preset), "config", texts)
     return load_config(preset, texts)
+
+
+def make_stereo_calibration(camera: CameraLike | StereoCalibration | None, baseline: float | None) -> StereoCalibration:
+    """A stereo system's calibration: a ``StereoCalibration`` (``io.stereo_calibration``: EuRoC's
+    sensor.yaml, KITTI's calib.txt, an ORB-SLAM3 settings file), an ORB-SLAM3 settings YAML
+    path, or the left camera of a rectified pair plus ``baseline`` in metres."""
+    if isinstance(camera, StereoCalibration):
+        if baseline is not None:
+            raise ConfigError("baseline: the StereoCalibration given as camera has its own")
+        return camera
+    if isinstance(camera, (str, Path)) and Path(camera).suffix.lower() in (".yaml", ".yml"):
+        if baseline is not None:
+            raise ConfigError(f"baseline: the settings file {camera} has its own")
+        return read_orbslam3_settings(camera)
+    if baseline is None:
+        raise ConfigError("sensor='stereo' needs the pair's calibration: baseline=METRES with the left camera, "
+                          "a StereoCalibration, or an ORB-SLAM3 settings YAML as camera")
+    left = make_camera(camera)
+    return stereo_from_values(left, baseline)
 
 
 def make_camera(camera: CameraLike | None) -> PinholeCamera:

@@ -17,11 +17,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 
-from semslam.api import System
+from semslam.api import System, make_config
 from semslam.config import SystemConfig
 from semslam.core.protocols import SequenceSource as Sequence
 from semslam.core.types import Frame, RunResult, TrackResult
 from semslam.errors import ConfigError, DataError, OutputError, RunInterrupted
+from semslam.io.stereo_calibration import StereoCalibration
 from semslam.runtime import lower_thread_priority, stop_exit_code, stop_requested, tracking_core
 
 if TYPE_CHECKING:
@@ -95,6 +96,7 @@ def run_slam(
     """
     out = Path(out_dir)
     check_output_paths(out, save_map=save_map, rerun=rerun, save_inpainted=config.maps.save_inpainted or None)
+    config = config_for_sequence(config, sequence)
     if config.sensor == "rgbd" and not sequence.has_depth:
         raise DataError(sequence.root, "no depth images: this is a monocular sequence; run it with sensor: mono "
                                        "(--preset sdf)")
@@ -106,8 +108,28 @@ def run_slam(
     # lock-wait p95 0.02-3.0 -> 2.2-6.4 ms).
     waits_for_masks = config.dynamics.semantic and config.semantics.schedule == "every"
     with tracking_core(config.slam.pin_tracking and not waits_for_masks):
-        system = System(config, sequence.camera, load_map=load_map, name=str(sequence.root))
+        camera = stereo_calibration(sequence) if config.sensor == "stereo" else sequence.camera
+        system = System(config, camera, load_map=load_map, name=str(sequence.root))
         return _run(system, sequence, config, out, max_frames, progress, report, save_map, rerun, rerun_spawn)
+
+
+def stereo_calibration(sequence: Sequence) -> StereoCalibration | None:
+    """The calibration of a stereo sequence (its frames carry ``right``), else None."""
+    calibration = getattr(sequence, "calibration", None)
+    return calibration if isinstance(calibration, StereoCalibration) else None
+
+
+def config_for_sequence(config: SystemConfig, sequence: Sequence) -> SystemConfig:
+    """The sensor follows the input: a stereo sequence runs an RGB-D preset as stereo (with
+    the pair's ``bf``), a monocular preset on its left images; ``sensor: stereo`` on a
+    sequence without right images is a ``DataError``."""
+    calibration = stereo_calibration(sequence)
+    if config.sensor == "stereo" and calibration is None:
+        raise DataError(sequence.root, "sensor: stereo, but this sequence has no right images (expected EuRoC's "
+                                       "mav0/cam0 + cam1, KITTI's image_0 + image_1, or rgb_right.txt)")
+    if calibration is None or config.sensor == "mono" or (config.sensor == "rgbd" and sequence.has_depth):
+        return config
+    return make_config(config, ["sensor=stereo", f"slam.bf={calibration.bf!r}"])
 
 
 def _run(system: System, sequence: Sequence, config: SystemConfig, out: Path, max_frames: int | None,

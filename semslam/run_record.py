@@ -101,12 +101,12 @@ class Evaluation:
 
 
 def evaluate(gt_path: Path, traj: Trajectory, config: SystemConfig, result: RunResult) -> Evaluation | None:
-    """ATE (SE(3) for RGB-D, Sim(3) for monocular) and RPE over 1 s, into ``result``; the
+    """ATE (SE(3) for RGB-D and stereo, Sim(3) for monocular) and RPE over 1 s, into ``result``; the
     evaluation for ``write_run_report`` (None when the trajectory cannot be evaluated)."""
     from semslam.eval.metrics import ate, rpe
 
     gt = read_trajectory(gt_path)
-    align = "se3" if config.sensor == "rgbd" else "sim3"
+    align = "sim3" if config.sensor == "mono" else "se3"
     try:
         ate_res = ate(gt, traj, align=align)
         ate_se3 = ate(gt, traj, align="se3") if align == "sim3" else None  # mono: the metric scale too

@@ -346,7 +346,7 @@ def test_kitti_folder_with_poses(tmp_path: Path) -> None:
     for k, f in enumerate(frames):  # rectified input: the images as stored
         assert np.all(f.rgb == 10 + k) and np.all(f.right == 100 + k)
     gt = seq.groundtruth()
-    assert gt is not None and seq.groundtruth_path == poses
+    assert gt is not None and seq.groundtruth_source == poses
     np.testing.assert_array_equal(gt.timestamps, [0.0, 0.1036602, 0.2073204])
     np.testing.assert_array_equal(gt.poses[:, :3, 3], [[0, 0, 0], [0.5, 0, 1], [1.0, 0, 2]])
 

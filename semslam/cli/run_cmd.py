@@ -190,7 +190,7 @@ def prepare_output(out: Path, overwrite: bool, save_map: Path | None, rerun: Pat
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
-        sequence: Path = typer.Argument(..., help="sequence: a TUM-layout folder (rgb.txt, depth.txt[, groundtruth.txt]), an image folder, a ROS 1 .bag, or a dataset name (tum/fr3_walking_xyz; semslam dataset list)"),
+        sequence: Path = typer.Argument(..., help="sequence: a TUM-layout folder (rgb.txt, depth.txt[, groundtruth.txt]), a stereo folder (EuRoC mav0/, KITTI image_0 + image_1, or rgb.txt + rgb_right.txt), an image folder, a ROS 1 .bag, or a dataset name (tum/fr3_walking_xyz; semslam dataset list)"),
         out: Path = typer.Option(..., "--out", "-o", help="output folder (refused if it holds another run's "
                                                            "outputs, unless --overwrite)"),
         overwrite: bool = typer.Option(False, "--overwrite", help="replace an earlier run's outputs in OUT: removes "
@@ -200,6 +200,13 @@ def register(app: typer.Typer) -> None:
         preset: str = typer.Option("default", "--preset", "-p", help=preset_help()),
         max_frames: Optional[int] = typer.Option(None, "--max-frames", min=1, help="stop after N frames"),
         camera: Optional[str] = typer.Option(None, "--camera", help="fx,fy,cx,cy[,k1,k2,p1,p2,k3]"),
+        sensor: Optional[str] = typer.Option(None, "--sensor", help="rgbd, stereo or mono (default: the preset's; "
+                                                                     "a stereo input runs an RGB-D preset as stereo)"),
+        baseline: Optional[float] = typer.Option(None, "--baseline", help="stereo: the rectified pair's baseline in "
+                                                                           "metres, with --camera of the left image"),
+        settings: Optional[Path] = typer.Option(None, "--settings", help="stereo: an ORB-SLAM3 settings YAML with "
+                                                                          "both cameras (instead of the layout's own "
+                                                                          "calibration files)"),
         depth_scale: Optional[float] = typer.Option(None, "--depth-scale", help="depth units per metre (TUM 5000)",
                                                     callback=check_depth_scale),
         set_: list[str] = typer.Option([], "--set", help="override a config field: section.key=value"),
@@ -229,9 +236,12 @@ def register(app: typer.Typer) -> None:
         _setup_logging(verbose, quiet)
         prepare_output(out, overwrite, save_map, rerun, save_inpainted)
         rs_flags, rs_note = rolling_shutter_flags(sequence, set_)
-        cfg = load_config(preset, rs_flags + run_overrides(set_, depth_scale, sequential, localization_only, realtime,
-                                                           maps, save_inpainted))
-        seq = open_sequence(sequence, camera=camera, kind=kind_for_sensor(cfg.sensor), depth_scale=cfg.depth_scale)
+        sensor_flag = [f"sensor={sensor}"] if sensor is not None else []
+        cfg = load_config(preset, rs_flags + sensor_flag + run_overrides(set_, depth_scale, sequential,
+                                                                         localization_only, realtime, maps,
+                                                                         save_inpainted))
+        seq = open_sequence(sequence, camera=camera, kind=kind_for_sensor(cfg.sensor), depth_scale=cfg.depth_scale,
+                            baseline=baseline, settings=settings)
         check_sequence_images(seq, cfg.features)  # image size and principal point, before frame 1
         if overwrite:  # only now that everything else checked out: a typo must not cost the earlier run
             remove_previous_run(out, keep=(load_map, sequence))

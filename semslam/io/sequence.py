@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from semslam.core import registry
 from semslam.core.types import Frame
 from semslam.datasets import is_dataset_name, resolve as resolve_dataset
-from semslam.errors import DataError
+from semslam.errors import ConfigError, DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import resolve_camera
 from semslam.io.images import FrameReadError, read_depth, read_rgb
@@ -393,8 +393,9 @@ class ImageFolderSequence(Sequence):
 
 def kind_for_sensor(sensor: str) -> str:
     """The ``open_sequence`` kind a config's sensor reads: ``mono`` reads a TUM folder's
-    colour images only (its depth is not the monocular tracker's to use), else ``auto``."""
-    return "mono" if sensor == "mono" else "auto"
+    colour images only (its depth is not the monocular tracker's to use), ``stereo`` its
+    left and right images, else ``auto``."""
+    return sensor if sensor in ("mono", "stereo") else "auto"
 
 
 def open_sequence(
@@ -403,11 +404,21 @@ def open_sequence(
     kind: str = "auto",
     depth_scale: float = 5000.0,
     max_diff: float = 0.02,
+    baseline: float | None = None,
+    settings: str | Path | None = None,
 ) -> Sequence:
-    """Open a sequence folder; ``kind`` is ``auto``, ``rgbd`` (TUM layout) or ``mono`` (an image
-    folder, or a TUM folder's ``rgb.txt`` images without their depth)."""
+    """Open a sequence folder; ``kind`` is ``auto``, ``rgbd`` (TUM layout), ``mono`` (an image
+    folder, or a TUM folder's ``rgb.txt`` images without their depth) or ``stereo``
+    (``io.stereo_sequence``: EuRoC, KITTI, or a TUM-like folder with ``rgb_right.txt``; the
+    calibration from the layout's files, an ORB-SLAM3 ``settings`` YAML, or ``camera`` +
+    ``baseline``). ``auto`` opens EuRoC and KITTI stereo folders, and a TUM-like one with
+    right images but no depth, as stereo."""
     root = Path(path)
     if root.suffix.lower() == ".bag":  # a ROS 1 bag: io/rosbag_sequence.py, through the registry
+        from semslam.io.rosbag_stereo import bag_has_stereo, open_stereo_rosbag  # they build on this module
+
+        if kind == "stereo" or (kind == "auto" and root.is_file() and bag_has_stereo(root)):
+            return open_stereo_rosbag(root, camera=camera, baseline=baseline, max_diff=max_diff, settings=settings)
         return registry.create("sequence_source", "rosbag", root, camera=camera, max_diff=max_diff,
                                with_depth=kind != "mono")
     if not root.exists() and is_dataset_name(str(path)):  # tum/fr3_walking_xyz: its downloaded folder
@@ -416,9 +427,26 @@ def open_sequence(
         raise DataError(root, "sequence not found")
     if not root.is_dir():
         raise DataError(root, "not a folder (give the sequence folder, e.g. rgbd_dataset_freiburg3_walking_xyz/)")
-    if kind not in ("auto", "rgbd", "mono"):
-        raise DataError(root, f"unknown sequence kind {kind!r} (auto, rgbd, mono)")
+    if kind not in ("auto", "rgbd", "mono", "stereo"):
+        raise DataError(root, f"unknown sequence kind {kind!r} (auto, rgbd, mono, stereo)")
     is_rgbd = (root / "depth.txt").is_file() or any(root.glob("assoc*.txt"))
+    if kind == "stereo" or (kind == "auto" and _opens_as_stereo(root, is_rgbd)):
+        from semslam.io.stereo_sequence import open_stereo_sequence  # it builds on this module
+
+        return open_stereo_sequence(root, camera=camera, baseline=baseline, settings=settings)
+    if baseline is not None or settings is not None:
+        raise ConfigError("--baseline / --settings describe a stereo pair; this sequence is read as "
+                          f"{'RGB-D' if kind == 'rgbd' or is_rgbd else 'monocular'} (give --sensor stereo for its "
+                          "right images)")
     if kind == "rgbd" or (kind == "auto" and is_rgbd):
         return TumRgbdSequence(root, camera=camera, depth_scale=depth_scale, max_diff=max_diff)
     return ImageFolderSequence(root, camera=camera)
+
+
+def _opens_as_stereo(root: Path, is_rgbd: bool) -> bool:
+    """EuRoC (``mav0/cam1``) and KITTI (``image_1`` + ``calib.txt``) folders, and TUM-like ones
+    with right images but no depth: what ``auto`` reads as stereo."""
+    from semslam.io.stereo_sequence import stereo_layout
+
+    layout = stereo_layout(root)
+    return layout in ("euroc", "kitti") or (layout == "tum" and not is_rgbd)

@@ -4,8 +4,9 @@ Each yields :class:`~semslam.core.types.Frame` with ``right`` set, both images r
 with the sequence's :class:`~semslam.io.stereo_calibration.StereoCalibration` (one remap
 per image with the tables made once); ``camera`` is the rectified left camera. They follow
 :class:`~semslam.io.sequence.Sequence` (frames by index, skipping a few unreadable ones).
-Not wired into tracking yet; ``open_sequence`` does not detect these layouts (an EuRoC or
-KITTI folder keeps opening as monocular images there), ``open_stereo_sequence`` does.
+``io.sequence.open_sequence`` opens these layouts as stereo (kind ``stereo``, or ``auto``
+for EuRoC, KITTI and a TUM-like folder without depth); ``open_stereo_sequence`` is the
+reader itself.
 
 Layouts:
 
@@ -23,6 +24,7 @@ Layouts:
 from __future__ import annotations
 
 import logging
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +41,7 @@ from semslam.io.stereo_calibration import (StereoCalibration, read_euroc_calibra
                                            read_kitti_calib,
                                            read_orbslam3_settings, stereo_from_values)
 from semslam.io.text import read_text_lines
-from semslam.io.trajectory import read_euroc_csv, read_kitti, read_tum
+from semslam.io.trajectory import read_euroc_csv, read_kitti, read_tum, write_tum
 
 log = logging.getLogger(__name__)
 
@@ -77,11 +79,22 @@ class StereoSequence(Sequence):
                 pass  # reported when iteration reaches it
         self.calibration = calibration
         self.camera: PinholeCamera = calibration.camera
-        self.groundtruth_path = groundtruth_path
+        #: The ground truth file as the layout has it (EuRoC: the body's; KITTI: 3x4 poses).
+        self.groundtruth_source = groundtruth_path
         self._gt_format = groundtruth_format
         self._times_path = times_path
         #: cam0's pose in the body frame (EuRoC), applied to the body ground truth.
         self.t_bs = t_bs
+        #: What evaluation reads (``semslam run``, the report): cam0's poses as a TUM file, written
+        #: to a temporary folder that lives as long as the sequence where the layout's file is not.
+        self.groundtruth_path = groundtruth_path
+        self._gt_dir: tempfile.TemporaryDirectory[str] | None = None
+        if groundtruth_path is not None and groundtruth_format != "tum":
+            camera_poses = self.groundtruth()
+            assert camera_poses is not None
+            self._gt_dir = tempfile.TemporaryDirectory(prefix="semslam-stereo-gt-")
+            self.groundtruth_path = Path(self._gt_dir.name) / "groundtruth.txt"
+            write_tum(self.groundtruth_path, camera_poses)
 
     @property
     def timestamps(self) -> NDArray[np.float64]:
@@ -110,14 +123,15 @@ class StereoSequence(Sequence):
 
     def groundtruth(self) -> Trajectory | None:
         """The ground truth as cam0 poses (EuRoC: body poses times ``T_BS``); None without one."""
-        if self.groundtruth_path is None:
+        source = self.groundtruth_source
+        if source is None:
             return None
         if self._gt_format == "euroc":
-            body = read_euroc_csv(self.groundtruth_path)
+            body = read_euroc_csv(source)
             return body if self.t_bs is None else euroc_camera_trajectory(body, self.t_bs)
         if self._gt_format == "kitti":
-            return read_kitti(self.groundtruth_path, self._times_path)
-        return read_tum(self.groundtruth_path)
+            return read_kitti(source, self._times_path)
+        return read_tum(source)
 
 
 # ---------------------------------------------------------------------------- pairing
