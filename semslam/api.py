@@ -48,6 +48,7 @@ from semslam.core.types import Frame, RunResult, TrackingState, TrackResult
 from semslam.errors import ConfigError, DataError, SemslamError
 from semslam.frame_input import as_metres, as_rgb, check_timestamp
 from semslam.frontend.sharpness import sharpness
+from semslam.frontend.stereo_depth import fill_frame_depth
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.calibration import camera_from_values, read_calib_file, resolve_camera
 from semslam.io.input_health import InputHealth
@@ -223,9 +224,8 @@ class System:
         """Start the work that can run ahead of tracking (segmentation) on a decoded frame;
         ``pipeline.run_slam`` calls it from its reader thread."""
         parts = self._start()
-        if parts.stereo_depth is not None and frame.depth is None and frame.right_gray is not None:
-            # A stereo pair's depth image, before segmentation starts (SRM reads it).
-            frame.depth = parts.stereo_depth.compute(frame.gray, frame.right_gray)
+        if parts.stereo_depth is not None:  # a stereo pair's depth image, before segmentation (SRM reads it)
+            fill_frame_depth(frame, parts.stereo_depth)
         if parts.dynamics is not None:
             parts.dynamics.prepare(frame)
         # Work that depends on the image alone runs here too, off the tracking thread: the grey

@@ -53,6 +53,11 @@ def test_default_runs_a_stereo_render_with_its_dynamic_front_end(walking_stereo:
     ate = evo_ate(walking_stereo / "groundtruth.txt", out / "trajectory.txt")
     assert ate == pytest.approx(stats["ate"]["rmse"], rel=1e-6)
     assert ate < 0.02
+    # `semslam map` rebuilds the maps afterwards from the pair's depth too
+    from semslam.cli.main import main
+
+    assert main(["map", str(out), "--out", str(tmp_path / "again"), "--map", "cloud", "--quiet"]) == 0
+    assert any((tmp_path / "again").glob("*.ply"))
 
 
 def test_orb_stereo_matches_rgbd_on_the_same_path(walking_stereo: Path, tmp_path: Path) -> None:

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.types import Frame
 from semslam.errors import ConfigError
 
 #: The matcher modes this module exposes, by name (OpenCV's StereoSGBM modes).
@@ -136,6 +137,12 @@ class StereoDepth:
         if ds > 1:
             depth = cv2.resize(depth, (self.width, self.height), interpolation=cv2.INTER_NEAREST)
         return depth
+
+
+def fill_frame_depth(frame: Frame, stereo_depth: StereoDepth) -> None:
+    """A stereo frame without a depth image gets the pair's (``frame.depth``)."""
+    if frame.depth is None and frame.right_gray is not None:
+        frame.depth = stereo_depth.compute(frame.gray, frame.right_gray)
 
 
 def right_view_mask(mask: NDArray[np.bool_], depth: NDArray[np.float32], bf: float,
