@@ -56,7 +56,9 @@ PLUGINS: dict[str, dict[str, str]] = {
         "cloud": "semslam.reconstruction.semantic_cloud:SemanticCloud",
         "mesh": "semslam.reconstruction.tsdf_mesh:TsdfMesh",
     },
-    "sequence_source": {"rosbag": "semslam.io.rosbag_sequence:RosbagSequence"},  # by file type; folders: io/sequence.py
+    # What io/sequence.py's open_sequence opens besides TUM and image folders (they build on it).
+    "sequence_source": {"rosbag": "semslam.io.rosbag_stereo:open_rosbag",
+                        "stereo": "semslam.io.stereo_sequence:open_stereo_sequence"},
 }
 
 #: The config field that names each kind's backend (for error messages).

@@ -224,3 +224,17 @@ def open_stereo_rosbag(path: str | Path, calibration: StereoCalibration | None =
     """A stereo ROS 1 bag as a sequence (calibration order: see the module docstring)."""
     return StereoRosbagSequence(path, calibration=calibration, camera=camera, baseline=baseline,
                                 max_diff=max_diff, settings=settings)
+
+
+def open_rosbag(path: str | Path, camera: str | PinholeCamera | None = None, max_diff: float = 0.02,
+                read_as: str = "auto", baseline: float | None = None,
+                settings: str | Path | None = None) -> RosbagSequence:
+    """A ROS 1 bag as ``open_sequence`` opens it (``read_as`` auto, rgbd, mono or stereo): a
+    stereo sequence when asked for, or (auto) when both topics of a stereo pair are there;
+    else colour (and depth, unless mono) as ``RosbagSequence`` reads them."""
+    if read_as == "stereo" or (read_as == "auto" and Path(path).is_file() and bag_has_stereo(path)):
+        return open_stereo_rosbag(path, camera=camera, baseline=baseline, max_diff=max_diff, settings=settings)
+    if baseline is not None or settings is not None:
+        raise ConfigError("--baseline / --settings describe a stereo pair; this bag is read as "
+                          f"{'monocular' if read_as == 'mono' else 'RGB-D'} (give --sensor stereo for a stereo bag)")
+    return RosbagSequence(path, camera=camera, max_diff=max_diff, with_depth=read_as != "mono")

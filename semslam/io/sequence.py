@@ -414,13 +414,9 @@ def open_sequence(
     ``baseline``). ``auto`` opens EuRoC and KITTI stereo folders, and a TUM-like one with
     right images but no depth, as stereo."""
     root = Path(path)
-    if root.suffix.lower() == ".bag":  # a ROS 1 bag: io/rosbag_sequence.py, through the registry
-        from semslam.io.rosbag_stereo import bag_has_stereo, open_stereo_rosbag  # they build on this module
-
-        if kind == "stereo" or (kind == "auto" and root.is_file() and bag_has_stereo(root)):
-            return open_stereo_rosbag(root, camera=camera, baseline=baseline, max_diff=max_diff, settings=settings)
-        return registry.create("sequence_source", "rosbag", root, camera=camera, max_diff=max_diff,
-                               with_depth=kind != "mono")
+    if root.suffix.lower() == ".bag":  # a ROS 1 bag (io/rosbag_sequence.py, io/rosbag_stereo.py): the registry's
+        return registry.create("sequence_source", "rosbag", root, camera=camera, max_diff=max_diff, read_as=kind,
+                               baseline=baseline, settings=settings)
     if not root.exists() and is_dataset_name(str(path)):  # tum/fr3_walking_xyz: its downloaded folder
         root = resolve_dataset(str(path))
     if not root.exists():
@@ -430,10 +426,8 @@ def open_sequence(
     if kind not in ("auto", "rgbd", "mono", "stereo"):
         raise DataError(root, f"unknown sequence kind {kind!r} (auto, rgbd, mono, stereo)")
     is_rgbd = (root / "depth.txt").is_file() or any(root.glob("assoc*.txt"))
-    if kind == "stereo" or (kind == "auto" and _opens_as_stereo(root, is_rgbd)):
-        from semslam.io.stereo_sequence import open_stereo_sequence  # it builds on this module
-
-        return open_stereo_sequence(root, camera=camera, baseline=baseline, settings=settings)
+    if kind == "stereo" or (kind == "auto" and _opens_as_stereo(root, is_rgbd)):  # io/stereo_sequence.py
+        return registry.create("sequence_source", "stereo", root, camera=camera, baseline=baseline, settings=settings)
     if baseline is not None or settings is not None:
         raise ConfigError("--baseline / --settings describe a stereo pair; this sequence is read as "
                           f"{'RGB-D' if kind == 'rgbd' or is_rgbd else 'monocular'} (give --sensor stereo for its "
@@ -443,10 +437,28 @@ def open_sequence(
     return ImageFolderSequence(root, camera=camera)
 
 
-def _opens_as_stereo(root: Path, is_rgbd: bool) -> bool:
-    """EuRoC (``mav0/cam1``) and KITTI (``image_1`` + ``calib.txt``) folders, and TUM-like ones
-    with right images but no depth: what ``auto`` reads as stereo."""
-    from semslam.io.stereo_sequence import stereo_layout
+def euroc_root(root: Path) -> Path | None:
+    """The folder holding EuRoC's ``cam0`` and ``cam1`` (``root/mav0`` or ``root``), else None."""
+    for cand in (root / "mav0", root):
+        if (cand / "cam0").is_dir() and (cand / "cam1").exists():
+            return cand
+    return None
 
+
+def stereo_layout(root: Path) -> str | None:
+    """``euroc``, ``kitti`` or ``tum`` when the folder is a stereo sequence of that layout:
+    it has ``mav0/cam1``, ``image_1`` + ``calib.txt``, or ``rgb_right.txt``."""
+    if euroc_root(root) is not None:
+        return "euroc"
+    if (root / "image_1").is_dir() and (root / "calib.txt").is_file():
+        return "kitti"
+    if (root / "rgb_right.txt").is_file():
+        return "tum"
+    return None
+
+
+def _opens_as_stereo(root: Path, is_rgbd: bool) -> bool:
+    """EuRoC and KITTI folders, and TUM-like ones with right images but no depth: what
+    ``auto`` reads as stereo."""
     layout = stereo_layout(root)
     return layout in ("euroc", "kitti") or (layout == "tum" and not is_rgbd)

@@ -36,7 +36,8 @@ from semslam.errors import ConfigError, DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.association import match_timestamps
 from semslam.io.images import FrameReadError, read_rgb
-from semslam.io.sequence import IMAGE_SUFFIXES, ListEntry, Sequence, _natural_key, listed_path, read_file_list
+from semslam.io.sequence import (IMAGE_SUFFIXES, ListEntry, Sequence, _natural_key, euroc_root, listed_path,
+                                 read_file_list, stereo_layout)
 from semslam.io.stereo_calibration import (StereoCalibration, read_euroc_calibration, read_euroc_sensor,
                                            read_kitti_calib,
                                            read_orbslam3_settings, stereo_from_values)
@@ -179,17 +180,10 @@ def read_euroc_list(path: Path) -> list[ListEntry]:
 # ---------------------------------------------------------------------------- layouts
 
 
-def _mav0(root: Path) -> Path | None:
-    for cand in (root / "mav0", root):
-        if (cand / "cam0").is_dir() and (cand / "cam1").exists():
-            return cand
-    return None
-
-
 def open_euroc_stereo(root: Path, calibration: StereoCalibration | None = None,
                       max_diff: float = 0.001) -> StereoSequence:
     """An EuRoC ASL sequence (the folder holding ``mav0/``, or ``mav0`` itself)."""
-    mav0 = _mav0(root)
+    mav0 = euroc_root(root)
     if mav0 is None:
         raise DataError(root / "mav0" / "cam1", "not found (an EuRoC stereo sequence has mav0/cam0 and mav0/cam1)")
     lists = []
@@ -270,18 +264,6 @@ def open_tum_stereo(root: Path, calibration: StereoCalibration | None = None,
     gt = root / "groundtruth.txt"
     return StereoSequence(root, [e.path for e in left], [e.path for e in right],
                           np.array([e.timestamp for e in left]), calibration, gt if gt.is_file() else None, "tum")
-
-
-def stereo_layout(root: Path) -> str | None:
-    """``euroc``, ``kitti`` or ``tum`` when the folder is a stereo sequence of that layout:
-    it has ``mav0/cam1``, ``image_1`` + ``calib.txt``, or ``rgb_right.txt``."""
-    if _mav0(root) is not None:
-        return "euroc"
-    if (root / "image_1").is_dir() and (root / "calib.txt").is_file():
-        return "kitti"
-    if (root / "rgb_right.txt").is_file():
-        return "tum"
-    return None
 
 
 def open_stereo_sequence(path: str | Path, camera: str | PinholeCamera | None = None, baseline: float | None = None,
