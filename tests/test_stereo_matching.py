@@ -215,6 +215,34 @@ def test_frame_builder(features, stereo_frames) -> None:
     assert np.all(bare.depth == 0) and np.all(bare.ur == -1)
 
 
+@pytest.mark.parametrize("extractor", ["orb_slam2", "qtree_orb"])
+def test_frame_builder_extracts_the_right_image_and_reuses_pyramids(features, stereo_frames, extractor) -> None:
+    """Tracking's path: ``begin`` extracts the right image on the builder's thread and
+    ``build`` reads both extractors' own pyramids; the result equals the explicit views'."""
+    from dataclasses import replace
+
+    from semslam.core.types import Frame
+
+    bf, frames = stereo_frames
+    gl, gr, _, _, _ = frames[1]
+    cfg = replace(features, extractor=extractor)
+    left_ext, right_ext = create_extractor(cfg, (320, 240)), create_extractor(cfg, (320, 240))
+    cam = PinholeCamera(bf / B, bf / B, 159.5, 119.5, width=320, height=240)
+    builder = StereoFrameBuilder(cam, bf, left_ext.spec, right_ext, left_ext)
+    frame = Frame(0, 0.0, cv2.cvtColor(gl, cv2.COLOR_GRAY2RGB), right=cv2.cvtColor(gr, cv2.COLOR_GRAY2RGB))
+    try:
+        builder.begin(frame, None)
+        kl = left_ext.extract(frame.gray)
+        f = builder.build(0, 0.0, kl, None)
+    finally:
+        builder.close()
+    kr = create_extractor(cfg, (320, 240)).extract(gr)
+    m = _match(features, gl, gr, kl, kr, bf)
+    assert m.matched.sum() > 0.3 * len(kl)
+    np.testing.assert_array_equal(f.depth, m.depth)
+    np.testing.assert_array_equal(f.ur, m.ur)
+
+
 def test_images_of_different_size(features) -> None:
     pl = stereo_pyramid(np.zeros((60, 80), np.uint8), features.n_levels, features.scale_factor)
     pr = stereo_pyramid(np.zeros((60, 81), np.uint8), features.n_levels, features.scale_factor)

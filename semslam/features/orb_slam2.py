@@ -56,6 +56,7 @@ from semslam.features.inputs import check_extractor_inputs
 from semslam.features.orb import (
     BORDER,
     Scratch,
+    StackedPyramid,
     SteeredBrief,
     build_pyramid,
     detect_level_reference,
@@ -111,6 +112,7 @@ class OrbSlamExtractor:
         self._scratch = Scratch()
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
+        self.last_pyramid: StackedPyramid | None = None
         # Wall and thread-CPU time of each stage of the last extract() (ms), for profiling.
         self.last_stage_ms: dict[str, float] = {}
         self.last_stage_cpu_ms: dict[str, float] = {}
@@ -123,6 +125,7 @@ class OrbSlamExtractor:
         clock = StageClock()
         pyr = build_pyramid(gray, self.n_levels, self.scale_factor, pad=3, buffer=self._pyramid_buffer)
         self._pyramid_buffer = pyr.buffer
+        self.last_pyramid = pyr  # the stereo matcher's SAD reads it (until the next extract)
         clock.lap()
         images = detection_levels(pyr.levels)
         n_used = len(images)

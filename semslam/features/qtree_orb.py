@@ -78,6 +78,7 @@ from semslam.features.orb import (
     BORDER,
     Scratch,
     SplitRule,
+    StackedPyramid,
     SteeredBrief,
     build_pyramid,
     detection_levels,
@@ -257,6 +258,7 @@ class QtreeOrbExtractor:
         warm_up()  # compile the kernels now, not in the first frame
         self._brief = SteeredBrief()
         self._pyramid_buffer: NDArray[np.uint8] | None = None
+        self.last_pyramid: StackedPyramid | None = None
         self.last_quality: NDArray[np.bool_] = np.zeros(0, bool)
         self.last_fast_score: NDArray[np.float32] = np.zeros(0, np.float32)
         self.last_counts = QtreeOrbCounts()
@@ -305,6 +307,7 @@ class QtreeOrbExtractor:
         wanted_all = self.features_per_level(gray.shape[1], gray.shape[0])
         pyr = build_pyramid(gray, n_levels, self.scale_factor, pad=3, buffer=self._pyramid_buffer)
         self._pyramid_buffer = pyr.buffer
+        self.last_pyramid = pyr  # the stereo matcher's SAD reads it (until the next extract)
         scales = scale_factors(n_levels, self.scale_factor)
         clock.lap()
         images = detection_levels(pyr.levels)

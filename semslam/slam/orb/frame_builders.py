@@ -19,6 +19,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.slam.orb.frame_state import FrameState
 from semslam.frontend.keypoint_depth import sample_depth
 from semslam.slam.orb.map import PointSlots
+from semslam.features.orb.pyramid import StackedPyramid
 from semslam.slam.orb.stereo_matching import compute_stereo_matches, stereo_pyramid
 
 
@@ -98,6 +99,10 @@ class StereoViews:
     right_kps: Keypoints
     left_gray: NDArray[np.uint8]
     right_gray: NDArray[np.uint8]
+    # The extractors' own pyramids of the two images where they keep them (``last_pyramid``:
+    # the same levels ``stereo_pyramid`` builds), so they are not built twice.
+    left_pyramid: StackedPyramid | None = None
+    right_pyramid: StackedPyramid | None = None
 
 
 class StereoFrameBuilder:
@@ -113,12 +118,13 @@ class StereoFrameBuilder:
     ``build`` with ``right`` given (tests, tools) uses those views instead."""
 
     def __init__(self, camera: PinholeCamera, bf: float, spec: FeatureSpec,
-                 right_extractor: Extractor | None = None) -> None:
+                 right_extractor: Extractor | None = None, left_extractor: Extractor | None = None) -> None:
         self.camera = camera
         self.bf = bf
         self.baseline = bf / camera.fx  # ORB-SLAM2's minZ: the nearest depth searched
         self.spec = spec
         self.right_extractor = right_extractor
+        self.left_extractor = left_extractor  # tracking's: its pyramid of the left image is reused
         self._pool = (ThreadPoolExecutor(max_workers=1, thread_name_prefix="right-features")
                       if right_extractor is not None else None)
         self._pending: tuple[Future[Keypoints], NDArray[np.uint8], NDArray[np.uint8]] | None = None
@@ -148,12 +154,14 @@ class StereoFrameBuilder:
         if right is None and self._pending is not None:
             job, left_gray, right_gray = self._pending
             self._pending = None
-            right = StereoViews(job.result(), left_gray, right_gray)
+            right_kps = job.result()
+            right = StereoViews(right_kps, left_gray, right_gray, _pyramid_of(self.left_extractor, left_gray),
+                                _pyramid_of(self.right_extractor, right_gray))
         if right is None:
             return _frame(index, timestamp, kps, xy, np.zeros(n, np.float32), np.full(n, -1.0))
         sf, levels = self.spec.scale_factor, self.spec.n_levels
-        pyr_l = stereo_pyramid(right.left_gray, levels, sf)
-        pyr_r = stereo_pyramid(right.right_gray, levels, sf)
+        pyr_l = stereo_pyramid(right.left_gray, levels, sf) if right.left_pyramid is None else right.left_pyramid
+        pyr_r = stereo_pyramid(right.right_gray, levels, sf) if right.right_pyramid is None else right.right_pyramid
         m = compute_stereo_matches(kps, right.right_kps, pyr_l, pyr_r, sf, self.bf, self.baseline,
                                    th_low=self.spec.th_low, th_high=self.spec.th_high)
         return _frame(index, timestamp, kps, xy, m.depth, m.ur)
@@ -163,15 +171,23 @@ class StereoFrameBuilder:
             self._pool.shutdown(wait=True)
 
 
+def _pyramid_of(extractor: Extractor | None, gray: NDArray[np.uint8]) -> StackedPyramid | None:
+    """The pyramid ``extractor`` just built of ``gray`` (``last_pyramid``), else None."""
+    pyr = getattr(extractor, "last_pyramid", None)
+    if not isinstance(pyr, StackedPyramid) or pyr.widths[0] != gray.shape[1] or pyr.heights[0] != gray.shape[0]:
+        return None
+    return pyr
+
+
 def stereo_builder(config: SystemConfig, camera: PinholeCamera, spec: FeatureSpec,
-                   right_extractor: Extractor | None) -> StereoFrameBuilder:
+                   right_extractor: Extractor | None, left_extractor: Extractor | None = None) -> StereoFrameBuilder:
     """The stereo builder of a run, or a ``ConfigError`` where the features cannot be matched
     across the pair (ORB-SLAM2's matcher compares binary descriptors by Hamming distance)."""
     if spec.kind is not DescriptorKind.BINARY or spec.dim % 8:
         raise ConfigError(f"sensor: stereo matches binary descriptors across the pair (ORB); features.extractor: "
                           f"{config.features.extractor} makes {spec.kind.value} ones; use an ORB extractor "
                           "(orb_slam2, qtree_orb, orb)")
-    return StereoFrameBuilder(camera, config.slam.bf, spec, right_extractor)
+    return StereoFrameBuilder(camera, config.slam.bf, spec, right_extractor, left_extractor)
 
 
 def is_monocular(config: SystemConfig) -> bool:
@@ -181,15 +197,16 @@ def is_monocular(config: SystemConfig) -> bool:
 
 
 def frame_builder(config: SystemConfig, camera: PinholeCamera, spec: FeatureSpec | None = None,
-                  right_extractor: Extractor | None = None) -> FrameBuilder:
+                  right_extractor: Extractor | None = None, left_extractor: Extractor | None = None) -> FrameBuilder:
     """The builder for the frames ``config`` gives: stereo pairs (``spec``: the extractor's,
-    ``right_extractor``: a second extractor for the right images), monocular, else RGB-D
+    ``right_extractor``: a second extractor for the right images, ``left_extractor``:
+    tracking's), monocular, else RGB-D
     whenever they come with depth, the sensor's or a depth network's (a monocular camera as
     pseudo-RGB-D)."""
     if config.sensor == "stereo":
         if spec is None:
             raise ValueError("a stereo frame builder needs the extractor's FeatureSpec")
-        return stereo_builder(config, camera, spec, right_extractor)
+        return stereo_builder(config, camera, spec, right_extractor, left_extractor)
     if is_monocular(config):
         return MonocularFrameBuilder(camera)
     return RgbdFrameBuilder(camera, config.slam.bf)

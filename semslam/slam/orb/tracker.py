@@ -142,7 +142,7 @@ class OrbTracker:
         # A stereo pair's right image gets an extractor of its own (extracted beside the left).
         right_extractor = (create_extractor(config.features, _image_size(camera))
                            if config.sensor == "stereo" else None)
-        builder = frame_builder(config, camera, extractor.spec, right_extractor)
+        builder = frame_builder(config, camera, extractor.spec, right_extractor, extractor)
         self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database, extractor,
                                  keyframes=self.mapper if use_mapping else indexer, depth=inputs.depth,
                                  dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None,
