@@ -382,3 +382,30 @@ def test_euroc_camera_groundtruth_equals_evo_transform(shared_data: Path) -> Non
     # the camera is off the body by T_BS's lever arm (about 7 cm), everywhere
     lever = np.linalg.norm(ours.positions - read_euroc_csv(path).positions, axis=1)
     np.testing.assert_allclose(lever, np.linalg.norm(EUROC_V1_T_BS_CAM0[:3, 3]), rtol=1e-9)
+
+
+def test_kitti_stereo_folder_groundtruth_equals_evo(shared_data: Path, tmp_path: Path) -> None:
+    """A KITTI odometry folder holding sequence 00's real poses.txt and times.txt: the ground
+    truth ``semslam run`` evaluates against (the TUM file the stereo reader writes) has evo's
+    poses (``read_kitti_poses_file``) at times.txt's stamps."""
+    from semslam.io.sequence import open_sequence
+    from semslam.io.trajectory import read_tum
+
+    d = shared_data / "trajectories"
+    root = tmp_path / "00"
+    n = len([ln for ln in (d / "KITTI_00_gt_times.txt").read_text().splitlines() if ln.strip()])
+    for side in ("image_0", "image_1"):
+        (root / side).mkdir(parents=True)
+        for k in range(n):
+            (root / side / f"{k:06d}.png").touch()  # the reader lists them; no frame is read here
+    p0 = "7.188560e+02 0 6.071928e+02 0 0 7.188560e+02 1.852157e+02 0 0 0 1 0"
+    p1 = "7.188560e+02 0 6.071928e+02 -3.861448e+02 0 7.188560e+02 1.852157e+02 0 0 0 1 0"
+    (root / "calib.txt").write_text(f"P0: {p0}\nP1: {p1}\n")
+    (root / "poses.txt").write_text((d / "KITTI_00_gt.txt").read_text())
+    (root / "times.txt").write_text((d / "KITTI_00_gt_times.txt").read_text())
+    seq = open_sequence(root)
+    assert seq.calibration.baseline == pytest.approx(386.1448 / 718.856, rel=1e-9)
+    ours = read_tum(seq.groundtruth_path)
+    theirs = fi.read_kitti_poses_file(str(d / "KITTI_00_gt.txt"))
+    np.testing.assert_allclose(ours.poses, np.array(theirs.poses_se3), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(ours.timestamps, np.loadtxt(d / "KITTI_00_gt_times.txt"), rtol=0, atol=1e-6)

@@ -69,6 +69,18 @@ def test_orb_stereo_matches_rgbd_on_the_same_path(walking_stereo: Path, tmp_path
     assert stereo["ate"]["rmse"] < max(3 * rgbd["ate"]["rmse"], 0.01)
 
 
+@pytest.mark.parametrize("preset", ["stdc", "ddl"])
+def test_paper_presets_run_stereo(walking_stereo: Path, preset: str, tmp_path: Path) -> None:
+    """STDC-SLAM's and DDL-SLAM's presets on the pair: people masked, poses held (`ddl`'s
+    inpainted octree from the pair's depth)."""
+    stats = run_cli(walking_stereo, tmp_path / preset, "--preset", preset, "--sensor", "stereo", "--sequential",
+                    "--max-frames", "30", "--no-report")
+    assert stats["tracked_frames"] == 30 and stats["dynamic_ratio_mean"] > 0.02
+    assert stats["ate"]["rmse"] < 0.02
+    if preset == "ddl":
+        assert "octree" in stats["paths"]
+
+
 @pytest.mark.parametrize("layout", ["euroc", "kitti"])
 def test_layouts_open_as_stereo_and_track(small_layouts: dict[str, Path], layout: str, tmp_path: Path) -> None:
     """An RGB-D preset on an EuRoC or KITTI folder runs as stereo (no flag); the ground truth
