@@ -194,3 +194,17 @@ def test_stereo_bag_runs(small_layouts: dict[str, Path], tmp_path: Path) -> None
     stats = run_cli(bag, tmp_path / "bag", "--preset", "orb", "--sequential")
     assert json.loads((tmp_path / "bag" / "config.json").read_text())["sensor"] == "stereo"
     assert stats["tracked_frames"] == 40 and stats["ate"]["rmse"] < 0.02
+
+
+def test_calibration_options(walking_stereo: Path, tmp_path: Path) -> None:
+    """``--camera`` + ``--baseline`` and ``--settings`` give the pair's bf; a baseline for a
+    sequence read as RGB-D is refused in one line."""
+    from semslam.cli.main import main
+
+    cam = "535.4,539.2,320.1,247.6"
+    for name, flags, bf in (("values", ["--camera", cam, "--baseline", "0.2"], 535.4 * 0.2),
+                            ("settings", ["--settings", str(walking_stereo / "camera.yaml")], 535.4 * B)):
+        run_cli(walking_stereo, tmp_path / name, "--preset", "orb", "--sensor", "stereo", "--max-frames", "3",
+                "--sequential", "--no-report", *flags)
+        assert json.loads((tmp_path / name / "config.json").read_text())["slam"]["bf"] == pytest.approx(bf)
+    assert main(["run", str(walking_stereo), "--out", str(tmp_path / "x"), "--quiet", "--baseline", "0.1"]) == 2
