@@ -362,7 +362,7 @@ class DepthConfig:
     # of them is on; "always"; "never" (keypoints' depths come from ORB-SLAM2's sparse stereo
     # matching either way). Computed at 1/stereo_downscale of the image size.
     stereo_dense: str = "auto"
-    stereo_downscale: int = 2
+    stereo_downscale: int = 3
 
     def resolved(self, semantics: SemanticsConfig) -> DepthConfig:
         """This config with ``weights`` filled in from the segmenter's when it is the same network."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -91,6 +91,11 @@ class MonocularFrameBuilder(_SingleImage):
         return frame
 
 
+#: The left mask is carried to the right image on every 4th pixel (``right_view_mask``'s
+#: ``step``): whole-resolution carrying cost as much as the right image's extraction.
+RIGHT_MASK_STEP = 4
+
+
 @dataclass
 class StereoViews:
     """What a stereo frame adds to its left keypoints: the right image's keypoints and both
@@ -127,14 +132,16 @@ class StereoFrameBuilder:
         self.left_extractor = left_extractor  # tracking's: its pyramid of the left image is reused
         self._pool = (ThreadPoolExecutor(max_workers=1, thread_name_prefix="right-features")
                       if right_extractor is not None else None)
-        self._pending: tuple[Future[Keypoints], NDArray[np.uint8], NDArray[np.uint8]] | None = None
+        # The right image's job, its arguments and the left grey image, from ``begin`` to ``build``.
+        self._pending: tuple[Future[Keypoints], tuple[Any, ...], NDArray[np.uint8]] | None = None
 
     def begin(self, frame: Frame, mask: NDArray[np.bool_] | NDArray[np.uint8] | None) -> None:
         right_gray = frame.right_gray
         if self._pool is None or right_gray is None:
             self._pending = None
             return
-        self._pending = (self._pool.submit(self._extract_right, right_gray, mask, frame.depth), frame.gray, right_gray)
+        args = (right_gray, mask, frame.depth)
+        self._pending = (self._pool.submit(self._extract_right, *args), args, frame.gray)
 
     def _extract_right(self, right_gray: NDArray[np.uint8], mask: NDArray[np.bool_] | NDArray[np.uint8] | None,
                        depth: NDArray[np.float32] | None) -> Keypoints:
@@ -143,7 +150,8 @@ class StereoFrameBuilder:
         assert self.right_extractor is not None
         right_mask = None
         if mask is not None and depth is not None:
-            right_mask = right_view_mask(np.asarray(mask) != 0, depth, self.bf, missing="component")
+            right_mask = right_view_mask(np.asarray(mask) != 0, depth, self.bf, missing="component",
+                                         step=RIGHT_MASK_STEP)
         return self.right_extractor.extract(right_gray, right_mask)
 
     def build(self, index: int, timestamp: float, kps: Keypoints,
@@ -152,9 +160,12 @@ class StereoFrameBuilder:
         # Rectified images: undistortion is the identity unless the camera says otherwise.
         xy = self.camera.undistort_points(kps.xy)
         if right is None and self._pending is not None:
-            job, left_gray, right_gray = self._pending
+            job, args, left_gray = self._pending
             self._pending = None
-            right_kps = job.result()
+            # Not started yet (the other cores are busy): this thread, done with the left
+            # image, extracts the right one itself rather than wait for a core.
+            right_kps = self._extract_right(*args) if job.cancel() else job.result()
+            right_gray = args[0]
             right = StereoViews(right_kps, left_gray, right_gray, _pyramid_of(self.left_extractor, left_gray),
                                 _pyramid_of(self.right_extractor, right_gray))
         if right is None:
