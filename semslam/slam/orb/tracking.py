@@ -28,7 +28,7 @@ from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import invert, orthonormalize
 from semslam.slam.orb.atlas import AtlasFollower
 from semslam.slam.orb.depth_prior import DepthPrior
-from semslam.slam.orb.frame_builders import FrameBuilder, MonocularFrameBuilder, frame_builder
+from semslam.slam.orb.frame_builders import FrameBuilder, MonocularFrameBuilder, StereoFrameBuilder, frame_builder
 from semslam.slam.orb.frame_state import FrameState
 from semslam.slam.orb.keyframe_worker import KeyframeSink
 from semslam.slam.orb.map import KeyFrame, Map, update_normals_and_depths
@@ -97,6 +97,7 @@ class Tracking:
         # Monocular (no depth at all): two-view initialisation and ORB-SLAM's monocular
         # thresholds where they differ from RGB-D's.
         self.mono = isinstance(self.builder, MonocularFrameBuilder)
+        self.stereo = isinstance(self.builder, StereoFrameBuilder)
         self.mono_init = (MonocularInitializer(camera, slam_map.matcher, self.spec.th_low, config.seed,
                                                inv_sigma2=self.pyr.inv_sigma2)
                           if self.mono else None)
@@ -673,7 +674,11 @@ class Tracking:
         n_tracked_close = int((close & tracked).sum())
         n_untracked_close = int((close & ~tracked).sum())
         need_close = n_tracked_close < 100 and n_untracked_close > 70
-        th_ref = 0.9 if mono else (0.4 if n_kfs < 2 else 0.75)
+        # ORB-SLAM2 relaxes the ratio to 0.4 while the map has one keyframe. A stereo pair's
+        # first keyframe holds only its stereo-matched keypoints, and its tracked share then
+        # stays above 0.4 for hundreds of frames of a slow path (one keyframe in 200 frames
+        # on the stereo renders); 0.75 throughout, as ORB-SLAM3 keeps for two-camera rigs.
+        th_ref = 0.9 if mono else (0.4 if n_kfs < 2 and not self.stereo else 0.75)
         inl = self.n_matches_inliers
         c1a = cur.index >= self.last_kf_frame + self.cfg.max_frames
         c1b = cur.index >= self.last_kf_frame + self.cfg.min_frames and idle
