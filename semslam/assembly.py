@@ -84,8 +84,10 @@ def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None 
     maps = create_map_stage(config)
     dynamics = None
     try:
+        # A depth network (no sensor depth) is what SRM and the mask warp read.
         dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
-                                        threaded=not config.slam.sequential)
+                                        threaded=not config.slam.sequential,
+                                        depth=depth if config.depth.source != "sensor" else None)
         tracker: Tracker = create_tracker(config, camera, TrackerInputs(depth, dynamics), map_path)
     except BaseException:
         if maps is not None:

@@ -129,6 +129,36 @@ def test_preset_and_the_srm_check() -> None:
     with pytest.raises(ConfigError, match="semantics.srm"):
         load_config("default", ["sensor=mono"])
     load_config("default", ["sensor=mono", "semantics.srm=false"])  # then it loads
+    load_config("sdf", ["semantics.srm=true"])  # a depth network gives SRM its depth
+
+
+def test_srm_on_a_depth_network_s_depth(walking_render: Path) -> None:
+    """A monocular frame (no depth of its own): SRM refines the mask over the depth source's
+    image, exactly as it refines an RGB-D frame's over the sensor's."""
+    from semslam.config import SemanticsConfig
+    from semslam.dynamics.semantic_thread import SemanticThread
+    from semslam.dynamics.srm import refine_segmentation
+    from semslam.io.sequence import open_sequence
+    from semslam.io.standin_depth import GroundTruthDepth
+    from semslam.semantics.base import dynamic_mask
+
+    frame = next(open_sequence(walking_render, kind="mono").frames(20, 21))
+    assert frame.depth is None
+    cfg = SemanticsConfig(backend="ground_truth", srm=True)
+    network = GroundTruthDepth()  # stands in for SDFCNN: the render's own depth
+    thread = SemanticThread(cfg, threaded=False, depth=network)
+    without = SemanticThread(cfg, threaded=False)
+    try:
+        mask, _ = thread.mask(frame)
+        raw, _ = without.mask(frame)  # no depth: unrefined
+        labels = thread.segmenter.segment(frame.rgb, frame)
+    finally:
+        thread.close()
+        without.close()
+    seed = dynamic_mask(labels, list(cfg.dynamic_classes))
+    assert seed.any() and np.array_equal(raw, seed)
+    expected = refine_segmentation(seed, network.depth(frame), window=cfg.srm_window, tau=cfg.srm_tau_m)
+    assert np.array_equal(mask, expected) and not np.array_equal(mask, seed)
 
 
 @pytest.fixture(scope="module")

@@ -246,11 +246,12 @@ def _off_or_at_least(key: str, least: int, why: str) -> Callable[[Any, str], str
 
 
 def _srm_needs_depth(cfg: Any, prefix: str) -> str | None:
-    """SRM grows the mask over the frame's own depth; a monocular run reads the colour
-    images only (``io.sequence.kind_for_sensor``), so it would silently do nothing."""
-    if cfg.sensor == "mono" and cfg.dynamics.semantic and cfg.semantics.srm:
-        return ("semantics.srm: STDC-SLAM's refinement grows the mask over the sensor's depth, which "
-                "sensor: mono does not read; set semantics.srm=false (the mono_dynamic preset does)")
+    """SRM grows the mask over a depth image; a monocular run reads the colour images only
+    (``io.sequence.kind_for_sensor``), so without a depth network it would silently do nothing."""
+    if cfg.sensor == "mono" and cfg.depth.source == "sensor" and cfg.dynamics.semantic and cfg.semantics.srm:
+        return ("semantics.srm: STDC-SLAM's refinement grows the mask over a depth image, which sensor: mono "
+                "has only from a depth network (depth.source: sdfcnn); set semantics.srm=false (the "
+                "mono_dynamic preset does)")
     return None
 
 

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import SemanticsConfig
-from semslam.core.protocols import MotionPrior
+from semslam.core.protocols import DepthSource, MotionPrior
 from semslam.core.types import Frame, LabelMap
 from semslam.dynamics.warp import plane_depth, relative_pose, warp_mask
 from semslam.geometry.camera import PinholeCamera
@@ -61,11 +61,15 @@ class SemanticThread:
     returns (mask, ms tracking spent on it: waiting, or warping a skipped frame's mask);
     ``labels(index)`` the class labels behind the last mask given, if its own."""
 
-    def __init__(self, cfg: SemanticsConfig, threaded: bool = True, camera: PinholeCamera | None = None) -> None:
+    def __init__(self, cfg: SemanticsConfig, threaded: bool = True, camera: PinholeCamera | None = None,
+                 depth: DepthSource | None = None) -> None:
         from semslam.semantics.base import create_segmenter
 
         self.cfg = cfg
         self.camera = camera
+        # A depth network's depth for frames that come without one (a monocular camera): SRM
+        # and the mask warp read it where an RGB-D frame's own depth would be.
+        self._depth_source = depth
         self._pool = ThreadPoolExecutor(
             max_workers=1, thread_name_prefix="semantic",
             # With `latest` tracking never waits for this thread: it runs below tracking like
@@ -113,12 +117,19 @@ class SemanticThread:
         mask = dynamic_mask(labels, list(self.cfg.dynamic_classes))
         t1 = time.perf_counter()
         self.segment_ms.append((t1 - t0) * 1e3)
-        if self.cfg.srm and frame.depth is not None and mask.any():
+        depth = self._depth_of(frame) if self.cfg.srm and mask.any() else None
+        if depth is not None:
             from semslam.dynamics.srm import refine_segmentation
 
-            mask = refine_segmentation(mask, frame.depth, window=self.cfg.srm_window, tau=self.cfg.srm_tau_m)
+            mask = refine_segmentation(mask, depth, window=self.cfg.srm_window, tau=self.cfg.srm_tau_m)
             self.refine_ms.append((time.perf_counter() - t1) * 1e3)
         return mask
+
+    def _depth_of(self, frame: Frame) -> NDArray[np.float32] | None:
+        """The frame's depth: its own (RGB-D, a stereo pair's), else the depth network's."""
+        if frame.depth is not None or self._depth_source is None:
+            return frame.depth
+        return self._depth_source.depth(frame)
 
     def _resized(self, labels: LabelMap, frame: Frame) -> LabelMap:
         """A backend that answered at another size: its labels resized to the frame, with a
@@ -162,7 +173,7 @@ class SemanticThread:
         self._skipped.discard(frame.index)
         if (isinstance(m, Future) and not m.done() and self.cfg.schedule == "latest"
                 and self._source is not None):
-            self._late.append(_Segmented(frame.index, m, frame.depth))
+            self._late.append(_Segmented(frame.index, m, self._depth_of(frame)))
             self.frames_without_own_mask += 1
             skipped, m = True, None
         if skipped and m is None and self._source is not None:
@@ -174,7 +185,7 @@ class SemanticThread:
                 m = m.result()
             elif m is None:
                 m = self._compute(frame)
-            self._source = _Segmented(frame.index, m, frame.depth)
+            self._source = _Segmented(frame.index, m, self._depth_of(frame))
             self._late.clear()  # all older than this frame
             labels = self._labels.pop(frame.index, None)
             for old in [i for i in list(self._labels) if i < frame.index]:  # list(): one C-level copy,

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.config import DynamicsConfig, SemanticsConfig
-from semslam.core.protocols import FramePacket, MotionPrior, MovingRegions
+from semslam.core.protocols import DepthSource, FramePacket, MotionPrior, MovingRegions
 from semslam.core.types import FeatureSpec, Frame, LabelMap
 from semslam.dynamics.masks import dilate, extractor_mask
 from semslam.dynamics.multiview import multiview_mask
@@ -29,12 +29,13 @@ Reference = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]
 class SceneDynamics:
     """``DynamicStage`` for the presets: semantic thread + SRM + border band, multi-view geometry."""
 
-    def __init__(self, dyn: DynamicsConfig, sem: SemanticsConfig, camera: PinholeCamera, threaded: bool) -> None:
+    def __init__(self, dyn: DynamicsConfig, sem: SemanticsConfig, camera: PinholeCamera, threaded: bool,
+                 depth: DepthSource | None = None) -> None:
         from semslam.dynamics.semantic_thread import SemanticThread
 
         self.border_px = dyn.border_px
         self.camera = camera
-        self.semantic = SemanticThread(sem, threaded=threaded, camera=camera) if dyn.semantic else None
+        self.semantic = SemanticThread(sem, threaded=threaded, camera=camera, depth=depth) if dyn.semantic else None
         self.multiview = dyn if dyn.multiview else None
 
     def prepare(self, frame: Frame) -> None:
@@ -83,8 +84,9 @@ class SceneDynamics:
 
 
 def create_dynamic_stage(dyn: DynamicsConfig, sem: SemanticsConfig, camera: PinholeCamera,
-                         threaded: bool) -> SceneDynamics | None:
-    """The stage the config asks for, or None when dynamics handling is off."""
+                         threaded: bool, depth: DepthSource | None = None) -> SceneDynamics | None:
+    """The stage the config asks for, or None when dynamics handling is off. ``depth``: a
+    depth network, for frames without their own depth (SRM and the mask warp read it)."""
     if not (dyn.semantic or dyn.multiview):
         return None
-    return SceneDynamics(dyn, sem, camera, threaded)
+    return SceneDynamics(dyn, sem, camera, threaded, depth)
