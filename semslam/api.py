@@ -228,6 +228,7 @@ class System:
             fill_frame_depth(frame, parts.stereo_depth)
         if parts.dynamics is not None:
             parts.dynamics.prepare(frame)
+        parts.tracker.prepare(frame)  # a stereo pair's right image features
         # Work that depends on the image alone runs here too, off the tracking thread: the grey
         # conversion (cached on the frame) and, where tracking compares frames' sharpness, that.
         gray = frame.gray

@@ -243,6 +243,48 @@ def test_frame_builder_extracts_the_right_image_and_reuses_pyramids(features, st
     np.testing.assert_array_equal(f.ur, m.ur)
 
 
+def test_right_keypoints_leave_the_carried_dynamic_region(features, stereo_frames) -> None:
+    """The extractor mask (0 on the dynamic region) is carried into the right image along the
+    pair's depth: the right image's keypoints there are dropped, the others kept; both the
+    read-ahead path (``prepare``) and the job path (``begin`` only) give the same keypoints."""
+    from semslam.core.types import Frame
+    from semslam.dynamics.masks import extractor_mask, keypoints_in_mask
+    from semslam.frontend.stereo_depth import right_view_mask
+
+    bf, frames = stereo_frames
+    gl, gr, _, _, z = frames[2]
+    depth = np.where(np.isfinite(z), z, 0).astype(np.float32)
+    dynamic = np.zeros(gl.shape, bool)
+    dynamic[60:180, 120:220] = True  # a region of the left image said to move
+    mask = extractor_mask(dynamic, 0)
+    carried = right_view_mask(dynamic, depth, bf, missing="component", step=4)
+    cam = PinholeCamera(bf / B, bf / B, 159.5, 119.5, width=320, height=240)
+    views = {}
+    for path in ("ahead", "job"):
+        left_ext, right_ext = create_extractor(features, (320, 240)), create_extractor(features, (320, 240))
+        builder = StereoFrameBuilder(cam, bf, left_ext.spec, right_ext, left_ext)
+        frame = Frame(0, 0.0, cv2.cvtColor(gl, cv2.COLOR_GRAY2RGB), depth,
+                      right=cv2.cvtColor(gr, cv2.COLOR_GRAY2RGB))
+        try:
+            if path == "ahead":
+                builder.prepare(frame)
+            builder.begin(frame, mask)
+            if path == "ahead":
+                views[path] = builder._take_ahead().right_kps
+            else:
+                job, args, _ = builder._pending
+                views[path] = job.result()
+        finally:
+            builder.close()
+    unmasked = create_extractor(features, (320, 240)).extract(gr)
+    assert keypoints_in_mask(unmasked.xy, carried).sum() > 20  # the region holds right keypoints
+    for kps in views.values():
+        assert not keypoints_in_mask(kps.xy, carried).any()
+    outside = ~keypoints_in_mask(unmasked.xy, carried)
+    np.testing.assert_array_equal(views["ahead"].xy, unmasked.xy[outside])
+    assert len(views["job"]) >= 0.9 * outside.sum()  # extracted under the mask: the budget moves
+
+
 def test_images_of_different_size(features) -> None:
     pl = stereo_pyramid(np.zeros((60, 80), np.uint8), features.n_levels, features.scale_factor)
     pr = stereo_pyramid(np.zeros((60, 81), np.uint8), features.n_levels, features.scale_factor)

@@ -94,7 +94,9 @@ def test_layouts_open_as_stereo_and_track(small_layouts: dict[str, Path], layout
     assert stats["tracked_frames"] == 40
     assert seq.groundtruth_path is not None
     ate = evo_ate(seq.groundtruth_path, tmp_path / layout / "trajectory.txt")
-    assert ate == pytest.approx(stats["ate"]["rmse"], rel=1e-6) and ate < 0.02
+    # 320x240 halves the disparities: such renders measured 1.6-2.6 cm with the pair against
+    # 0.7-1.3 cm with their depth (640x480: 0.4-0.6 cm, docs/results/stereo.md)
+    assert ate == pytest.approx(stats["ate"]["rmse"], rel=1e-6) and ate < 0.03
 
 
 def test_api_tracks_left_right_pairs(walking_stereo: Path) -> None:
@@ -193,7 +195,7 @@ def test_stereo_bag_runs(small_layouts: dict[str, Path], tmp_path: Path) -> None
     bag = _write_bag(small_layouts["euroc"], tmp_path / "stereo.bag")
     stats = run_cli(bag, tmp_path / "bag", "--preset", "orb", "--sequential")
     assert json.loads((tmp_path / "bag" / "config.json").read_text())["sensor"] == "stereo"
-    assert stats["tracked_frames"] == 40 and stats["ate"]["rmse"] < 0.02
+    assert stats["tracked_frames"] == 40 and stats["ate"]["rmse"] < 0.03  # 320x240, as above
 
 
 def test_calibration_options(walking_stereo: Path, tmp_path: Path) -> None:

@@ -243,6 +243,11 @@ class Tracker(Protocol):
 
     has_map: bool
 
+    def prepare(self, frame: Frame) -> None:
+        """Work on a decoded frame that can run ahead of tracking (``System.prepare``, in the
+        reader thread): a stereo pair's right image features. Nothing for most trackers."""
+        ...
+
     def track(self, packet: FramePacket) -> TrackResult: ...
 
     @property

@@ -3,6 +3,7 @@ a right-image coordinate per keypoint where the sensor gives one, empty map-poin
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -13,6 +14,7 @@ from numpy.typing import NDArray
 from semslam.config import SystemConfig
 from semslam.core.protocols import Extractor
 from semslam.core.types import DescriptorKind, FeatureSpec, Frame, Keypoints
+from semslam.dynamics.masks import extractor_mask, keypoints_in_mask
 from semslam.errors import ConfigError
 from semslam.frontend.stereo_depth import right_view_mask
 from semslam.geometry.camera import PinholeCamera
@@ -31,6 +33,10 @@ class FrameBuilder(Protocol):
 
     camera: PinholeCamera
 
+    def prepare(self, frame: Frame) -> None:
+        """Work on the decoded frame that can run ahead of tracking (the reader thread)."""
+        ...
+
     def begin(self, frame: Frame, mask: NDArray[np.bool_] | NDArray[np.uint8] | None) -> None: ...
 
     def build(self, index: int, timestamp: float, kps: Keypoints,
@@ -41,6 +47,9 @@ class FrameBuilder(Protocol):
 
 class _SingleImage:
     """Builders of one image per frame: nothing to start beside the extraction."""
+
+    def prepare(self, frame: Frame) -> None:
+        pass
 
     def begin(self, frame: Frame, mask: NDArray[np.bool_] | NDArray[np.uint8] | None) -> None:
         pass
@@ -115,12 +124,14 @@ class StereoFrameBuilder:
     left keypoint a depth and its matched right coordinate ``ur``; unmatched ones keep depth 0
     and ``ur`` -1. The depth image is not read. Close/far (ThDepth) stays tracking's job.
 
-    With ``right_extractor`` (an extractor of its own: one is not shared by threads), ``begin``
-    extracts the right image's keypoints on a second thread while tracking extracts the left
-    one's (ORB-SLAM2 runs both extractions in parallel too), and ``build`` takes them; the
-    mask of dynamic classes is carried to the right image along the dense stereo depth where
-    the frame has one, so a right keypoint on a person cannot pair with a static left one.
-    ``build`` with ``right`` given (tests, tools) uses those views instead."""
+    The right image's keypoints come from an extractor of its own (``right_extractor``: one
+    is not shared by threads): ``prepare`` extracts them in the reader thread ahead of
+    tracking, as an RGB-D frame's depth is decoded there, and ``build`` drops those under
+    the left image's dynamic region carried across the pair along its depth (a right
+    keypoint on a person must not pair with a static left one). A frame that was not
+    prepared has them extracted on a thread of the builder's beside the left image's
+    extraction (``begin``), under the carried region. ``build`` with ``right`` given (tests,
+    tools) uses those views instead."""
 
     def __init__(self, camera: PinholeCamera, bf: float, spec: FeatureSpec,
                  right_extractor: Extractor | None = None, left_extractor: Extractor | None = None) -> None:
@@ -134,31 +145,74 @@ class StereoFrameBuilder:
                       if right_extractor is not None else None)
         # The right image's job, its arguments and the left grey image, from ``begin`` to ``build``.
         self._pending: tuple[Future[Keypoints], tuple[Any, ...], NDArray[np.uint8]] | None = None
+        # Right images extracted ahead by ``prepare`` (frame index -> keypoints, pyramid), and
+        # what ``build`` needs to take one (frame index, mask, depth, left and right grey).
+        self._ahead: dict[int, tuple[Keypoints, StackedPyramid]] = {}
+        self._taking: tuple[int, Any, Any, NDArray[np.uint8], NDArray[np.uint8]] | None = None
+        self._extractor_lock = threading.Lock()  # the reader's prepare and the job share the extractor
+
+    def prepare(self, frame: Frame) -> None:
+        """The right image's keypoints (without a mask: segmentation may not have finished)
+        and pyramid, in the reader thread ahead of tracking, as an RGB-D frame's depth is
+        decoded there; ``build`` drops the keypoints under the left mask carried across."""
+        right_gray = frame.right_gray
+        if self.right_extractor is None or right_gray is None:
+            return
+        with self._extractor_lock:
+            kps = self.right_extractor.extract(right_gray, None)
+        self._ahead[frame.index] = (kps, stereo_pyramid(right_gray, self.spec.n_levels, self.spec.scale_factor))
 
     def begin(self, frame: Frame, mask: NDArray[np.bool_] | NDArray[np.uint8] | None) -> None:
         right_gray = frame.right_gray
-        if self._pool is None or right_gray is None:
-            self._pending = None
+        self._pending = self._taking = None
+        if right_gray is None:
+            return
+        if frame.index in self._ahead:
+            self._taking = (frame.index, mask, frame.depth, frame.gray, right_gray)
+            return
+        if self._pool is None:
             return
         args = (right_gray, mask, frame.depth)
         self._pending = (self._pool.submit(self._extract_right, *args), args, frame.gray)
+
+    def _carried_mask(self, mask: Any, depth: NDArray[np.float32] | None) -> NDArray[np.bool_] | None:
+        """The left image's dynamic region (where the extractor ``mask`` is 0) carried into the
+        right image along the pair's depth; None without a mask or a depth."""
+        if mask is None or depth is None:
+            return None
+        return right_view_mask(np.asarray(mask) == 0, depth, self.bf, missing="component", step=RIGHT_MASK_STEP)
+
+    def _take_ahead(self) -> StereoViews | None:
+        """The right image ``prepare`` extracted, less its keypoints under the carried mask."""
+        if self._taking is None:
+            return None
+        index, mask, depth, left_gray, right_gray = self._taking
+        self._taking = None
+        kps, pyramid = self._ahead.pop(index)
+        for old in [i for i in self._ahead if i < index]:  # frames tracking never took
+            self._ahead.pop(old, None)
+        dynamic = self._carried_mask(mask, depth)
+        if dynamic is not None and len(kps):
+            kps = kps.subset(~keypoints_in_mask(kps.xy, dynamic))
+        return StereoViews(kps, left_gray, right_gray, _pyramid_of(self.left_extractor, left_gray), pyramid)
 
     def _extract_right(self, right_gray: NDArray[np.uint8], mask: NDArray[np.bool_] | NDArray[np.uint8] | None,
                        depth: NDArray[np.float32] | None) -> Keypoints:
         """The right image's keypoints, under the left mask carried across the pair (where
         stereo misses part of a masked region, it moves with the rest of its region)."""
         assert self.right_extractor is not None
-        right_mask = None
-        if mask is not None and depth is not None:
-            right_mask = right_view_mask(np.asarray(mask) != 0, depth, self.bf, missing="component",
-                                         step=RIGHT_MASK_STEP)
-        return self.right_extractor.extract(right_gray, right_mask)
+        dynamic = self._carried_mask(mask, depth)
+        right_mask = None if dynamic is None else extractor_mask(dynamic, 0)
+        with self._extractor_lock:
+            return self.right_extractor.extract(right_gray, right_mask)
 
     def build(self, index: int, timestamp: float, kps: Keypoints,
               depth_img: NDArray[np.float32] | None = None, right: StereoViews | None = None) -> FrameState:
         n = len(kps)
         # Rectified images: undistortion is the identity unless the camera says otherwise.
         xy = self.camera.undistort_points(kps.xy)
+        if right is None:
+            right = self._take_ahead()
         if right is None and self._pending is not None:
             job, args, left_gray = self._pending
             self._pending = None

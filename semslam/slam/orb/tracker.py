@@ -28,7 +28,7 @@ import numpy as np
 from semslam.backend.worker import BundleAdjustmentRunner
 from semslam.config import SystemConfig
 from semslam.core.protocols import FramePacket, TrackerInputs
-from semslam.core.types import KeyframeEvent, TrackResult
+from semslam.core.types import Frame, KeyframeEvent, TrackResult
 from semslam.errors import ConfigError, WorkerFailed
 from semslam.features import create_extractor, feature_spec
 from semslam.geometry.camera import PinholeCamera
@@ -162,6 +162,10 @@ class OrbTracker:
                 self.closer.start()
 
     # ------------------------------------------------------------------ Tracker contract
+    def prepare(self, frame: Frame) -> None:
+        """A stereo pair's right image is extracted here, ahead of tracking."""
+        self.tracking.builder.prepare(frame)
+
     def track(self, packet: FramePacket) -> TrackResult:
         self._raise_worker_error()
         result = self.tracking.track(packet)

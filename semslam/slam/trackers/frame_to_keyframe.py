@@ -110,6 +110,9 @@ class FrameToKeyframeTracker:
         return self._last_pose @ self._velocity
 
     # -- main entry --------------------------------------------------------------------
+    def prepare(self, frame: Frame) -> None:
+        """Nothing runs ahead of tracking here."""
+
     def track(self, packet: FramePacket) -> TrackResult:
         frame = packet.frame
         if frame.depth is None:

@@ -52,7 +52,7 @@ from semslam.config import SystemConfig
 from semslam.config.checks import check_values
 from semslam.core import registry
 from semslam.core.protocols import FramePacket, MotionPrior, TrackerInputs
-from semslam.core.types import KeyframeEvent, Keypoints, TrackingState, TrackResult
+from semslam.core.types import Frame, KeyframeEvent, Keypoints, TrackingState, TrackResult
 from semslam.errors import ConfigError, DataError
 from semslam.features import create_extractor
 from semslam.features.matching import matcher_for, pairs_within_radius
@@ -168,6 +168,9 @@ class SdfSlamTracker:
                          "global_constraints": 0, "pose_graph_failed": 0, "alignment_kept": 0}
 
     # ------------------------------------------------------------------ per frame
+    def prepare(self, frame: Frame) -> None:
+        """Nothing runs ahead of tracking here."""
+
     def track(self, packet: FramePacket) -> TrackResult:
         frame = packet.frame
         timings: dict[str, float] = {}
