@@ -128,5 +128,6 @@ def test_cli_kitti(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert len(err) == 1 and "kitti" in err[0] and "--stereo-baseline" in err[0]
     assert not (tmp_path / "x").exists()
     assert main(["synth", str(tmp_path / "k"), *args, "--stereo-baseline", "0.2"]) == 0
+    assert "stereo 0.2 m, KITTI layout" in capsys.readouterr().out
     seq = open_stereo_sequence(tmp_path / "k")
     assert len(seq) == 2 and seq.calibration.baseline == pytest.approx(0.2, rel=1e-12)

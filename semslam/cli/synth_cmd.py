@@ -167,7 +167,7 @@ def synth_command(
     mover_note = (", mover" if cfg.mover else "") + (", background" if cfg.background else "")
     mover_note += f", layout {cfg.layout}" if cfg.layout else ""
     mover_note += f", stereo {cfg.stereo_baseline:g} m" if cfg.stereo_baseline else ""
-    mover_note += ", EuRoC layout" if layout_format == "euroc" else ""
+    mover_note += {"euroc": ", EuRoC layout", "kitti": ", KITTI layout"}.get(layout_format, "")
     typer.echo(
         f"synth: {cfg.frames} frames ({cfg.motion}, {cfg.people} people{mover_note}) "
         f"in {secs:.1f} s ({secs / cfg.frames:.3f} s/frame) -> {path}"
