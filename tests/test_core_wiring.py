@@ -70,8 +70,8 @@ def test_registry_errors_name_the_key() -> None:
         System(load_config("orb", ["tracking.method=nope"]), CAM)
     with pytest.raises(ConfigError, match=r"maps\.builders: unknown map_builder 'octopus' \(known: cloud, "):
         System(load_config("orb", ["maps.builders=[octopus]"]), CAM)
-    with pytest.raises(ConfigError, match=r"sensor: unknown sensor 'stereo'"):
-        load_config("orb", ["sensor=stereo"])
+    with pytest.raises(ConfigError, match=r"sensor: unknown sensor 'lidar' \(known: rgbd, mono, stereo\)"):
+        load_config("orb", ["sensor=lidar"])
 
 
 def test_mono_sensor_runs_the_orb_core_without_depth_and_is_refused_by_f2kf() -> None:

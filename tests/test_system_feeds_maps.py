@@ -63,6 +63,9 @@ class ScriptedTracker:
         self.keyframes: dict[int, float] = {}
         self.stopped = False
 
+    def prepare(self, frame: Frame) -> None:
+        pass
+
     def track(self, packet: FramePacket) -> TrackResult:
         frame = packet.frame
         pose = np.eye(4)
