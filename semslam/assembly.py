@@ -49,6 +49,11 @@ def wants_stereo_depth(config: SystemConfig) -> bool:
                 or config.maps.save_inpainted or slam.depth_odometry != "none" or slam.rolling_shutter_ms > 0)
 
 
+def pair_depth(config: SystemConfig, camera: PinholeCamera) -> StereoDepth:
+    """The dense depth a stereo run computes from its pair (``depth.stereo_downscale``)."""
+    return StereoDepth(config.slam.bf, camera.width, camera.height, downscale=config.depth.stereo_downscale)
+
+
 def check_sensor(config: SystemConfig) -> None:
     """A stereo run's depth comes from the pair: refuse a depth network as its source."""
     if config.sensor == "stereo" and config.depth.source != "sensor":
@@ -95,7 +100,5 @@ def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None 
         if dynamics is not None:
             dynamics.close()
         raise
-    stereo_depth = None
-    if wants_stereo_depth(config):
-        stereo_depth = StereoDepth(config.slam.bf, camera.width, camera.height, downscale=config.depth.stereo_downscale)
+    stereo_depth = pair_depth(config, camera) if wants_stereo_depth(config) else None
     return RunParts(depth, dynamics, maps, tracker, jit_warmup_s, stereo_depth)

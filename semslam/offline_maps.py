@@ -19,12 +19,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.assembly import pair_depth
 from semslam.config import SystemConfig, config_from_dict
 from semslam.core.protocols import FramePacket, KeyframeSnapshot
 from semslam.core.types import Frame
 from semslam.dynamics.stage import create_dynamic_stage
 from semslam.errors import ConfigError, DataError
-from semslam.frontend.stereo_depth import StereoDepth, fill_frame_depth
+from semslam.frontend.stereo_depth import fill_frame_depth
 from semslam.io.association import match_timestamps
 from semslam.io.sequence import open_sequence
 from semslam.io.trajectory import read_trajectory
@@ -75,8 +76,7 @@ def keyframe_snapshots(run_dir: Path, cfg: SystemConfig, sequence_dir: Path
     """The run's keyframes in order, with their final poses and dynamic masks recomputed as
     ``cfg`` says: (snapshot, how many so far, how many in all)."""
     seq = open_sequence(sequence_dir, kind="stereo" if cfg.sensor == "stereo" else "auto", depth_scale=cfg.depth_scale)
-    pair_depth = (StereoDepth(cfg.slam.bf, seq.camera.width, seq.camera.height, downscale=cfg.depth.stereo_downscale)
-                  if cfg.sensor == "stereo" else None)
+    stereo_depth = pair_depth(cfg, seq.camera) if cfg.sensor == "stereo" else None
     keyframes = read_trajectory(run_dir / "keyframes.txt")
     index = _frame_indices(seq.timestamps, keyframes.timestamps, run_dir / "keyframes.txt")
     dynamics = create_dynamic_stage(cfg.dynamics, cfg.semantics, seq.camera, threaded=False)
@@ -84,8 +84,8 @@ def keyframe_snapshots(run_dir: Path, cfg: SystemConfig, sequence_dir: Path
     try:
         for k, (i, T_wc) in enumerate(zip(index, keyframes.poses)):
             frame = next(seq.frames(int(i), int(i) + 1))
-            if pair_depth is not None:  # a stereo run mapped the pair's depth
-                fill_frame_depth(frame, pair_depth)
+            if stereo_depth is not None:  # a stereo run mapped the pair's depth
+                fill_frame_depth(frame, stereo_depth)
             snap = _snapshot(k, frame, T_wc, dynamics, refs[-cfg.dynamics.multiview_keyframes:], seq.camera)
             if frame.depth is not None:
                 refs.append(_reference(np.linalg.inv(T_wc), frame.depth, snap.dynamic))

@@ -120,16 +120,16 @@ def stereo_calibration(sequence: Sequence) -> StereoCalibration | None:
 
 
 def config_for_sequence(config: SystemConfig, sequence: Sequence) -> SystemConfig:
-    """The sensor follows the input: a stereo sequence runs an RGB-D preset as stereo (with
-    the pair's ``bf``), a monocular preset on its left images; ``sensor: stereo`` on a
-    sequence without right images is a ``DataError``."""
+    """The sensor follows the input: a stereo sequence runs an RGB-D preset as stereo (the
+    System takes the pair's ``bf`` from its calibration), a monocular preset on its left
+    images; ``sensor: stereo`` on a sequence without right images is a ``DataError``."""
     calibration = stereo_calibration(sequence)
     if config.sensor == "stereo" and calibration is None:
         raise DataError(sequence.root, "sensor: stereo, but this sequence has no right images (expected EuRoC's "
                                        "mav0/cam0 + cam1, KITTI's image_0 + image_1, or rgb_right.txt)")
     if calibration is None or config.sensor == "mono" or (config.sensor == "rgbd" and sequence.has_depth):
         return config
-    return make_config(config, ["sensor=stereo", f"slam.bf={calibration.bf!r}"])
+    return make_config(config, ["sensor=stereo"])
 
 
 def _run(system: System, sequence: Sequence, config: SystemConfig, out: Path, max_frames: int | None,
