@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.imu import ImuSamples
 from semslam.core.results import (BLOCKS, AtlasCounters, DynamicsCounters, InputHealthCounters, LoopClosingCounters,
                                   MapBuildingCounters, MappingCounters, TrackingCounters, join_counters,
                                   split_counters)
@@ -25,7 +26,8 @@ class Frame:
     """One time step: colour image (RGB, uint8), depth in metres (0 = none) and timestamp.
 
     A stereo frame also carries the right image (``right``, in ``rgb``'s form, rectified
-    with the left so that a point lies on the same row in both); None for other sensors."""
+    with the left so that a point lies on the same row in both); None for other sensors.
+    With an IMU, ``imu`` holds the readings since the frame before."""
 
     index: int
     timestamp: float
@@ -35,6 +37,9 @@ class Frame:
     depth_path: Path | None = None
     right: NDArray[np.uint8] | None = field(default=None, repr=False)
     right_path: Path | None = None
+    #: IMU readings after the frame before, up to this frame (the first frame: the last reading
+    #: at or before it); None without an IMU.
+    imu: ImuSamples | None = field(default=None, repr=False)
     _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
     _right_gray: NDArray[np.uint8] | None = field(default=None, repr=False)
 

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.core import registry
+from semslam.core.imu import ImuStream
 from semslam.core.types import Frame
 from semslam.datasets import is_dataset_name, resolve as resolve_dataset
 from semslam.errors import ConfigError, DataError
@@ -170,6 +171,9 @@ class Sequence:
 
     def __init__(self) -> None:
         self.skipped: list[tuple[int, str]] = []
+        #: The IMU recording (EuRoC / TUM-VI imu0, a bag's Imu topic); each frame yielded by
+        #: ``frames()`` then carries its readings since the frame before.
+        self.imu: ImuStream | None = None
 
     @property
     def timestamps(self) -> NDArray[np.float64]:
@@ -189,6 +193,7 @@ class Sequence:
         stop = len(self) if stop is None else min(stop, len(self))
         allowed = max(3, int(self.max_skip_fraction * max(stop - start, 1)))
         first = True
+        previous_t: float | None = None
         for i in range(start, stop):
             try:
                 frame = self._same_size(self.load(i))
@@ -204,6 +209,11 @@ class Sequence:
                     ) from None
                 continue
             first = False
+            if self.imu is not None:
+                samples = self.imu.samples
+                frame.imu = (samples.last_at(frame.timestamp) if previous_t is None
+                             else samples.between(previous_t, frame.timestamp))
+            previous_t = frame.timestamp
             yield frame
 
     def __iter__(self) -> Iterator[Frame]:
