@@ -112,9 +112,19 @@ def synth_command(
         "camera's x axis, a rectified pair: rgb_right/, rgb_right.txt and camera.yaml (ORB-SLAM3 "
         "settings) (default: 0, none)."
     ),
+    imu: bool | None = typer.Option(
+        None, "--imu/--no-imu", help="EuRoC layout only: also simulate a 200 Hz IMU on the body frame "
+        "(mav0/imu0: EuRoC's ADIS16448 noise and seeded biases, exact with --no-noise; the true biases go "
+        "to the ground truth) (default: off)."
+    ),
+    depth: bool | None = typer.Option(
+        None, "--depth/--no-depth", help="EuRoC layout only: also write the Kinect-like depth registered "
+        "to cam0 (mav0/depth0: 16-bit PNGs, metres x 5000, as the tum layout's depth/) (default: off)."
+    ),
     layout_format: str = typer.Option(
         "tum", "--layout-format", help="tum (the TUM RGB-D folder), euroc (EuRoC ASL: mav0/cam0, "
-        "mav0/cam1, the body's ground truth in mav0/state_groundtruth_estimate0) or kitti (KITTI odometry, "
+        "mav0/cam1, the body's ground truth in mav0/state_groundtruth_estimate0; with --imu mav0/imu0, with "
+        "--depth mav0/depth0) or kitti (KITTI odometry, "
         "needs --stereo-baseline: grey image_0/ and image_1/, calib.txt, times.txt and poses.txt, the left "
         "camera's poses relative to the first)."
     ),
@@ -160,6 +170,8 @@ def synth_command(
         white_balance_swing=white_balance_swing,
         photo_textures=str(photo_textures) if photo_textures is not None else None,
         stereo_baseline=stereo_baseline,
+        imu=imu,
+        euroc_depth=depth,
     ).validate()
     start = time.perf_counter()
     path = render_sequence(cfg, out, progress=not quiet, workers=workers, layout_format=layout_format)
@@ -168,6 +180,8 @@ def synth_command(
     mover_note += f", layout {cfg.layout}" if cfg.layout else ""
     mover_note += f", stereo {cfg.stereo_baseline:g} m" if cfg.stereo_baseline else ""
     mover_note += {"euroc": ", EuRoC layout", "kitti": ", KITTI layout"}.get(layout_format, "")
+    mover_note += " + IMU 200 Hz" if cfg.imu else ""
+    mover_note += " + depth" if cfg.euroc_depth else ""
     typer.echo(
         f"synth: {cfg.frames} frames ({cfg.motion}, {cfg.people} people{mover_note}) "
         f"in {secs:.1f} s ({secs / cfg.frames:.3f} s/frame) -> {path}"

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 import semslam
 from semslam.errors import ConfigError, DataError
 from semslam.synth import euroc_writer, imaging, kitti_writer, occluder, stereo, writer
+from semslam.synth.imu import SimulatedImu, simulate_imu
 from semslam.synth.texture_atlas import TextureAtlas, build_texture_atlas
 from semslam.synth.box_carry import carried_box
 from semslam.synth.camera_motion import camera_trajectory
@@ -51,7 +52,7 @@ IN_PROGRESS = ".rendering.json"
 #: SynthConfig fields added after renders were first cached (absent there = default).
 _ADDED_FIELDS = ("box_carrier", "background", "exposure_ms", "rolling_shutter_ms", "gain_swing", "depth_delay_ms",
                  "blackout_start_s", "blackout_s", "layout", "occluder_s", "occluder_start_s",
-                 "occluder_kind", "white_balance_swing", "photo_textures", "stereo_baseline")
+                 "occluder_kind", "white_balance_swing", "photo_textures", "stereo_baseline", "imu", "euroc_depth")
 #: File layouts of a render: the TUM RGB-D folder (``rgb_right/`` added for stereo), EuRoC ASL or
 #: KITTI odometry (stereo only).
 LAYOUT_FORMATS = ("tum", "euroc", "kitti")
@@ -346,9 +347,11 @@ def render_sequence(
     With ``cfg.stereo_baseline`` the right camera's images go to ``rgb_right/`` (listed in
     ``rgb_right.txt`` with the RGB stamps) and ``camera.yaml`` holds the rig as ORB-SLAM3
     settings (``synth/stereo.py``). ``layout_format="euroc"`` writes the EuRoC ASL layout
-    instead (``synth/euroc_writer.py``: the cameras' images, no depth or semantics, and the
+    instead (``synth/euroc_writer.py``: the cameras' images, no semantics, and the
     body's ground truth), with ``sequence.json``, ``scene.json`` and ``movers.json`` beside
-    ``mav0``; ``layout_format="kitti"`` (a stereo render only) the KITTI odometry layout
+    ``mav0``, and with ``cfg.imu`` a simulated 200 Hz IMU (``mav0/imu0``, ``synth/imu.py``) and
+    with ``cfg.euroc_depth`` the depth registered to cam0 (``mav0/depth0``), both EuRoC only;
+    ``layout_format="kitti"`` (a stereo render only) the KITTI odometry layout
     (``synth/kitti_writer.py``: grey ``image_0``/``image_1``, ``calib.txt``, ``times.txt`` and
     ``poses.txt`` relative to the first pose) in ``out_dir`` itself. Both render from the
     start (no ``resume``).
@@ -364,8 +367,12 @@ def render_sequence(
     euroc, kitti = layout_format == "euroc", layout_format == "kitti"
     tum = not (euroc or kitti)
     if not tum and cfg.background:
-        raise ConfigError(f"synth: background renders need the tum layout format ({layout_format} has no depth "
-                          "folder)")
+        raise ConfigError(f"synth: background renders need the tum layout format ({layout_format} has no "
+                          "background folder)")
+    if not euroc and (cfg.imu or cfg.euroc_depth):
+        what = "an IMU (--imu)" if cfg.imu else "depth0 (--depth)"
+        raise ConfigError(f"synth: {what} is written in the euroc layout format only (--layout-format euroc), "
+                          f"not {layout_format}")
     if kitti and cfg.stereo_baseline <= 0:
         raise ConfigError("synth: the kitti layout format is a stereo pair (image_0, image_1): it needs a stereo "
                           "baseline (--stereo-baseline METRES)")
@@ -380,9 +387,11 @@ def render_sequence(
     rgb_stamps, depth_stamps = _stamps(cfg)
     ns = euroc_writer.ns_stamps(cfg.start_time, cfg.frames, cfg.fps)
     first = _first_to_render(out, cfg, rgb_stamps, depth_stamps, workers) if resume and tum else 0
+    imu = (simulate_imu(renderer.poses_at, euroc_writer.T_BS_CAM0, cfg.frames, cfg.fps, cfg.start_time, cfg.seed,
+                        noisy=cfg.noise) if cfg.imu else None)
     if euroc:
         out.mkdir(parents=True, exist_ok=True)
-        euroc_writer.prepare(out, 2 if has_right else 1)
+        euroc_writer.prepare(out, 2 if has_right else 1, imu=cfg.imu, depth=cfg.euroc_depth)
     elif kitti:
         kitti_writer.prepare(out)
     elif first == 0:
@@ -390,8 +399,11 @@ def render_sequence(
     writer.write_json(out / IN_PROGRESS, {"config": cfg.to_dict()})
 
     def job(i: int) -> int:
-        if euroc:  # left and right RGB only; the render's depth is not written
-            euroc_writer.write_frame(out, 0, int(ns[i]), renderer.render(i).rgb)
+        if euroc:  # left and right RGB, and the depth registered to cam0 if asked
+            fr = renderer.render(i)
+            euroc_writer.write_frame(out, 0, int(ns[i]), fr.rgb)
+            if cfg.euroc_depth:
+                euroc_writer.write_depth_frame(out, int(ns[i]), fr.depth)
             if has_right:
                 euroc_writer.write_frame(out, 1, int(ns[i]), renderer.render_right(i).rgb)
             return i
@@ -432,7 +444,8 @@ def render_sequence(
     labels = writer.labels_for(renderer.boxes)
     if euroc:
         euroc_writer.write_layout(out, ns, renderer.poses, renderer.poses_at, renderer.times, cfg.intrinsics(),
-                                  cfg.width, cfg.height, cfg.fps, cfg.stereo_baseline)
+                                  cfg.width, cfg.height, cfg.fps, cfg.stereo_baseline, imu=imu,
+                                  depth=cfg.euroc_depth)
     elif kitti:
         kitti_writer.write_layout(out, renderer.times, renderer.poses, cfg.intrinsics(), cfg.stereo_baseline)
     else:
@@ -472,11 +485,30 @@ def render_sequence(
                            "left camera's x axis, same intrinsics and orientation (rectified)"}}
                if has_right else {}),
             **({"layout_format": "euroc", "euroc_T_BS_cam0": euroc_writer.T_BS_CAM0.tolist()} if euroc else {}),
+            **({"imu0": _imu_info(imu)} if imu is not None else {}),
+            **({"euroc_depth0": "depth registered to cam0 (same stamps, intrinsics and T_BS), metres x "
+                f"{DEPTH_SCALE:g}, the depth/ of the tum layout"} if euroc and cfg.euroc_depth else {}),
             **({"layout_format": "kitti", "kitti_T_W_C0": renderer.poses[0].tolist()} if kitti else {}),
         },
     )
     (out / IN_PROGRESS).unlink(missing_ok=True)
     return out
+
+
+def _imu_info(imu: SimulatedImu) -> dict[str, Any]:
+    """What ``sequence.json`` says of the simulated IMU: its noise, the seeded initial biases
+    (zero for an exact stream) and the span it covers."""
+    return {
+        "model": "ADIS16448 (EuRoC imu0); white noise sigma * sqrt(rate) per sample, bias random walk "
+                 "sigma_rw / sqrt(rate) per step from a seeded constant (synth/imu.py)" if imu.noisy
+                 else "exact: no noise, no bias",
+        "noise": asdict(imu.calibration.noise),
+        "initial_gyro_bias_rad_s": imu.gyro_bias[0].tolist(),
+        "initial_acc_bias_m_s2": imu.acc_bias[0].tolist(),
+        "T_BS_imu0": np.eye(4).tolist(),
+        "span_s_from_first_frame": [float(imu.t_rel[0]), float(imu.t_rel[-1])],
+        "samples": len(imu.t_rel),
+    }
 
 
 def _as_saved(cfg: SynthConfig) -> dict[str, Any]:

@@ -83,6 +83,11 @@ class SynthConfig:
     # Issue 41: a right camera this far (metres) along the left camera's x axis, a rectified
     # pair (same intrinsics and orientation; synth/stereo.py); 0 = none (RGB-D only).
     stereo_baseline: float = 0.0
+    # Issue 42: the EuRoC layout (only) also holds a simulated 200 Hz IMU (mav0/imu0, EuRoC's
+    # ADIS16448 noise; synth/imu.py) and, with euroc_depth, the Kinect-like depth registered
+    # to cam0 (mav0/depth0) for RGB-D-inertial runs. render_sequence refuses them elsewhere.
+    imu: bool = False
+    euroc_depth: bool = False
 
     def validate(self) -> SynthConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self."""
@@ -145,11 +150,13 @@ class SynthConfig:
         return self.frames / self.fps
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields, as ``sequence.json`` holds them; ``stereo_baseline`` only when set, so
-        that RGB-D renders stay byte-identical to those made before stereo existed."""
+        """The fields, as ``sequence.json`` holds them; ``stereo_baseline``, ``imu`` and
+        ``euroc_depth`` only when set, so that renders without them stay byte-identical to
+        those made before they existed."""
         out = dataclasses.asdict(self)
-        if not self.stereo_baseline:
-            del out["stereo_baseline"]
+        for name in ("stereo_baseline", "imu", "euroc_depth"):
+            if not getattr(self, name):
+                del out[name]
         return out
 
     def replace(self, **changes: Any) -> SynthConfig:
