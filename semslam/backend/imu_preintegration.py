@@ -1,0 +1,126 @@
+"""IMU preintegration on GTSAM (``PreintegratedCombinedMeasurements``) between two times.
+
+GTSAM integrates a reading over a time step as constant. Readings come at their own times,
+not at the frames', so each step here is the stretch between two consecutive readings
+clipped to [t0, t1], integrated with the mean of the readings linearly interpolated at the
+stretch's two ends (ORB-SLAM3's ``IntegrateNewMeasurement`` averages consecutive readings
+the same way): second-order accurate where holding one reading is first-order.
+
+Poses are the IMU (body) frame's in the world, ``T_wb``; the camera's is ``T_wb @ T_bc``.
+Gravity is a vector in the world frame (the map's frame need not be gravity-aligned).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.core.imu import ImuNoise, ImuSamples
+
+Array = NDArray[np.float64]
+
+#: Integration (position from velocity) noise, GTSAM's usual small value: the model is exact.
+INTEGRATION_SIGMA = 1e-4
+
+
+def imu_params(noise: ImuNoise, gravity_w: Array) -> gtsam.PreintegrationCombinedParams:
+    """GTSAM's parameters: continuous-time noise densities squared (GTSAM discretises them
+    by the step), bias random walks, and gravity in the world frame."""
+    p = gtsam.PreintegrationCombinedParams(np.asarray(gravity_w, dtype=np.float64).reshape(3, 1))
+    eye = np.eye(3)
+    p.setGyroscopeCovariance(noise.gyro_noise_density**2 * eye)
+    p.setAccelerometerCovariance(noise.acc_noise_density**2 * eye)
+    p.setIntegrationCovariance(INTEGRATION_SIGMA**2 * eye)
+    p.setBiasOmegaCovariance(noise.gyro_random_walk**2 * eye)
+    p.setBiasAccCovariance(noise.acc_random_walk**2 * eye)
+    return p
+
+
+def bias_from(gyro: Array, acc: Array) -> gtsam.imuBias.ConstantBias:
+    return gtsam.imuBias.ConstantBias(np.asarray(acc, dtype=np.float64), np.asarray(gyro, dtype=np.float64))
+
+
+def preintegrate(params: gtsam.PreintegrationCombinedParams, bias: gtsam.imuBias.ConstantBias,
+                 samples: ImuSamples, t0: float, t1: float) -> gtsam.PreintegratedCombinedMeasurements:
+    """The readings' preintegration from ``t0`` to ``t1``; ``samples`` should bracket the
+    span (readings outside it only serve the interpolation at its ends)."""
+    pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
+    if t1 <= t0 or len(samples) == 0:
+        return pim
+    inside = samples.t[(samples.t > t0) & (samples.t < t1)]
+    knots = np.concatenate([[t0], inside, [t1]])
+    g, a = _interpolate_many(samples, knots)
+    dts = np.diff(knots)
+    gm, am = 0.5 * (g[:-1] + g[1:]), 0.5 * (a[:-1] + a[1:])
+    # GTSAM rotates a step's acceleration by the step's starting orientation; given in the
+    # step's middle orientation instead (turned back by half the step's rotation), the
+    # velocity and position are second-order accurate too (first-order otherwise: 4 mm
+    # per second at 200 Hz on a 0.3 rad/s turn).
+    am = _rotate(gm * (0.5 * dts)[:, None], am)
+    for k in np.flatnonzero(dts > 1e-9):
+        pim.integrateMeasurement(am[k], gm[k], float(dts[k]))
+    return pim
+
+
+def _rotate(rotvecs: Array, vectors: Array) -> Array:
+    """Each vector rotated by its rotation vector (Rodrigues, batched)."""
+    theta = np.linalg.norm(rotvecs, axis=1, keepdims=True)
+    safe = np.maximum(theta, 1e-12)
+    k = rotvecs / safe
+    cos, sin = np.cos(theta), np.sin(theta)
+    kxv = np.cross(k, vectors)
+    kdv = np.sum(k * vectors, axis=1, keepdims=True)
+    return vectors * cos + kxv * sin + k * kdv * (1.0 - cos)
+
+
+def _interpolate_many(samples: ImuSamples, times: Array) -> tuple[Array, Array]:
+    g = np.stack([np.interp(times, samples.t, samples.gyro[:, k]) for k in range(3)], axis=1)
+    a = np.stack([np.interp(times, samples.t, samples.acc[:, k]) for k in range(3)], axis=1)
+    return g, a
+
+
+def predict(pim: gtsam.PreintegratedCombinedMeasurements, T_wb: Array, v_w: Array,
+            bias: gtsam.imuBias.ConstantBias) -> tuple[Array, Array]:
+    """The body's pose and velocity at the end of ``pim`` from those at its start."""
+    state = pim.predict(gtsam.NavState(gtsam.Pose3(np.ascontiguousarray(T_wb)), np.asarray(v_w, dtype=np.float64)),
+                        bias)
+    return np.asarray(state.pose().matrix()), np.asarray(state.velocity())
+
+
+class ImuBuffer:
+    """The recent readings a tracker has received, for preintegrating between any two recent
+    times (frames', keyframes'). Readings older than ``horizon_s`` before the newest go."""
+
+    def __init__(self, horizon_s: float = 30.0) -> None:
+        self.horizon_s = horizon_s
+        self._parts: list[ImuSamples] = []
+        self._samples = ImuSamples.empty()
+        self._dirty = False
+
+    def add(self, samples: ImuSamples | None) -> None:
+        if samples is not None and len(samples):
+            self._parts.append(samples)
+            self._dirty = True
+
+    @property
+    def samples(self) -> ImuSamples:
+        if self._dirty:
+            merged = ImuSamples.concatenate([self._samples, *self._parts])
+            self._parts = []
+            keep = merged.t >= merged.t[-1] - self.horizon_s
+            self._samples = ImuSamples(merged.t[keep], merged.gyro[keep], merged.acc[keep])
+            self._dirty = False
+        return self._samples
+
+    def covers(self, t0: float, t1: float) -> bool:
+        """Readings at or before ``t0`` and at or after ``t1``... or close enough: a reading
+        within one step of either end (the last frame's time may sit just past the newest)."""
+        s = self.samples
+        if len(s) < 2:
+            return False
+        step = float(np.median(np.diff(s.t[-min(len(s), 50):])))
+        return s.t[0] <= t0 + step and s.t[-1] >= t1 - step
+
+    def window(self, t0: float, t1: float) -> ImuSamples:
+        return self.samples.bracketing(t0, t1)

@@ -1,0 +1,109 @@
+"""The body's velocity and the IMU biases re-estimated on a window of recent tracked frames:
+a GTSAM graph of ``CombinedImuFactor`` between consecutive frames (bias random walk
+included), the tracked poses as priors, and the last estimate as a prior on the window's
+first velocity and bias (a fixed-lag smoother whose marginal is approximated by the last
+estimate's spread: the window slides a frame at a time, so it is seen many times).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.imu_preintegration import bias_from, imu_params, predict, preintegrate
+from semslam.core.imu import ImuNoise, ImuSamples
+
+Array = NDArray[np.float64]
+
+#: A tracked pose's spread as a prior (rotation rad, translation m; GTSAM's Pose3 tangent order).
+POSE_SIGMAS = np.array([0.003, 0.003, 0.003, 0.005, 0.005, 0.005])
+#: The last estimate as a prior on the window's first velocity and bias.
+VELOCITY_PRIOR_MPS = 0.1
+GYRO_BIAS_PRIOR = 0.001
+ACC_BIAS_PRIOR = 0.01
+
+
+@dataclass(frozen=True)
+class WindowEstimate:
+    velocities: Array  # (N, 3), one per window frame
+    gyro_bias: Array  # at the newest frame
+    acc_bias: Array
+
+
+def _x(i: int) -> int:
+    return gtsam.symbol("x", i)
+
+
+def _v(i: int) -> int:
+    return gtsam.symbol("v", i)
+
+
+def _b(i: int) -> int:
+    return gtsam.symbol("b", i)
+
+
+def refine_window(times: Array, T_wb: Array, samples: ImuSamples, noise: ImuNoise, gravity_w: Array,
+                  v_first: Array, gyro_bias: Array, acc_bias: Array) -> WindowEstimate:
+    """Velocities at ``times`` (body poses ``T_wb``, N >= 2) and the biases, starting from
+    (and weakly held to) the first frame's velocity ``v_first`` and the given biases."""
+    n = len(times)
+    params = imu_params(noise, gravity_w)
+    bias0 = bias_from(gyro_bias, acc_bias)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    pose_noise = gtsam.noiseModel.Diagonal.Sigmas(POSE_SIGMAS)
+    v = np.asarray(v_first, dtype=np.float64).copy()
+    for i in range(n):
+        pose = gtsam.Pose3(np.ascontiguousarray(T_wb[i]))
+        graph.add(gtsam.PriorFactorPose3(_x(i), pose, pose_noise))
+        values.insert(_x(i), pose)
+        values.insert(_b(i), bias0)
+        if i > 0:
+            pim = preintegrate(params, bias0, samples.bracketing(times[i - 1], times[i]), times[i - 1], times[i])
+            graph.add(gtsam.CombinedImuFactor(_x(i - 1), _v(i - 1), _x(i), _v(i), _b(i - 1), _b(i), pim))
+            dt = times[i] - times[i - 1]
+            v = (T_wb[i, :3, 3] - T_wb[i - 1, :3, 3]) / dt if dt > 0 else v
+        values.insert(_v(i), v)
+    graph.add(gtsam.PriorFactorVector(_v(0), np.asarray(v_first, dtype=np.float64),
+                                      gtsam.noiseModel.Isotropic.Sigma(3, VELOCITY_PRIOR_MPS)))
+    graph.add(gtsam.PriorFactorConstantBias(_b(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(
+        np.array([ACC_BIAS_PRIOR] * 3 + [GYRO_BIAS_PRIOR] * 3))))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+    vel = np.array([result.atVector(_v(i)) for i in range(n)])
+    b = result.atConstantBias(_b(n - 1))
+    return WindowEstimate(vel, np.asarray(b.gyroscope()), np.asarray(b.accelerometer()))
+
+
+def bridge(times: Array, T_wb_start: Array, v_start: Array, T_wb_end: Array, samples: ImuSamples,
+           noise: ImuNoise, gravity_w: Array, gyro_bias: Array, acc_bias: Array) -> Array:
+    """Body poses at ``times`` (N >= 3) between two tracked ones, the first (with its
+    velocity) at ``times[0]`` and the last at ``times[-1]``: the readings' path held at both
+    ends (a smoother's answer for frames the IMU posed alone, where the path carried forward
+    from the start drifts with any error in its velocity or biases). Biases stay fixed."""
+    n = len(times)
+    params = imu_params(noise, gravity_w)
+    bias = bias_from(gyro_bias, acc_bias)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    pose_noise = gtsam.noiseModel.Diagonal.Sigmas(POSE_SIGMAS)
+    graph.add(gtsam.PriorFactorPose3(_x(0), gtsam.Pose3(np.ascontiguousarray(T_wb_start)), pose_noise))
+    graph.add(gtsam.PriorFactorPose3(_x(n - 1), gtsam.Pose3(np.ascontiguousarray(T_wb_end)), pose_noise))
+    graph.add(gtsam.PriorFactorVector(_v(0), np.asarray(v_start, dtype=np.float64),
+                                      gtsam.noiseModel.Isotropic.Sigma(3, VELOCITY_PRIOR_MPS)))
+    T, v = np.asarray(T_wb_start, dtype=np.float64), np.asarray(v_start, dtype=np.float64)
+    values.insert(_x(0), gtsam.Pose3(np.ascontiguousarray(T)))
+    values.insert(_v(0), v)
+    for i in range(1, n):
+        pim = preintegrate(params, bias, samples.bracketing(times[i - 1], times[i]), times[i - 1], times[i])
+        graph.add(gtsam.CombinedImuFactor(_x(i - 1), _v(i - 1), _x(i), _v(i), _b(i - 1), _b(i), pim))
+        T, v = predict(pim, T, v, bias)
+        values.insert(_x(i), gtsam.Pose3(np.ascontiguousarray(T)))
+        values.insert(_v(i), v)
+    for i in range(n):
+        values.insert(_b(i), bias)
+    graph.add(gtsam.PriorFactorConstantBias(_b(0), bias, gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+    return np.array([result.atPose3(_x(i)).matrix() for i in range(n)])
