@@ -42,11 +42,12 @@ from numpy.typing import NDArray
 
 from semslam.assembly import RunParts, assemble
 from semslam.config import SystemConfig, config_from_dict, config_to_dict, load_config
+from semslam.core.imu import ImuCalibration
 from semslam.core.protocols import DynamicStage, FramePacket, KeyframeSnapshot, MapStage, Tracker
 from semslam.core.trajectory import Trajectory
 from semslam.core.types import Frame, RunResult, TrackingState, TrackResult
 from semslam.errors import ConfigError, DataError, SemslamError
-from semslam.frame_input import as_metres, as_rgb, check_timestamp
+from semslam.frame_input import as_imu_samples, as_metres, as_rgb, check_timestamp
 from semslam.frontend.sharpness import sharpness
 from semslam.frontend.stereo_depth import fill_frame_depth
 from semslam.geometry.camera import PinholeCamera
@@ -84,7 +85,7 @@ class System:
                  sensor: str | None = None, overrides: Mapping[str, Any] | Sequence[str] | None = None,
                  depth_scale: float | None = None, bgr: bool = False, image_size: tuple[int, int] | None = None,
                  out: str | Path | None = None, load_map: str | Path | None = None, name: str = "live",
-                 baseline: float | None = None) -> None:
+                 baseline: float | None = None, imu: ImuCalibration | None = None) -> None:
         if isinstance(camera, StereoCalibration) and sensor is None:
             sensor = "stereo"
         self.config = make_config(preset, overrides, sensor, depth_scale)
@@ -102,6 +103,7 @@ class System:
         self.out = Path(out) if out is not None else None
         self.name = name
         self._load_map = Path(load_map) if load_map is not None else None
+        self.imu = imu
         self._parts: RunParts | None = None
         self._start_lock = threading.Lock()
         # Frames per tracking state, not the TrackResults: a 20-minute run would keep 36 000 of
@@ -111,6 +113,7 @@ class System:
         self._stopped = False  # the tracker shut down, the maps told the final poses
         self._timing = RunTiming()
         self._last_t = -np.inf
+        self._last_imu_t = -np.inf
         self._n_given = 0
         self._closed = False
         self._warned_mono_depth = False
@@ -124,7 +127,7 @@ class System:
         """The run's parts, built on first use (``pipeline.run_slam``'s reader thread may be first)."""
         with self._start_lock:
             if self._parts is None:
-                self._parts = assemble(self.config, self.camera, self._load_map)
+                self._parts = assemble(self.config, self.camera, self._load_map, self.imu)
             return self._parts
 
     @property
@@ -174,14 +177,17 @@ class System:
 
     # ------------------------------------------------------------------ frames
     def track(self, rgb: NDArray[np.uint8], depth: NDArray[Any] | None, timestamp: float, *,
-              bgr: bool | None = None) -> TrackResult:
+              bgr: bool | None = None, imu: Sequence[tuple[float, Any, Any]] | None = None) -> TrackResult:
         """Track one frame: ``rgb`` HxWx3 uint8 (RGB, or BGR with ``bgr``; HxW grey is
         accepted), ``depth`` HxW uint16 (``depth_scale`` units per metre) or float (metres,
         0 / NaN = no measurement) or None for monocular presets, ``timestamp`` in seconds,
         increasing. A stereo system takes ``track(left, right, timestamp)``: the right image
         in the left's form, in place of the depth (rectified here when the calibration says
-        the pair is not). Returns the ``TrackResult``: ``pose_wc`` (4x4 camera-to-world, None
-        while not initialised or lost), ``state``, inlier counts, per-stage timings."""
+        the pair is not). ``imu``: with ``System(..., imu=ImuCalibration)``, the readings since
+        the frame before as ``(t, gyro xyz rad/s, acc xyz m/s^2)`` in the IMU frame, times
+        increasing and not past ``timestamp``. Returns the ``TrackResult``: ``pose_wc`` (4x4
+        camera-to-world, None while not initialised or lost), ``state``, inlier counts,
+        per-stage timings."""
         where = f"System.track (frame {self._n_given}, t={timestamp})"
         if self.closed:
             raise SemslamError(f"{where}: the system is closed (save() or close() ended the run)")
@@ -204,8 +210,16 @@ class System:
                                    f"{self.camera.width}x{self.camera.height}")
         if self._parts is None:
             self.camera = self.camera.with_image_size(image.shape[1], image.shape[0])
+        readings = None
+        if imu is not None:
+            if self.imu is None:
+                raise ConfigError(f"{where}: IMU readings given, but the System has no IMU calibration "
+                                  "(System(..., imu=ImuCalibration(noise, T_bc)))")
+            readings = as_imu_samples(imu, self._last_imu_t, t, where)
+            if len(readings):
+                self._last_imu_t = float(readings.t[-1])
         self._last_t = t
-        frame = Frame(self._n_given, t, image, metres, right=right)
+        frame = Frame(self._n_given, t, image, metres, right=right, imu=readings)
         self._n_given += 1
         return self.track_frame(self.prepare(frame))
 

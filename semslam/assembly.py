@@ -14,6 +14,7 @@ from pathlib import Path
 
 from semslam.config import SystemConfig
 from semslam.core import registry
+from semslam.core.imu import ImuCalibration
 from semslam.core.protocols import DepthSource, DynamicStage, MapStage, Tracker, TrackerInputs
 from semslam.dynamics.stage import create_dynamic_stage
 from semslam.errors import ConfigError
@@ -76,8 +77,10 @@ def create_map_stage(config: SystemConfig) -> MapStage | None:
                          semantics=config.semantics if segment else None)
 
 
-def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None) -> RunParts:
-    """Every part of the run; what was built is closed again when a later part fails."""
+def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None,
+             imu: ImuCalibration | None = None) -> RunParts:
+    """Every part of the run; what was built is closed again when a later part fails.
+    ``imu``: the IMU's calibration when the input has one (unused with ``imu.use: off``)."""
     check_sensor(config)
     create_tracker = registry.load("tracker", config.tracking.method)
     # Compiled kernels are built (or loaded from disk) now, not inside the first frames.
@@ -93,7 +96,8 @@ def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None 
         dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
                                         threaded=not config.slam.sequential,
                                         depth=depth if config.depth.source != "sensor" else None)
-        tracker: Tracker = create_tracker(config, camera, TrackerInputs(depth, dynamics), map_path)
+        inputs = TrackerInputs(depth, dynamics, imu if config.imu.use != "off" else None)
+        tracker: Tracker = create_tracker(config, camera, inputs, map_path)
     except BaseException:
         if maps is not None:
             maps.close()

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.imu import ImuSamples
 from semslam.errors import DataError
 from semslam.io.images import depth_to_metres
 
@@ -62,3 +63,30 @@ def as_metres(depth: Any, scale: float, shape: tuple[int, ...], where: str) -> N
         return depth_to_metres(depth, scale)
     raise DataError(where, f"depth is {depth.dtype}; expected uint16 ({scale:g} units per metre, depth_scale) "
                            "or float metres")
+
+
+def as_imu_samples(readings: Any, last_t: float, frame_t: float, where: str) -> ImuSamples:
+    """``[(t, gyro xyz, acc xyz), ...]`` (or an (N, 7) array) as ``ImuSamples``: finite,
+    times increasing, after the readings given before and not after the frame's time."""
+    try:
+        rows = np.asarray([[float(t), *np.asarray(g, dtype=np.float64).ravel(), *np.asarray(a, dtype=np.float64).ravel()]
+                           for t, g, a in readings], dtype=np.float64) if not isinstance(readings, np.ndarray) \
+            else np.asarray(readings, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DataError(where, "imu: expected (t, gyro xyz, acc xyz) readings") from None
+    if rows.size == 0:
+        return ImuSamples.empty()
+    if rows.ndim != 2 or rows.shape[1] != 7:
+        raise DataError(where, f"imu: expected (t, gyro xyz, acc xyz) readings (7 numbers each), got shape {rows.shape}")
+    if not np.isfinite(rows).all():
+        raise DataError(where, "imu: a reading is not finite (NaN or inf)")
+    t = rows[:, 0]
+    if t[0] <= last_t or (np.diff(t) <= 0).any():
+        bad = 0 if t[0] <= last_t else int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        before = last_t if bad == 0 else t[bad - 1]
+        raise DataError(where, f"imu: reading {bad} at t={t[bad]:.6f} is not after the one before it "
+                               f"(t={before:.6f}); IMU times must increase")
+    if t[-1] > frame_t + 1e-6:
+        raise DataError(where, f"imu: reading at t={t[-1]:.6f} is after the frame (t={frame_t:.6f}); give each "
+                               "frame the readings up to its time")
+    return ImuSamples(t.copy(), rows[:, 1:4].copy(), rows[:, 4:7].copy())

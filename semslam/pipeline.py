@@ -109,7 +109,8 @@ def run_slam(
     waits_for_masks = config.dynamics.semantic and config.semantics.schedule == "every"
     with tracking_core(config.slam.pin_tracking and not waits_for_masks):
         camera = stereo_calibration(sequence) if config.sensor == "stereo" else sequence.camera
-        system = System(config, camera, load_map=load_map, name=str(sequence.root))
+        imu = sequence.imu.calibration if sequence.imu is not None else None
+        system = System(config, camera, load_map=load_map, name=str(sequence.root), imu=imu)
         return _run(system, sequence, config, out, max_frames, progress, report, save_map, rerun, rerun_spawn)
 
 

@@ -149,6 +149,21 @@ RULES: dict[type, dict[str, Rule]] = {
         "depth_alignment": OneOf(("none", "scale", "power")),
         "alignment_min_points": Num(3),
     },
+    s.ImuConfig: {
+        "use": OneOf(("auto", "off")),
+        "init_s": POSITIVE,
+        "init_step_s": POSITIVE,
+        "refine_first_s": POSITIVE,
+        "refine_second_s": POSITIVE,
+        "refine_window_s": POSITIVE,
+        "max_blind_s": NON_NEGATIVE,
+        "window_s": POSITIVE,
+        "window_step_s": POSITIVE,
+        "gyro_noise_density": NON_NEGATIVE,
+        "acc_noise_density": NON_NEGATIVE,
+        "gyro_random_walk": NON_NEGATIVE,
+        "acc_random_walk": NON_NEGATIVE,
+    },
     s.SlamConfig: {
         "bf": POSITIVE,
         "rolling_shutter_ms": Num(0.0, 1000.0),
@@ -262,6 +277,7 @@ CROSS_CHECKS: dict[type, tuple[Callable[[Any, str], str | None], ...]] = {
     s.FrameToKeyframeConfig: (_ordered("min_depth_m", "max_depth_m"),),
     s.SdfSlamConfig: (_ordered("min_depth_m", "max_depth_m"),),
     s.SlamConfig: (_ordered("min_frames", "max_frames", strict=False),),
+    s.ImuConfig: (_ordered("refine_first_s", "refine_second_s"),),
     # The segmentation networks downsample by up to 32 (STDC's last stage).
     s.SemanticsConfig: (_off_or_at_least("input_width", 32, "0 = native width; networks downsample by 32"),),
 }

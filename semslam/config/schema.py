@@ -440,6 +440,37 @@ class MapsConfig:
 
 
 @dataclass
+class ImuConfig:
+    """The IMU, when the input has one (EuRoC / TUM-VI ``imu0``, a bag's Imu topic, the API's
+    ``imu=``): its noise from the calibration unless given here, and how tracking uses it
+    (``slam/orb/motion_priors/inertial.py``)."""
+
+    # auto: use the input's IMU when it has one; off: ignore it.
+    use: str = "auto"
+    # Seconds of visually tracked frames before the inertial initialisation (gravity,
+    # velocities, biases; backend/inertial_init.py), and the spacing of the frames it uses.
+    init_s: float = 1.0
+    init_step_s: float = 0.1
+    # Seconds after the initialisation at which it is refined on the longer history (twice,
+    # as ORB-SLAM3), over at most refine_window_s of it.
+    refine_first_s: float = 2.0
+    refine_second_s: float = 10.0
+    refine_window_s: float = 10.0
+    # Frames whose features do not track (black, blurred, covered) are posed by the IMU
+    # alone for at most this long, then tracking is lost as without an IMU.
+    max_blind_s: float = 3.0
+    # The window of recent tracked frames (and its spacing) the velocity and biases are
+    # re-estimated on after each frame (GTSAM CombinedImuFactor, backend/inertial_window.py).
+    window_s: float = 1.0
+    window_step_s: float = 0.1
+    # Noise overrides (0: the calibration's): continuous-time densities and random walks.
+    gyro_noise_density: float = 0.0
+    acc_noise_density: float = 0.0
+    gyro_random_walk: float = 0.0
+    acc_random_walk: float = 0.0
+
+
+@dataclass
 class SystemConfig:
     """Root of the config tree."""
 
@@ -459,3 +490,4 @@ class SystemConfig:
     semantics: SemanticsConfig = field(default_factory=SemanticsConfig)
     depth: DepthConfig = field(default_factory=DepthConfig)
     maps: MapsConfig = field(default_factory=MapsConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)

@@ -29,6 +29,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.imu import ImuCalibration
 from semslam.core.trajectory import Trajectory
 from semslam.core.types import FeatureSpec, Frame, Keypoints, LabelMap, TrackResult
 from semslam.geometry.camera import PinholeCamera
@@ -96,11 +97,13 @@ class MovingRegions:
 
 @dataclass
 class TrackerInputs:
-    """What the System builds and hands every tracker: where depth comes from and the
-    dynamic stage (None when dynamics handling is off)."""
+    """What the System builds and hands every tracker: where depth comes from, the
+    dynamic stage (None when dynamics handling is off) and the IMU's calibration (None
+    without an IMU, or with ``imu.use: off``)."""
 
     depth: "DepthSource"
     dynamics: "DynamicStage | None" = None
+    imu: ImuCalibration | None = None
 
 
 # ---------------------------------------------------------------------------- contracts

@@ -56,6 +56,18 @@ class TrackingCounters(Counters):
     depth_prior_scale: float | None = None
     depth_prior_keyframes: int | None = None
     depth_prior_refused: Mapping[str, int] | None = None
+    #: With an IMU (slam/orb/motion_priors/inertial.py): the inertial initialisations (a new
+    #: map starts another), the frame of the first and the seconds tracked before it, the
+    #: refinements, frames posed by the IMU alone, frames lost once blind too long, and the
+    #: biases at the end.
+    imu_initialisations: int | None = None
+    imu_init_frame: int | None = None
+    imu_init_after_s: float | None = None
+    imu_refinements: int | None = None
+    imu_only_frames: int | None = None
+    imu_blind_lost: int | None = None
+    imu_gyro_bias: Sequence[float] | None = None
+    imu_acc_bias: Sequence[float] | None = None
     tracking_edges: int | None = None
     reanchors: int | None = None
     fallback_reference: int | None = None
@@ -189,6 +201,8 @@ STATS_LAYOUT: tuple[str, ...] = (
     "maps", "merges", "maps_unmerged", "trajectory_frames_by_map", "frames_outside_first_map", "trajectory_map_runs",
     "merges_rejected", "merge_checks", "mono_init_attempts", "mono_init_refused",
     "depth_prior_metric_init", "depth_prior_scale", "depth_prior_keyframes", "depth_prior_refused",
+    "imu_initialisations", "imu_init_frame", "imu_init_after_s", "imu_refinements", "imu_only_frames",
+    "imu_blind_lost", "imu_gyro_bias", "imu_acc_bias",
     *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
     "jit_warmup_s",
 )

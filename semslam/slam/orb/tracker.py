@@ -146,7 +146,7 @@ class OrbTracker:
         self.tracking = Tracking(config, camera, self.map, self.vocabulary, self.database, extractor,
                                  keyframes=self.mapper if use_mapping else indexer, depth=inputs.depth,
                                  dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None,
-                                 builder=builder, depth_prior=self.depth_prior)
+                                 builder=builder, depth_prior=self.depth_prior, imu=inputs.imu)
         self.closer.frame_records = self.tracking.trajectory_refs  # a monocular loop rescales them
         if slam_map is not None:
             for kf in self.map.all_keyframes():

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from semslam.backend.pose_only import optimize_pose
 from semslam.config import SystemConfig
+from semslam.core.imu import ImuCalibration
 from semslam.core.protocols import DepthSource, DynamicStage, Extractor, FramePacket, MotionPrior
 from semslam.core.types import ScalePyramid, TrackingState, TrackResult
 from semslam.dynamics.masks import keypoints_in_mask
@@ -37,6 +38,7 @@ from semslam.slam.orb.motion_priors.base import FrameImages, FrameOutcome, Motio
 from semslam.slam.orb.motion_priors.blur_coast import BlurCoast
 from semslam.slam.orb.motion_priors.constant_velocity import ConstantVelocity
 from semslam.slam.orb.motion_priors.depth_odometry import DepthOdometry
+from semslam.slam.orb.motion_priors.inertial import InertialPrior
 from semslam.slam.orb.motion_priors.rolling_shutter import RollingShutter
 from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 from semslam.slam.orb.row_kernels import first_seen_unique
@@ -50,15 +52,18 @@ if TYPE_CHECKING:
 
 
 def pose_priors(config: SystemConfig, camera: PinholeCamera, slam_map: Map, pyramid: ScalePyramid,
-                sharpness: SharpnessHistory) -> list[PosePrior]:
+                sharpness: SharpnessHistory, imu: ImuCalibration | None = None) -> list[PosePrior]:
     """The priors ``config`` turns on, in the order tracking asks them: the rolling shutter
-    (keypoints moved before anything), the images' shift on blurred frames (its prediction
-    before the constant velocity's; its coast before depth odometry), depth odometry, and
-    the constant velocity last (the motion model's fallback)."""
+    (keypoints moved before anything), the IMU (its prediction first: it measured the
+    motion), the images' shift on blurred frames (its prediction before the constant
+    velocity's; its coast before depth odometry), depth odometry, and the constant velocity
+    last (the motion model's fallback)."""
     cfg = config.slam
     priors: list[PosePrior] = []
     if cfg.rolling_shutter_ms > 0:
         priors.append(RollingShutter(cfg, camera, slam_map, pyramid))
+    if imu is not None:
+        priors.append(InertialPrior(config.imu, imu))
     if cfg.blur_coast_sharp_ratio > 0:
         priors.append(BlurCoast(cfg, camera, slam_map, pyramid, sharpness))
     if cfg.depth_odometry != "none":
@@ -74,7 +79,7 @@ class Tracking:
                  database: "KeyframeDatabase", extractor: Extractor, keyframes: KeyframeSink,
                  depth: DepthSource, dynamics: DynamicStage | None, atlas: "Atlas | None" = None,
                  builder: FrameBuilder | None = None, priors: list[PosePrior] | None = None,
-                 depth_prior: DepthPrior | None = None) -> None:
+                 depth_prior: DepthPrior | None = None, imu: ImuCalibration | None = None) -> None:
         self.cfg = config.slam
         self.dyn = config.dynamics
         self.camera = camera
@@ -104,7 +109,7 @@ class Tracking:
         self.depth_prior = depth_prior  # a depth network's, checked: scales the initial map
         self.sharpness = SharpnessHistory()
         self.priors = (priors if priors is not None
-                       else pose_priors(config, camera, slam_map, self.pyr, self.sharpness))
+                       else pose_priors(config, camera, slam_map, self.pyr, self.sharpness, imu))
         self.seed = config.seed
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
         self.state = TrackingState.NOT_INITIALIZED
@@ -131,7 +136,7 @@ class Tracking:
         self.new_map_pending = False
 
     # ------------------------------------------------------------------ the priors' counters
-    def prior_counters(self) -> dict[str, int]:
+    def prior_counters(self) -> dict[str, Any]:
         """Every prior's counters, by their ``stats.json`` names (0 for a prior that is off)."""
         counters = dict.fromkeys(("depth_odometry_frames", "coasted_frames", "coast_keyframes",
                                   "coasted_on_shift_only", "depth_odometry_runs"), 0)

@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -146,7 +146,7 @@ class PosePrior(Protocol):
 
     def update(self, outcome: FrameOutcome) -> None: ...
 
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[str, Any]:
         """What the prior did so far, for the run's stats (names unique across priors)."""
         ...
 
@@ -169,5 +169,5 @@ class PriorDefaults:
     def update(self, outcome: FrameOutcome) -> None:
         return None
 
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[str, Any]:
         return {}

@@ -1,0 +1,286 @@
+"""The IMU as a pose prior (``imu.use: auto`` with an input that has one).
+
+Before the inertial initialisation the prior only collects: readings, and the tracked
+frames' body poses. Once ``imu.init_s`` seconds are tracked, gravity's direction in the
+map, the velocities and the biases come from those poses (``backend/inertial_init.py``;
+with stereo or RGB-D the scale is known, so a slow or still start works), refined twice on
+the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then on:
+
+* ``predict``: the last frame's pose and velocity carried to this frame by the readings
+  between them (GTSAM preintegration): the pose the features are searched from, where the
+  constant velocity model guesses;
+* ``correct`` after the local map: a frame whose features did not track (black, blurred,
+  covered, a crowd) keeps the IMU's pose for at most ``imu.max_blind_s`` since the last
+  tracked one (counted in ``imu_only_frames``), then tracking is lost as without an IMU;
+* ``update``: the velocity carried on by the readings, and every ``imu.window_step_s``
+  velocity and biases re-estimated on the last ``imu.window_s`` of tracked frames
+  (``backend/inertial_window.py``).
+
+Frames posed by the IMU alone make no keyframes. The map keeps its frame (the first
+camera's); gravity is a direction in it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from semslam.backend.imu_preintegration import ImuBuffer, bias_from, imu_params, preintegrate
+from semslam.backend.imu_preintegration import predict as imu_predict
+from semslam.backend.inertial_init import initialise
+from semslam.backend.inertial_window import bridge, refine_window
+from semslam.config.schema import ImuConfig
+from semslam.core.imu import ImuCalibration, ImuNoise
+from semslam.geometry.se3 import invert
+from semslam.slam.orb.motion_priors.base import (
+    Correction, FrameImages, FrameOutcome, MotionState, PosePrediction, PriorDefaults, Stage, TrackerOps,
+)
+
+if TYPE_CHECKING:
+    from semslam.slam.orb.frame_state import FrameState
+
+Array = NDArray[np.float64]
+
+
+def configured_noise(calibration: ImuNoise, cfg: ImuConfig) -> ImuNoise:
+    """The calibration's noise with the config's non-zero overrides."""
+    overrides = {k: getattr(cfg, k) for k in ("gyro_noise_density", "acc_noise_density", "gyro_random_walk",
+                                              "acc_random_walk") if getattr(cfg, k) > 0}
+    return replace(calibration, **overrides)
+
+
+@dataclass(frozen=True)
+class _Prediction:
+    """The IMU's pose and velocity for one frame."""
+
+    timestamp: float
+    T_wb: Array
+    v_w: Array
+    T_cw: Array
+
+
+def spaced(times: Array, step: float) -> NDArray[np.intp]:
+    """Indices of ``times`` (increasing) about ``step`` apart, always keeping the newest."""
+    keep = [len(times) - 1]
+    for i in range(len(times) - 2, -1, -1):
+        if times[keep[-1]] - times[i] >= step - 1e-9:
+            keep.append(i)
+    return np.array(keep[::-1], dtype=np.intp)
+
+
+class InertialPrior(PriorDefaults):
+    """See the module docstring."""
+
+    name = "inertial"
+
+    def __init__(self, cfg: ImuConfig, calibration: ImuCalibration) -> None:
+        self.cfg = cfg
+        self.noise = configured_noise(calibration.noise, cfg)
+        self.T_bc = np.asarray(calibration.T_bc, dtype=np.float64)
+        self.T_cb = invert(self.T_bc)
+        self.buffer = ImuBuffer(horizon_s=cfg.refine_window_s + cfg.max_blind_s + 5.0)
+        # Visually tracked frames: (timestamp, T_wb, the body's velocity as estimated then or None).
+        self.history: deque[tuple[float, Array, Array | None]] = deque()
+        self.gravity: Array | None = None
+        self.gyro_bias = np.zeros(3)
+        self.acc_bias = np.zeros(3)
+        self.velocity: Array | None = None  # the body's, at the last frame
+        self.init_time: float | None = None
+        self.refined = 0
+        self.last_window_t = -np.inf
+        self.blind_since: float | None = None  # the last visually tracked frame's time, while blind
+        self._pred: _Prediction | None = None
+        self._first_velocity: Array | None = None  # of the last spaced history's first frame
+        # While blind: the last tracked frame's (timestamp, T_wb, velocity), and the frames
+        # posed since as (timestamp, their entry in tracking's trajectory or None).
+        self._blind_start: tuple[float, Array, Array] | None = None
+        self._blind: list[tuple[float, int | None]] = []
+        self.n_bridged = 0
+        self.n_imu_only = 0
+        self.n_blind_lost = 0
+        self.n_inits = 0
+        self.n_refinements = 0
+        self.init_frame = -1
+        self.init_after_s = -1.0  # seconds from the first tracked frame to the first initialisation
+        self.first_tracked_t: float | None = None
+
+    # ------------------------------------------------------------------ poses
+    def _body(self, T_cw: Array) -> Array:
+        return invert(T_cw) @ self.T_cb
+
+    def _camera(self, T_wb: Array) -> Array:
+        return invert(T_wb @ self.T_bc)
+
+    @property
+    def initialised(self) -> bool:
+        return self.gravity is not None
+
+    # ------------------------------------------------------------------ the prior's steps
+    def predict(self, state: MotionState, images: FrameImages) -> PosePrediction | None:
+        self._pred = None
+        last, t1 = state.last, images.frame.timestamp
+        if self.gravity is None or self.velocity is None or last is None or last.T_cw is None or not state.tracked:
+            return None
+        t0 = last.timestamp
+        if t1 <= t0 or not self.buffer.covers(t0, t1):
+            return None
+        bias = bias_from(self.gyro_bias, self.acc_bias)
+        pim = preintegrate(imu_params(self.noise, self.gravity), bias, self.buffer.window(t0, t1), t0, t1)
+        T_wb, v_w = imu_predict(pim, self._body(last.T_cw), self.velocity, bias)
+        self._pred = _Prediction(t1, T_wb, v_w, self._camera(T_wb))
+        return PosePrediction(self._pred.T_cw.copy())
+
+    def correct(self, stage: Stage, state: MotionState, cur: "FrameState", tracked: bool,
+                images: FrameImages, ops: TrackerOps) -> Correction | None:
+        if stage is Stage.FEATURES:
+            self.buffer.add(images.frame.imu)
+            return None
+        if stage is not Stage.LOCAL_MAP or tracked:
+            return None
+        pred = self._pred
+        if pred is None or pred.timestamp != cur.timestamp or state.last is None:
+            return None
+        since = self.blind_since if self.blind_since is not None else state.last.timestamp
+        if cur.timestamp - since > self.cfg.max_blind_s:
+            self.n_blind_lost += 1
+            return None
+        self.blind_since = since
+        cur.clear_points()
+        cur.outlier[:] = False
+        cur.T_cw = pred.T_cw.copy()
+        self.n_imu_only += 1
+        return Correction(True, posed=True)
+
+    def keyframe_wanted(self, state: MotionState, cur: "FrameState", ops: TrackerOps,
+                        orb_slam_wants: Callable[[], bool]) -> bool:
+        return False  # a pose from the IMU alone has no features to map
+
+    def update(self, outcome: FrameOutcome) -> None:
+        t = outcome.frame.timestamp
+        pred = self._pred if self._pred is not None and self._pred.timestamp == t else None
+        self._pred = None
+        if outcome.started_map:  # a new map: its frame is the new first camera's
+            self.gravity, self.velocity, self.init_time, self.refined = None, None, None, 0
+            self.history.clear()
+        if not outcome.tracked:
+            self.velocity, self.blind_since, self._blind_start = None, None, None
+            self._blind.clear()
+            self.history.clear()
+            return
+        if outcome.posed_by is self:
+            assert pred is not None
+            if not self._blind and self.history and self.velocity is not None:
+                t_a, T_a, _ = self.history[-1]
+                self._blind_start = (t_a, T_a, self.velocity)  # still the last tracked frame's
+            self._blind.append((t, outcome.recorded_at))
+            self.velocity = pred.v_w
+            return
+        self.blind_since = None
+        if self.first_tracked_t is None:
+            self.first_tracked_t = t
+        T_cw = outcome.frame.T_cw
+        assert T_cw is not None
+        self.history.append((t, self._body(T_cw), pred.v_w if pred is not None else None))
+        if self._blind:
+            self._bridge(outcome)
+        while t - self.history[0][0] > self.cfg.refine_window_s:
+            self.history.popleft()
+        if self.gravity is None:
+            self._initialise(t, outcome.frame.index)
+            return
+        self.velocity = pred.v_w if pred is not None else None
+        if self.init_time is not None and self.refined < 2:
+            due = self.cfg.refine_first_s if self.refined == 0 else self.cfg.refine_second_s
+            if t - self.init_time >= due:
+                self._initialise(t, outcome.frame.index, refine=True)
+                return
+        if self.velocity is None or t - self.last_window_t >= self.cfg.window_step_s:
+            self._refine_window(t)
+
+    # ------------------------------------------------------------------ estimation
+    def _spaced_history(self, span_s: float, step_s: float) -> tuple[Array, Array]:
+        t_last = self.history[-1][0]
+        recent = [(t, T, v) for t, T, v in self.history if t_last - t <= span_s + 1e-9]
+        times = np.array([t for t, _, _ in recent])
+        poses = np.array([T for _, T, _ in recent])
+        idx = spaced(times, step_s)
+        self._first_velocity = recent[int(idx[0])][2]
+        return times[idx], poses[idx]
+
+    def _initialise(self, t: float, index: int, refine: bool = False) -> None:
+        """The inertial initialisation once ``init_s`` is tracked (or a refinement)."""
+        if t - self.history[0][0] < self.cfg.init_s - 1e-9:
+            return
+        span = self.cfg.refine_window_s if refine else self.cfg.init_s
+        times, poses = self._spaced_history(span, self.cfg.init_step_s)
+        if len(times) < 3 or not self.buffer.covers(times[0], times[-1]):
+            return
+        samples = self.buffer.window(times[0], times[-1])
+        est = initialise(times, poses, samples, self.noise, self.gyro_bias, self.acc_bias)
+        self.gravity, self.gyro_bias, self.acc_bias = est.gravity_w, est.gyro_bias, est.acc_bias
+        self.velocity = est.velocities[-1]
+        self.last_window_t = t
+        if refine:
+            self.refined += 1
+            self.n_refinements += 1
+        else:
+            self.init_time = t
+            self.n_inits += 1
+            if self.init_frame < 0:
+                self.init_frame = index
+                self.init_after_s = t - (self.first_tracked_t if self.first_tracked_t is not None else t)
+
+    def _refine_window(self, t: float) -> None:
+        """Velocity and biases on the last ``window_s`` of tracked frames."""
+        if len(self.history) < 2:
+            return
+        times, poses = self._spaced_history(self.cfg.window_s, self.cfg.window_step_s)
+        if len(times) < 2 or not self.buffer.covers(times[0], times[-1]):
+            return
+        assert self.gravity is not None
+        v_first = self._velocity_guess(times, poses)
+        est = refine_window(times, poses, self.buffer.window(times[0], times[-1]), self.noise, self.gravity,
+                            v_first, self.gyro_bias, self.acc_bias)
+        self.velocity, self.gyro_bias, self.acc_bias = est.velocities[-1], est.gyro_bias, est.acc_bias
+        self.last_window_t = t
+
+    def _bridge(self, outcome: FrameOutcome) -> None:
+        """The frames the IMU posed alone, re-posed once the features track again: the
+        readings' path between the last tracked frame before and this one (their entries in
+        tracking's trajectory, relative to their reference keyframes, are replaced)."""
+        start, blind = self._blind_start, self._blind
+        self._blind_start, self._blind = None, []
+        if start is None or self.gravity is None:
+            return
+        (t_a, T_a, v_a), (t_b, T_b, _) = start, self.history[-1]
+        if not self.buffer.covers(t_a, t_b):
+            return
+        times = np.array([t_a, *(t for t, _ in blind), t_b])
+        poses = bridge(times, T_a, v_a, T_b, self.buffer.window(t_a, t_b), self.noise, self.gravity,
+                       self.gyro_bias, self.acc_bias)
+        trajectory = outcome.trajectory
+        for (t, at), T_wb in zip(blind, poses[1:-1]):
+            if at is None or at >= len(trajectory) or trajectory[at][0] != t:
+                continue
+            ref = trajectory[at][1]
+            trajectory[at] = (t, ref, self._camera(T_wb) @ invert(ref.T_cw))
+            self.n_bridged += 1
+
+    def _velocity_guess(self, times: Array, poses: Array) -> Array:
+        """The window's first velocity to start from: as estimated when that frame came, else
+        finite differences of the window's first poses."""
+        if self._first_velocity is not None:
+            return self._first_velocity
+        return (poses[1, :3, 3] - poses[0, :3, 3]) / max(times[1] - times[0], 1e-6)
+
+    def counters(self) -> dict[str, Any]:
+        return {"imu_initialisations": self.n_inits, "imu_init_frame": self.init_frame,
+                "imu_init_after_s": round(self.init_after_s, 3), "imu_refinements": self.n_refinements,
+                "imu_only_frames": self.n_imu_only, "imu_blind_lost": self.n_blind_lost,
+                "imu_gyro_bias": [round(float(b), 6) for b in self.gyro_bias],
+                "imu_acc_bias": [round(float(b), 5) for b in self.acc_bias]}
