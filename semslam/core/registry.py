@@ -58,7 +58,8 @@ PLUGINS: dict[str, dict[str, str]] = {
     },
     # What io/sequence.py's open_sequence opens besides TUM and image folders (they build on it).
     "sequence_source": {"rosbag": "semslam.io.rosbag_stereo:open_rosbag",
-                        "stereo": "semslam.io.stereo_sequence:open_stereo_sequence"},
+                        "stereo": "semslam.io.stereo_sequence:open_stereo_sequence",
+                        "euroc": "semslam.io.euroc_sequence:open_euroc"},
 }
 
 #: The config field that names each kind's backend (for error messages).

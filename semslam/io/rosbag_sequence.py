@@ -11,6 +11,8 @@ What is taken from the bag:
   from the bag's name (TUM freiburg1/2/3, Bonn) as for a folder, and that calibration also
   replaces a ``CameraInfo`` holding the OpenNI driver's uncalibrated defaults
   (525, 525, 319.5, 239.5);
+- IMU (``attach_imu``, with a calibration from elsewhere: a bag carries none):
+  ``sensor_msgs/Imu`` on the first of :data:`IMU_TOPICS`, by header stamp;
 - ground truth: ``/tf`` (and ``/tf_static``). The pose of the colour image's frame
   (its ``header.frame_id``, e.g. ``/openni_rgb_optical_frame``) in the root of its tf tree,
   composed along the chain as TUM's ``bag2gt`` tool does (``/world`` -> ``/kinect`` -> ...
@@ -39,6 +41,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.core.imu import ImuCalibration, ImuSamples, ImuStream
 from semslam.core.types import Frame
 from semslam.errors import DataError
 from semslam.geometry.camera import PinholeCamera
@@ -46,6 +49,7 @@ from semslam.geometry.se3 import make_pose, quat_to_rot
 from semslam.io.association import match_timestamps
 from semslam.io.calibration import DEFAULT_CAMERA, camera_from_folder_name, camera_from_values, parse_camera_option
 from semslam.io.images import FrameReadError
+from semslam.io.imu import check_imu
 from semslam.io.sequence import Sequence
 from semslam.core.trajectory import Trajectory
 from semslam.io.trajectory import write_tum
@@ -57,6 +61,8 @@ COLOUR_TOPICS = ("/camera/rgb/image_color", "/camera/rgb/image_color/compressed"
 DEPTH_TOPICS = ("/camera/depth/image", "/camera/depth_registered/image", "/camera/depth/image_raw",
                 "/camera/depth_registered/image_raw", "/camera/aligned_depth_to_color/image_raw")
 INFO_TOPICS = ("/camera/rgb/camera_info", "/camera/color/camera_info")
+#: IMU topics (sensor_msgs/Imu) tried in order: EuRoC's, then common driver names.
+IMU_TOPICS = ("/imu0", "/imu", "/imu/data", "/imu/data_raw", "/camera/imu")
 TF_TOPICS = ("/tf", "/tf_static")
 COLOUR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8")
 DEPTH_ENCODINGS = ("32fc1", "16uc1", "mono16")
@@ -238,6 +244,37 @@ class RosbagSequence(Sequence):
             log.warning("%s: only %d of %d colour images have a depth image within %.3f s",
                         self.root, len(i_rgb), len(self._rgb.stamps), max_diff)
         return [(int(a), int(b)) for a, b in zip(i_rgb, i_depth)]
+
+    def attach_imu(self, calibration: ImuCalibration, topic: str | None = None) -> None:
+        """Set ``imu`` to the bag's ``sensor_msgs/Imu`` readings (``topic``, else the first of
+        :data:`IMU_TOPICS`, else the bag's only Imu topic) with ``calibration``, which a bag
+        does not carry (an ORB-SLAM3 settings file's IMU.* keys); checked against the frames."""
+        topics = self._reader.topics
+        imu_topics = sorted(t for t, info in topics.items() if info.msgtype == "sensor_msgs/msg/Imu")
+        if topic is None:
+            topic = next((t for t in IMU_TOPICS if t in imu_topics), imu_topics[0] if len(imu_topics) == 1 else None)
+        if topic is None or topic not in imu_topics:
+            raise DataError(self.root, f"no IMU topic {topic or IMU_TOPICS[0]} (sensor_msgs/Imu) in the bag "
+                                       f"(its Imu topics: {', '.join(imu_topics) or 'none'})")
+        rows: list[tuple[float, float, float, float, float, float, float]] = []
+        try:
+            for conn, t_ns, raw in self._reader.messages(connections=topics[topic].connections):
+                msg = self._reader.deserialize(raw, conn.msgtype)
+                stamp = _stamp(msg.header)
+                w, a = msg.angular_velocity, msg.linear_acceleration
+                rows.append((stamp if stamp > 0 else t_ns * 1e-9, w.x, w.y, w.z, a.x, a.y, a.z))
+        except Exception as exc:  # rosbags raises its own reader / serde errors on damaged data
+            raise DataError(self.root, f"damaged bag ({exc.__class__.__name__}: {exc})") from None
+        data = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+        data = data[np.argsort(data[:, 0], kind="stable")]  # bags are in record order, not stamp order
+        keep = np.concatenate([[True], np.diff(data[:, 0]) > 0]) if len(data) else np.zeros(0, bool)
+        if not keep.all():
+            log.warning("%s: %s has %d messages with a repeated stamp; using the first of each",
+                        self.root, topic, int((~keep).sum()))
+        data = data[keep]
+        samples = ImuSamples(data[:, 0].copy(), data[:, 1:4].copy(), data[:, 4:7].copy())
+        check_imu(samples, self.timestamps, f"{self.root} ({topic})")
+        self.imu = ImuStream(samples, calibration)
 
     def _camera(self, option: str | PinholeCamera | None, info: Any) -> PinholeCamera:
         """Intrinsics in the order of the module docstring, with the colour images' size."""

@@ -16,7 +16,9 @@ to RGB), left and right are paired by nearest header stamp (``io/association.mat
    from the rectifying rotations: ``T_lr = [R1^T R2 | R1^T (b, 0, 0)]``;
 3. else a :class:`~semslam.errors.DataError` asking for a settings file or values.
 
-Ground truth comes from ``/tf`` as for an RGB-D bag, for the left image's frame.
+Ground truth comes from ``/tf`` as for an RGB-D bag, for the left image's frame. An
+ORB-SLAM3 ``settings`` file with ``IMU.*`` keys (stereo-inertial) also attaches the bag's
+``sensor_msgs/Imu`` topic (``/imu0`` for EuRoC) as the sequence's IMU.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ from semslam.errors import ConfigError, DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.association import match_timestamps
 from semslam.io.images import FrameReadError
-from semslam.io.rosbag_sequence import TF_TOPICS, RosbagSequence
+from semslam.io.imu import orbslam3_has_imu, read_orbslam3_imu
+from semslam.io.rosbag_sequence import DEPTH_TOPICS, TF_TOPICS, RosbagSequence
 from semslam.io.stereo_calibration import StereoCalibration, read_orbslam3_settings, stereo_from_values
 
 log = logging.getLogger(__name__)
@@ -58,16 +61,22 @@ def stereo_topics(topics: dict[str, Any] | list[str]) -> tuple[str, str] | None:
     return next(((a, b) for a, b in STEREO_TOPICS if a in topics and b in topics), None)
 
 
-def bag_has_stereo(path: str | Path) -> bool:
-    """Whether the bag holds both topics of a known stereo pair (False if it is unreadable:
-    the RGB-D reader then says why)."""
+def _bag_topics(path: str | Path) -> dict[str, Any] | None:
+    """The bag's topics, None if it is unreadable (the RGB-D reader then says why)."""
     from rosbags.highlevel import AnyReader
 
     try:
         with AnyReader([Path(path)]) as reader:
-            return stereo_topics(reader.topics) is not None
-    except Exception:  # noqa: BLE001 - any reader failure means "not a stereo bag we can open"
-        return False
+            return dict(reader.topics)
+    except Exception:  # noqa: BLE001 - any reader failure means "not a bag we can open"
+        return None
+
+
+def bag_has_stereo(path: str | Path) -> bool:
+    """Whether the bag holds both topics of a known stereo pair (False if it is unreadable:
+    the RGB-D reader then says why)."""
+    topics = _bag_topics(path)
+    return topics is not None and stereo_topics(topics) is not None
 
 
 class StereoRosbagSequence(RosbagSequence):
@@ -109,6 +118,8 @@ class StereoRosbagSequence(RosbagSequence):
         self.calibration = calibration
         self.camera: PinholeCamera = calibration.camera
         self._set_groundtruth(transforms, image_frame)
+        if settings is not None and orbslam3_has_imu(settings):  # stereo-inertial: the IMU topic too
+            self.attach_imu(read_orbslam3_imu(settings))
 
     # ------------------------------------------------------------------ opening
     def _pick_topics(self, topics: dict[str, Any], left: str | None, right: str | None) -> tuple[str, str]:
@@ -230,9 +241,13 @@ def open_rosbag(path: str | Path, camera: str | PinholeCamera | None = None, max
                 read_as: str = "auto", baseline: float | None = None,
                 settings: str | Path | None = None) -> RosbagSequence:
     """A ROS 1 bag as ``open_sequence`` opens it (``read_as`` auto, rgbd, mono or stereo): a
-    stereo sequence when asked for, or (auto) when both topics of a stereo pair are there;
-    else colour (and depth, unless mono) as ``RosbagSequence`` reads them."""
-    if read_as == "stereo" or (read_as == "auto" and Path(path).is_file() and bag_has_stereo(path)):
+    stereo sequence when asked for, or (auto, and rgbd on a bag without a depth topic) when
+    both topics of a stereo pair are there; else colour (and depth, unless mono) as
+    ``RosbagSequence`` reads them."""
+    topics = _bag_topics(path) if read_as in ("auto", "rgbd") and Path(path).is_file() else None
+    if read_as == "rgbd" and topics is not None and not any(t in topics for t in DEPTH_TOPICS):
+        read_as = "auto"  # no depth of its own: what the bag is (as open_sequence does for folders)
+    if read_as == "stereo" or (read_as == "auto" and topics is not None and stereo_topics(topics) is not None):
         return open_stereo_rosbag(path, camera=camera, baseline=baseline, max_diff=max_diff, settings=settings)
     if baseline is not None or settings is not None:
         raise ConfigError("--baseline / --settings describe a stereo pair; this bag is read as "

@@ -403,9 +403,10 @@ class ImageFolderSequence(Sequence):
 
 def kind_for_sensor(sensor: str) -> str:
     """The ``open_sequence`` kind a config's sensor reads: ``mono`` reads a TUM folder's
-    colour images only (its depth is not the monocular tracker's to use), ``stereo`` its
-    left and right images, else ``auto``."""
-    return sensor if sensor in ("mono", "stereo") else "auto"
+    colour images only (its depth is not the monocular tracker's to use) and EuRoC's cam0
+    alone, ``stereo`` the left and right images, ``rgbd`` the input's depth where it has
+    some (a TUM folder's, EuRoC's depth0) and otherwise what ``auto`` opens; else ``auto``."""
+    return sensor if sensor in ("mono", "stereo", "rgbd") else "auto"
 
 
 def open_sequence(
@@ -417,12 +418,21 @@ def open_sequence(
     baseline: float | None = None,
     settings: str | Path | None = None,
 ) -> Sequence:
-    """Open a sequence folder; ``kind`` is ``auto``, ``rgbd`` (TUM layout), ``mono`` (an image
-    folder, or a TUM folder's ``rgb.txt`` images without their depth) or ``stereo``
-    (``io.stereo_sequence``: EuRoC, KITTI, or a TUM-like folder with ``rgb_right.txt``; the
-    calibration from the layout's files, an ORB-SLAM3 ``settings`` YAML, or ``camera`` +
-    ``baseline``). ``auto`` opens EuRoC and KITTI stereo folders, and a TUM-like one with
-    right images but no depth, as stereo."""
+    """Open a sequence folder; ``kind`` is ``auto``, ``rgbd``, ``mono`` or ``stereo``.
+
+    - ``rgbd``: the input's depth (a TUM layout's lists, EuRoC's ``depth0`` registered to
+      cam0, a bag's depth topic); an input without depth opens as ``auto`` would (a stereo
+      folder then runs an RGB-D preset as stereo, ``pipeline.config_for_sequence``).
+    - ``mono``: an image folder, a TUM folder's ``rgb.txt`` images without their depth, or
+      EuRoC's cam0 alone (``io.euroc_sequence``).
+    - ``stereo`` (``io.stereo_sequence``): EuRoC, KITTI, or a TUM-like folder with
+      ``rgb_right.txt``; the calibration from the layout's files, an ORB-SLAM3 ``settings``
+      YAML, or ``camera`` + ``baseline``.
+    - ``auto`` opens EuRoC (with cam1) and KITTI stereo folders, and a TUM-like one with
+      right images but no depth, as stereo; EuRoC without cam1 as RGB-D where it has depth0,
+      else as monocular.
+
+    EuRoC and TUM-VI folders with ``mav0/imu0`` carry their IMU (``Sequence.imu``)."""
     root = Path(path)
     if root.suffix.lower() == ".bag":  # a ROS 1 bag (io/rosbag_sequence.py, io/rosbag_stereo.py): the registry's
         return registry.create("sequence_source", "rosbag", root, camera=camera, max_diff=max_diff, read_as=kind,
@@ -436,15 +446,27 @@ def open_sequence(
     if kind not in ("auto", "rgbd", "mono", "stereo"):
         raise DataError(root, f"unknown sequence kind {kind!r} (auto, rgbd, mono, stereo)")
     is_rgbd = (root / "depth.txt").is_file() or any(root.glob("assoc*.txt"))
+    euroc = euroc_folder(root)
+    euroc_depth = euroc is not None and not is_rgbd and (euroc / "depth0").is_dir()
+    if kind == "rgbd" and not (is_rgbd or euroc_depth):
+        kind = "auto"  # no depth of its own: what the input is (pipeline.config_for_sequence follows it)
     if kind == "stereo" or (kind == "auto" and _opens_as_stereo(root, is_rgbd)):  # io/stereo_sequence.py
         return registry.create("sequence_source", "stereo", root, camera=camera, baseline=baseline, settings=settings)
     if baseline is not None or settings is not None:
         raise ConfigError("--baseline / --settings describe a stereo pair; this sequence is read as "
-                          f"{'RGB-D' if kind == 'rgbd' or is_rgbd else 'monocular'} (give --sensor stereo for its "
-                          "right images)")
+                          f"{'RGB-D' if kind == 'rgbd' or is_rgbd or euroc_depth else 'monocular'} (give --sensor "
+                          "stereo for its right images)")
+    if euroc is not None and not is_rgbd:  # io/euroc_sequence.py: cam0 alone, or with depth0
+        return registry.create("sequence_source", "euroc", root, with_depth=kind != "mono" and euroc_depth,
+                               camera=camera, depth_scale=depth_scale)
     if kind == "rgbd" or (kind == "auto" and is_rgbd):
         return TumRgbdSequence(root, camera=camera, depth_scale=depth_scale, max_diff=max_diff)
     return ImageFolderSequence(root, camera=camera)
+
+
+def euroc_folder(root: Path) -> Path | None:
+    """The folder holding EuRoC's ``cam0/data.csv`` (``root/mav0`` or ``root``), else None."""
+    return next((cand for cand in (root / "mav0", root) if (cand / "cam0" / "data.csv").is_file()), None)
 
 
 def euroc_root(root: Path) -> Path | None:

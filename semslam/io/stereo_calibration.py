@@ -198,7 +198,8 @@ def read_kitti_calib(path: str | Path) -> StereoCalibration:
 # ---------------------------------------------------------------------------- EuRoC sensor.yaml
 
 
-def _load_yaml(path: Path) -> dict:
+def load_yaml(path: Path) -> dict:
+    """A YAML mapping (EuRoC, Kalibr; OpenCV's ``%YAML:1.0`` header dropped); DataError naming the file."""
     lines = read_text_lines(path)
     if lines and lines[0].startswith("%YAML:"):  # OpenCV's header, which PyYAML refuses
         lines = lines[1:]
@@ -211,7 +212,8 @@ def _load_yaml(path: Path) -> dict:
     return doc
 
 
-def _numbers(path: Path, key: str, value: object, count: int) -> list[float]:
+def numbers(path: Path, key: str, value: object, count: int) -> list[float]:
+    """``count`` finite numbers from a list (or EuRoC's ``{rows, cols, data}``); DataError naming the key."""
     if isinstance(value, dict):
         value = value.get("data")
     if not isinstance(value, list) or len(value) != count:
@@ -230,7 +232,7 @@ def read_euroc_sensor(path: str | Path) -> tuple[PinholeCamera, Array]:
     radial-tangential ``distortion_coefficients: [k1, k2, p1, p2]``, ``resolution: [w, h]``)
     and ``T_BS``, the camera's pose in the body (IMU) frame."""
     path = Path(path)
-    doc = _load_yaml(path)
+    doc = load_yaml(path)
     for key in ("intrinsics", "resolution", "T_BS"):
         if key not in doc:
             raise DataError(path, f"no {key} (an EuRoC camera sensor.yaml has intrinsics, resolution, "
@@ -241,20 +243,21 @@ def read_euroc_sensor(path: str | Path) -> tuple[PinholeCamera, Array]:
     dist_model = doc.get("distortion_model", "radial-tangential")
     if dist_model not in ("radial-tangential", "radtan", "none"):
         raise DataError(path, f"distortion_model {dist_model!r}: only 'radial-tangential' is supported")
-    fu, fv, cu, cv = _numbers(path, "intrinsics", doc["intrinsics"], 4)
-    w, h = _numbers(path, "resolution", doc["resolution"], 2)
+    fu, fv, cu, cv = numbers(path, "intrinsics", doc["intrinsics"], 4)
+    w, h = numbers(path, "resolution", doc["resolution"], 2)
     raw_dist = doc.get("distortion_coefficients", [0.0, 0.0, 0.0, 0.0])
     n_dist = len(raw_dist) if isinstance(raw_dist, list) and len(raw_dist) in (4, 5) else 4
-    dist = _numbers(path, "distortion_coefficients", raw_dist, n_dist) + [0.0] * (5 - n_dist)
-    t_bs = np.asarray(_numbers(path, "T_BS", doc["T_BS"], 16)).reshape(4, 4)
-    _check_pose(path, "T_BS", t_bs)
+    dist = numbers(path, "distortion_coefficients", raw_dist, n_dist) + [0.0] * (5 - n_dist)
+    t_bs = np.asarray(numbers(path, "T_BS", doc["T_BS"], 16)).reshape(4, 4)
+    check_pose(path, "T_BS", t_bs)
     if fu <= 0 or fv <= 0:
         raise DataError(path, f"intrinsics: focal lengths must be positive, got fu={fu:g} fv={fv:g}")
     cam = PinholeCamera(fu, fv, cu, cv, tuple(dist), source=str(path), width=int(w), height=int(h))  # type: ignore[arg-type]
     return cam, t_bs
 
 
-def _check_pose(path: Path, key: str, pose: Array) -> None:
+def check_pose(path: Path, key: str, pose: Array) -> None:
+    """A 4x4 rigid transform, else DataError naming the file and the key."""
     rot = pose[:3, :3]
     if (np.abs(rot.T @ rot - np.eye(3)).max() > 1e-3 or np.linalg.det(rot) < 0
             or not np.allclose(pose[3], [0, 0, 0, 1])):
@@ -284,7 +287,7 @@ def _is_rectified(left: PinholeCamera, right: PinholeCamera, t_lr: Array, tol: f
 # ---------------------------------------------------------------------------- ORB-SLAM3 settings
 
 
-class _Settings:
+class SettingsFile:
     """Reads keys of an OpenCV FileStorage, naming the file and key in every error."""
 
     def __init__(self, path: Path) -> None:
@@ -340,7 +343,7 @@ def read_orbslam3_settings(path: str | Path) -> StereoCalibration:
     ``Camera.type: "PinHole"`` with ``Camera1.*``, ``Camera2.*``, ``Camera.width``/``height``
     and ``Stereo.T_c1_c2`` (the right camera's pose in the left's frame), or
     ``"Rectified"`` with ``Camera1.*`` and ``Stereo.b`` (metres)."""
-    s = _Settings(Path(path))
+    s = SettingsFile(Path(path))
     kind = s.text("Camera.type", 'ORB-SLAM3 v1.0 settings say "PinHole" or "Rectified"')
     if kind == "Rectified":
         cam = s.camera("Camera1", "a rectified stereo camera needs Camera1.fx, fy, cx, cy", (0, 0), distorted=False)
@@ -357,5 +360,5 @@ def read_orbslam3_settings(path: str | Path) -> StereoCalibration:
     left = s.camera("Camera1", "the left camera's intrinsics", size, distorted=True)
     right = s.camera("Camera2", "the right camera's intrinsics", size, distorted=True)
     t_lr = s.matrix("Stereo.T_c1_c2", "the right camera's pose in the left's frame, 4x4", (4, 4))
-    _check_pose(s.path, "Stereo.T_c1_c2", t_lr)
+    check_pose(s.path, "Stereo.T_c1_c2", t_lr)
     return StereoCalibration(left, right, t_lr, str(s.path))

@@ -13,7 +13,8 @@ Layouts:
 - EuRoC ASL: ``mav0/cam{0,1}/data.csv`` (``#timestamp [ns],filename``), ``data/`` images,
   ``sensor.yaml``; ground truth ``mav0/state_groundtruth_estimate0/data.csv`` is the body's
   pose, so :meth:`StereoSequence.groundtruth` returns ``T_WB @ T_BS`` (cam0), as evo's
-  ``transform(T_BS, right_mul=True)`` does.
+  ``transform(T_BS, right_mul=True)`` does. ``mav0/imu0`` (readings and ``sensor.yaml``)
+  becomes the sequence's ``imu`` (``io.imu``): each frame then carries its readings.
 - KITTI odometry: ``image_0/``, ``image_1/`` (same file names), ``calib.txt``, ``times.txt``;
   ground truth ``poses/XX.txt`` (cam0 poses, 3x4) beside ``sequences/`` or given.
 - TUM-like: ``rgb.txt`` + ``rgb/`` and ``rgb_right.txt`` + ``rgb_right/``, pairs by
@@ -36,6 +37,7 @@ from semslam.errors import ConfigError, DataError
 from semslam.geometry.camera import PinholeCamera
 from semslam.io.association import match_timestamps
 from semslam.io.images import FrameReadError, read_rgb
+from semslam.io.imu import attach_imu
 from semslam.io.sequence import (IMAGE_SUFFIXES, ListEntry, Sequence, _natural_key, euroc_root, listed_path,
                                  read_file_list, stereo_layout)
 from semslam.io.stereo_calibration import (StereoCalibration, read_euroc_calibration, read_euroc_sensor,
@@ -55,7 +57,54 @@ def euroc_camera_trajectory(body: Trajectory, t_bs: NDArray[np.float64]) -> Traj
     return Trajectory(body.timestamps.copy(), body.poses @ np.asarray(t_bs, dtype=np.float64), body.name)
 
 
-class StereoSequence(Sequence):
+class LayoutSequence(Sequence):
+    """A sequence read from a dataset layout whose ground truth may need converting before
+    evaluation reads it (EuRoC: body poses; KITTI: 3x4 poses with times.txt), and whose
+    listed images are checked for existence once (the stereo readers, EuRoC mono / RGB-D)."""
+
+    def _set_groundtruth(self, groundtruth_path: Path | None, groundtruth_format: str = "tum",
+                         t_bs: NDArray[np.float64] | None = None, times_path: Path | None = None) -> None:
+        #: The ground truth file as the layout has it (EuRoC: the body's; KITTI: 3x4 poses).
+        self.groundtruth_source = groundtruth_path
+        self._gt_format = groundtruth_format
+        self._times_path = times_path
+        #: cam0's pose in the body frame (EuRoC), applied to the body ground truth.
+        self.t_bs = t_bs
+        #: What evaluation reads (``semslam run``, the report): cam0's poses as a TUM file, written
+        #: to a temporary folder that lives as long as the sequence where the layout's file is not.
+        self.groundtruth_path = groundtruth_path
+        self._gt_dir: tempfile.TemporaryDirectory[str] | None = None
+        if groundtruth_path is not None and groundtruth_format != "tum":
+            camera_poses = self.groundtruth()
+            assert camera_poses is not None
+            self._gt_dir = tempfile.TemporaryDirectory(prefix="semslam-layout-gt-")
+            self.groundtruth_path = Path(self._gt_dir.name) / "groundtruth.txt"
+            write_tum(self.groundtruth_path, camera_poses)
+
+    def groundtruth(self) -> Trajectory | None:
+        """The ground truth as cam0 poses (EuRoC: body poses times ``T_BS``); None without one."""
+        source = self.groundtruth_source
+        if source is None:
+            return None
+        if self._gt_format == "euroc":
+            body = read_euroc_csv(source)
+            return body if self.t_bs is None else euroc_camera_trajectory(body, self.t_bs)
+        if self._gt_format == "kitti":
+            return read_kitti(source, self._times_path)
+        return read_tum(source)
+
+    def _check_listed_files(self, columns: list[list[Path]]) -> None:
+        """Many listed images missing is a broken download (an error now, naming the first);
+        a few are skipped when reached, as the RGB-D reader does. ``columns``: the images of
+        each frame, one list per camera."""
+        n = len(columns[0])
+        missing = [p for row in zip(*columns) for p in row if not p.is_file()]
+        allowed = max(3, int(self.max_skip_fraction * n))
+        if missing and (len(missing) > allowed or len(missing) >= n):
+            raise DataError(missing[0], f"file not found, and {len(missing) - 1} more listed images are missing")
+
+
+class StereoSequence(LayoutSequence):
     """Rectified stereo pairs: left/right paths per frame, timestamps, calibration."""
 
     has_depth = False
@@ -70,7 +119,7 @@ class StereoSequence(Sequence):
         self.name = resolved.parent.name if resolved.name == "mav0" else resolved.name
         self._left, self._right = left, right
         self._timestamps = np.asarray(timestamps, dtype=np.float64)
-        self._check_missing_files()
+        self._check_listed_files([self._left, self._right])
         first = next((p for p in left if p.is_file()), None)
         if calibration.rectified_input and calibration.camera.width <= 0 and first is not None:
             try:
@@ -80,34 +129,11 @@ class StereoSequence(Sequence):
                 pass  # reported when iteration reaches it
         self.calibration = calibration
         self.camera: PinholeCamera = calibration.camera
-        #: The ground truth file as the layout has it (EuRoC: the body's; KITTI: 3x4 poses).
-        self.groundtruth_source = groundtruth_path
-        self._gt_format = groundtruth_format
-        self._times_path = times_path
-        #: cam0's pose in the body frame (EuRoC), applied to the body ground truth.
-        self.t_bs = t_bs
-        #: What evaluation reads (``semslam run``, the report): cam0's poses as a TUM file, written
-        #: to a temporary folder that lives as long as the sequence where the layout's file is not.
-        self.groundtruth_path = groundtruth_path
-        self._gt_dir: tempfile.TemporaryDirectory[str] | None = None
-        if groundtruth_path is not None and groundtruth_format != "tum":
-            camera_poses = self.groundtruth()
-            assert camera_poses is not None
-            self._gt_dir = tempfile.TemporaryDirectory(prefix="semslam-stereo-gt-")
-            self.groundtruth_path = Path(self._gt_dir.name) / "groundtruth.txt"
-            write_tum(self.groundtruth_path, camera_poses)
+        self._set_groundtruth(groundtruth_path, groundtruth_format, t_bs, times_path)
 
     @property
     def timestamps(self) -> NDArray[np.float64]:
         return self._timestamps
-
-    def _check_missing_files(self) -> None:
-        """Many listed images missing is a broken download (an error now, naming the first);
-        a few are skipped when reached, as the RGB-D reader does."""
-        missing = [p for pair in zip(self._left, self._right) for p in pair if not p.is_file()]
-        allowed = max(3, int(self.max_skip_fraction * len(self._left)))
-        if missing and (len(missing) > allowed or len(missing) >= len(self._left)):
-            raise DataError(missing[0], f"file not found, and {len(missing) - 1} more listed images are missing")
 
     def load(self, index: int) -> Frame:
         lp, rp = self._left[index], self._right[index]
@@ -122,36 +148,26 @@ class StereoSequence(Sequence):
         left, right = cal.rectify(left, right)
         return Frame(index, float(self._timestamps[index]), left, None, lp, None, right=right, right_path=rp)
 
-    def groundtruth(self) -> Trajectory | None:
-        """The ground truth as cam0 poses (EuRoC: body poses times ``T_BS``); None without one."""
-        source = self.groundtruth_source
-        if source is None:
-            return None
-        if self._gt_format == "euroc":
-            body = read_euroc_csv(source)
-            return body if self.t_bs is None else euroc_camera_trajectory(body, self.t_bs)
-        if self._gt_format == "kitti":
-            return read_kitti(source, self._times_path)
-        return read_tum(source)
-
 
 # ---------------------------------------------------------------------------- pairing
 
 
-def _pair(left: list[ListEntry], right: list[ListEntry], left_file: Path, right_file: Path,
-          max_diff: float, max_skip_fraction: float = 0.05) -> tuple[list[ListEntry], list[ListEntry]]:
+def pair_lists(left: list[ListEntry], right: list[ListEntry], left_file: Path, right_file: Path,
+               max_diff: float, max_skip_fraction: float = 0.05,
+               what: str = "right image") -> tuple[list[ListEntry], list[ListEntry]]:
     """Left and right entries at the same time (within ``max_diff`` s). A few left images
-    without a right one are dropped with a warning; more is an error naming the first."""
+    without a right one (``what``: EuRoC RGB-D pairs cam0 with a depth image) are dropped with
+    a warning; more is an error naming the first."""
     il, ir = match_timestamps([e.timestamp for e in left], [e.timestamp for e in right], max_diff=max_diff)
     matched = set(int(i) for i in il)
     unmatched = [e for k, e in enumerate(left) if k not in matched]
     allowed = int(max_skip_fraction * len(left))
     if unmatched and (len(unmatched) > allowed or not len(il)):
         first = unmatched[0]
-        raise DataError(left_file, f"line {first.line}: image at {first.timestamp:.9f} s has no right image in "
+        raise DataError(left_file, f"line {first.line}: image at {first.timestamp:.9f} s has no {what} in "
                                    f"{right_file} within {max_diff:g} s ({len(unmatched)} of {len(left)} unmatched)")
     if unmatched:
-        log.warning("%s: %d left images have no right image in %s; dropped", left_file, len(unmatched), right_file)
+        log.warning("%s: %d images have no %s in %s; dropped", left_file, len(unmatched), what, right_file)
     order = np.argsort(il)
     return [left[int(i)] for i in np.asarray(il)[order]], [right[int(i)] for i in np.asarray(ir)[order]]
 
@@ -182,7 +198,8 @@ def read_euroc_list(path: Path) -> list[ListEntry]:
 
 def open_euroc_stereo(root: Path, calibration: StereoCalibration | None = None,
                       max_diff: float = 0.001) -> StereoSequence:
-    """An EuRoC ASL sequence (the folder holding ``mav0/``, or ``mav0`` itself)."""
+    """An EuRoC ASL sequence (the folder holding ``mav0/``, or ``mav0`` itself), with its
+    IMU (``mav0/imu0``, ``io.imu.open_imu``) where it has one."""
     mav0 = euroc_root(root)
     if mav0 is None:
         raise DataError(root / "mav0" / "cam1", "not found (an EuRoC stereo sequence has mav0/cam0 and mav0/cam1)")
@@ -192,16 +209,18 @@ def open_euroc_stereo(root: Path, calibration: StereoCalibration | None = None,
         if not csv.is_file():
             raise DataError(csv, f"file not found (EuRoC stereo needs {cam}'s list of images)")
         lists.append(read_euroc_list(csv))
-    left, right = _pair(lists[0], lists[1], mav0 / "cam0" / "data.csv", mav0 / "cam1" / "data.csv", max_diff)
+    left, right = pair_lists(lists[0], lists[1], mav0 / "cam0" / "data.csv", mav0 / "cam1" / "data.csv", max_diff)
     t_bs = None
     if calibration is None:
         calibration, t_bs = read_euroc_calibration(mav0)
     elif (mav0 / "cam0" / "sensor.yaml").is_file():  # T_BS still places cam0 on the body for the ground truth
         t_bs = read_euroc_sensor(mav0 / "cam0" / "sensor.yaml")[1]
     gt = mav0 / "state_groundtruth_estimate0" / "data.csv"
-    return StereoSequence(root, [e.path for e in left], [e.path for e in right],
-                          np.array([e.timestamp for e in left]), calibration,
-                          gt if gt.is_file() else None, "euroc", t_bs)
+    seq = StereoSequence(root, [e.path for e in left], [e.path for e in right],
+                         np.array([e.timestamp for e in left]), calibration,
+                         gt if gt.is_file() else None, "euroc", t_bs)
+    attach_imu(seq, mav0)  # imu0, where the folder has one: each frame then carries its readings
+    return seq
 
 
 def _kitti_groundtruth(root: Path) -> Path | None:
@@ -254,7 +273,7 @@ def open_tum_stereo(root: Path, calibration: StereoCalibration | None = None,
     for f in (left_txt, right_txt):
         if not f.is_file():
             raise DataError(f, "file not found (a TUM-like stereo folder has rgb.txt and rgb_right.txt)")
-    left, right = _pair(read_file_list(left_txt), read_file_list(right_txt), left_txt, right_txt, max_diff)
+    left, right = pair_lists(read_file_list(left_txt), read_file_list(right_txt), left_txt, right_txt, max_diff)
     if calibration is None:
         settings = next((root / n for n in SETTINGS_NAMES if (root / n).is_file()), None)
         if settings is None:
