@@ -80,7 +80,7 @@ def create_map_stage(config: SystemConfig) -> MapStage | None:
 def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None,
              imu: ImuCalibration | None = None) -> RunParts:
     """Every part of the run; what was built is closed again when a later part fails.
-    ``imu``: the IMU's calibration when the input has one (unused with ``imu.use: off``)."""
+    ``imu``: the IMU's calibration when the input has one (unused with ``imu.use: false``)."""
     check_sensor(config)
     create_tracker = registry.load("tracker", config.tracking.method)
     # Compiled kernels are built (or loaded from disk) now, not inside the first frames.
@@ -96,7 +96,7 @@ def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None 
         dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
                                         threaded=not config.slam.sequential,
                                         depth=depth if config.depth.source != "sensor" else None)
-        inputs = TrackerInputs(depth, dynamics, imu if config.imu.use != "off" else None)
+        inputs = TrackerInputs(depth, dynamics, imu if config.imu.use else None)
         tracker: Tracker = create_tracker(config, camera, inputs, map_path)
     except BaseException:
         if maps is not None:

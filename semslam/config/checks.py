@@ -150,7 +150,6 @@ RULES: dict[type, dict[str, Rule]] = {
         "alignment_min_points": Num(3),
     },
     s.ImuConfig: {
-        "use": OneOf(("auto", "off")),
         "init_s": POSITIVE,
         "init_step_s": POSITIVE,
         "refine_first_s": POSITIVE,

@@ -445,8 +445,8 @@ class ImuConfig:
     ``imu=``): its noise from the calibration unless given here, and how tracking uses it
     (``slam/orb/motion_priors/inertial.py``)."""
 
-    # auto: use the input's IMU when it has one; off: ignore it.
-    use: str = "auto"
+    # Use the input's IMU when it has one (false: ignore it, visual only).
+    use: bool = True
     # Seconds of visually tracked frames before the inertial initialisation (gravity,
     # velocities, biases; backend/inertial_init.py), and the spacing of the frames it uses.
     init_s: float = 1.0

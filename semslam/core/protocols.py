@@ -99,7 +99,7 @@ class MovingRegions:
 class TrackerInputs:
     """What the System builds and hands every tracker: where depth comes from, the
     dynamic stage (None when dynamics handling is off) and the IMU's calibration (None
-    without an IMU, or with ``imu.use: off``)."""
+    without an IMU, or with ``imu.use: false``)."""
 
     depth: "DepthSource"
     dynamics: "DynamicStage | None" = None

@@ -229,6 +229,9 @@ class TrackResult:
     keyframe: KeyframeEvent | None = field(default=None, repr=False)
     #: Keyframes' new ``T_wc`` where this frame moved them (a pose-graph correction).
     corrected_poses: dict[int, NDArray[np.float64]] | None = field(default=None, repr=False)
+    #: What posed the frame when its features did not (a pose prior's name: ``inertial`` for
+    #: the IMU alone, ``depth_odometry``, ``blur_coast``); empty when the features did.
+    posed_by: str = ""
 
 
 # ---------------------------------------------------------------------------- runs

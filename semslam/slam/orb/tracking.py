@@ -223,7 +223,8 @@ class Tracking:
         static = ~self._dropped if self._dropped is not None else np.ones(len(kps), bool)
         return TrackResult(frame.timestamp, pose_wc, self.state, n_matches=n_inl, n_inliers=n_inl,
                            n_keypoints=len(kps), is_keyframe=is_kf, dynamic_ratio=self.last_dynamic_ratio,
-                           timings=timings, dynamic=dynamic, keypoints_xy=kps.xy, keypoint_static=static)
+                           timings=timings, dynamic=dynamic, keypoints_xy=kps.xy, keypoint_static=static,
+                           posed_by=posed_by.name if posed_by is not None and pose_wc is not None else "")
 
     def _motion_state(self) -> MotionState:
         return MotionState(self.last, self.state is TrackingState.OK, self.velocity, self.velocity_dt)

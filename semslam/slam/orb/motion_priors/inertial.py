@@ -1,4 +1,4 @@
-"""The IMU as a pose prior (``imu.use: auto`` with an input that has one).
+"""The IMU as a pose prior (``imu.use``, on by default, with an input that has one).
 
 Before the inertial initialisation the prior only collects: readings, and the tracked
 frames' body poses. Once ``imu.init_s`` seconds are tracked, gravity's direction in the
@@ -101,6 +101,8 @@ class InertialPrior(PriorDefaults):
         self._blind_start: tuple[float, Array, Array] | None = None
         self._blind: list[tuple[float, int | None]] = []
         self.n_bridged = 0
+        #: Stretches posed by the IMU alone: [first frame's time, last frame's time, frames].
+        self.spans: list[list[float]] = []
         self.n_imu_only = 0
         self.n_blind_lost = 0
         self.n_inits = 0
@@ -178,6 +180,9 @@ class InertialPrior(PriorDefaults):
                 t_a, T_a, _ = self.history[-1]
                 self._blind_start = (t_a, T_a, self.velocity)  # still the last tracked frame's
             self._blind.append((t, outcome.recorded_at))
+            if len(self._blind) == 1:
+                self.spans.append([t, t, 0])
+            self.spans[-1][1:] = [t, self.spans[-1][2] + 1]
             self.velocity = pred.v_w
             return
         self.blind_since = None
@@ -281,6 +286,7 @@ class InertialPrior(PriorDefaults):
     def counters(self) -> dict[str, Any]:
         return {"imu_initialisations": self.n_inits, "imu_init_frame": self.init_frame,
                 "imu_init_after_s": round(self.init_after_s, 3), "imu_refinements": self.n_refinements,
-                "imu_only_frames": self.n_imu_only, "imu_blind_lost": self.n_blind_lost,
+                "imu_only_frames": self.n_imu_only, "imu_only_spans": [list(s) for s in self.spans],
+                "imu_bridged_frames": self.n_bridged, "imu_blind_lost": self.n_blind_lost,
                 "imu_gyro_bias": [round(float(b), 6) for b in self.gyro_bias],
                 "imu_acc_bias": [round(float(b), 5) for b in self.acc_bias]}
