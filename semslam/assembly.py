@@ -9,6 +9,8 @@ the map builders, the System feeds them from the tracker's results.
 
 from __future__ import annotations
 
+import logging
+
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +23,8 @@ from semslam.errors import ConfigError
 from semslam.features.jit import warm_up as warm_up_kernels
 from semslam.frontend.stereo_depth import StereoDepth
 from semslam.geometry.camera import PinholeCamera
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -77,6 +81,19 @@ def create_map_stage(config: SystemConfig) -> MapStage | None:
                          semantics=config.semantics if segment else None)
 
 
+def usable_imu(config: SystemConfig, imu: ImuCalibration | None) -> ImuCalibration | None:
+    """The IMU's calibration where tracking uses it: the ORB core with a known scale (stereo,
+    RGB-D); else None, with a warning when the input has one."""
+    if imu is None or not config.imu.use:
+        return None
+    if config.tracking.method != "orb_slam" or config.sensor == "mono":
+        what = ("monocular-inertial tracking (the map's scale from the IMU) is not built yet"
+                if config.sensor == "mono" else f"tracking.method {config.tracking.method} does not use one")
+        log.warning("the input has an IMU, but %s: it is ignored (imu.use=false silences this)", what)
+        return None
+    return imu
+
+
 def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None = None,
              imu: ImuCalibration | None = None) -> RunParts:
     """Every part of the run; what was built is closed again when a later part fails.
@@ -96,7 +113,7 @@ def assemble(config: SystemConfig, camera: PinholeCamera, map_path: Path | None 
         dynamics = create_dynamic_stage(config.dynamics, config.semantics, camera,
                                         threaded=not config.slam.sequential,
                                         depth=depth if config.depth.source != "sensor" else None)
-        inputs = TrackerInputs(depth, dynamics, imu if config.imu.use else None)
+        inputs = TrackerInputs(depth, dynamics, usable_imu(config, imu))
         tracker: Tracker = create_tracker(config, camera, inputs, map_path)
     except BaseException:
         if maps is not None:
