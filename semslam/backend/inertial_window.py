@@ -31,6 +31,9 @@ class WindowEstimate:
     velocities: Array  # (N, 3), one per window frame
     gyro_bias: Array  # at the newest frame
     acc_bias: Array
+    #: The solution's squared normalised residuals per residual dimension (~1 when the poses
+    #: and the readings agree; large when a pose is wrong or the readings do not fit).
+    chi2_per_dim: float
 
 
 def _x(i: int) -> int:
@@ -74,7 +77,9 @@ def refine_window(times: Array, T_wb: Array, samples: ImuSamples, noise: ImuNois
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
     vel = np.array([result.atVector(_v(i)) for i in range(n)])
     b = result.atConstantBias(_b(n - 1))
-    return WindowEstimate(vel, np.asarray(b.gyroscope()), np.asarray(b.accelerometer()))
+    dims = 6 * n + 15 * (n - 1) + 9
+    return WindowEstimate(vel, np.asarray(b.gyroscope()), np.asarray(b.accelerometer()),
+                          2.0 * graph.error(result) / dims)
 
 
 def bridge(times: Array, T_wb_start: Array, v_start: Array, T_wb_end: Array, samples: ImuSamples,

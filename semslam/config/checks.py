@@ -158,6 +158,7 @@ RULES: dict[type, dict[str, Rule]] = {
         "max_blind_s": NON_NEGATIVE,
         "window_s": POSITIVE,
         "window_step_s": POSITIVE,
+        "min_inliers": NON_NEGATIVE,
         "gyro_noise_density": NON_NEGATIVE,
         "acc_noise_density": NON_NEGATIVE,
         "gyro_random_walk": NON_NEGATIVE,

@@ -463,6 +463,9 @@ class ImuConfig:
     # re-estimated on after each frame (GTSAM CombinedImuFactor, backend/inertial_window.py).
     window_s: float = 1.0
     window_step_s: float = 0.1
+    # Tracked frames the estimation uses: posed by their features with at least this many
+    # inliers (a blurred turn's coasted poses are too rough for velocities and biases).
+    min_inliers: int = 50
     # Noise overrides (0: the calibration's): continuous-time densities and random walks.
     gyro_noise_density: float = 0.0
     acc_noise_density: float = 0.0

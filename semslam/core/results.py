@@ -67,6 +67,8 @@ class TrackingCounters(Counters):
     imu_only_frames: int | None = None
     imu_only_spans: Sequence[Sequence[float]] | None = None
     imu_bridged_frames: int | None = None
+    imu_weak_frames: int | None = None
+    imu_refused_solutions: int | None = None
     imu_blind_lost: int | None = None
     imu_gyro_bias: Sequence[float] | None = None
     imu_acc_bias: Sequence[float] | None = None
@@ -204,7 +206,8 @@ STATS_LAYOUT: tuple[str, ...] = (
     "merges_rejected", "merge_checks", "mono_init_attempts", "mono_init_refused",
     "depth_prior_metric_init", "depth_prior_scale", "depth_prior_keyframes", "depth_prior_refused",
     "imu_initialisations", "imu_init_frame", "imu_init_after_s", "imu_refinements", "imu_only_frames",
-    "imu_only_spans", "imu_bridged_frames", "imu_blind_lost", "imu_gyro_bias", "imu_acc_bias",
+    "imu_only_spans", "imu_bridged_frames", "imu_weak_frames",
+    "imu_refused_solutions", "imu_blind_lost", "imu_gyro_bias", "imu_acc_bias",
     *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
     "jit_warmup_s",
 )

@@ -54,20 +54,21 @@ if TYPE_CHECKING:
 def pose_priors(config: SystemConfig, camera: PinholeCamera, slam_map: Map, pyramid: ScalePyramid,
                 sharpness: SharpnessHistory, imu: ImuCalibration | None = None) -> list[PosePrior]:
     """The priors ``config`` turns on, in the order tracking asks them: the rolling shutter
-    (keypoints moved before anything), the IMU (its prediction first: it measured the
-    motion), the images' shift on blurred frames (its prediction before the constant
-    velocity's; its coast before depth odometry), depth odometry, and the constant velocity
-    last (the motion model's fallback)."""
+    (keypoints moved before anything), the images' shift on blurred frames (its prediction
+    before the others'; its coast before depth odometry), depth odometry, the IMU (its
+    prediction wherever the blurred frames' shift has none; it poses a frame only when
+    nothing before it could: ahead of the coast it posed blurred turns itself, and their
+    coasted poses are better), and the constant velocity last (the motion model's fallback)."""
     cfg = config.slam
     priors: list[PosePrior] = []
     if cfg.rolling_shutter_ms > 0:
         priors.append(RollingShutter(cfg, camera, slam_map, pyramid))
-    if imu is not None:
-        priors.append(InertialPrior(config.imu, imu))
     if cfg.blur_coast_sharp_ratio > 0:
         priors.append(BlurCoast(cfg, camera, slam_map, pyramid, sharpness))
     if cfg.depth_odometry != "none":
         priors.append(DepthOdometry(cfg, camera, sharpness))
+    if imu is not None:
+        priors.append(InertialPrior(config.imu, imu))
     priors.append(ConstantVelocity())
     return priors
 
@@ -236,7 +237,10 @@ class Tracking:
         frame or None)``."""
         t0 = time.perf_counter()
         state = self._motion_state()
-        prediction = next((p for p in (prior.predict(state, images) for prior in self.priors) if p is not None), None)
+        # Every prior is asked (a prior may measure something for its correction as it
+        # predicts: the blurred frames' image shift); the first prediction wins.
+        predictions = [prior.predict(state, images) for prior in self.priors]
+        prediction = next((p for p in predictions if p is not None), None)
         ok = self._track_frame(cur, prediction, timings)
         ok, _ = self._correct(Stage.MATCHED, cur, ok, images, timings)
         timings["track"] = (time.perf_counter() - t0) * 1e3

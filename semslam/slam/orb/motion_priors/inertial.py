@@ -46,6 +46,15 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 
+#: Frames an initialisation or refinement solves over, at most (spread over its span).
+MAX_INIT_FRAMES = 30
+#: Solutions refused as the poses and the readings disagreeing (a frame posed wrong, a
+#: blurred turn): an initialisation or refinement whose normalised residuals' RMS is above
+#: MAX_INIT_RMS (consistent ones: 0.3), a window whose chi2 per dimension is above
+#: MAX_WINDOW_CHI2 (consistent: below 1).
+MAX_INIT_RMS = 2.0
+MAX_WINDOW_CHI2 = 4.0
+
 
 def configured_noise(calibration: ImuNoise, cfg: ImuConfig) -> ImuNoise:
     """The calibration's noise with the config's non-zero overrides."""
@@ -101,6 +110,9 @@ class InertialPrior(PriorDefaults):
         self._blind_start: tuple[float, Array, Array] | None = None
         self._blind: list[tuple[float, int | None]] = []
         self.n_bridged = 0
+        self.n_weak = 0  # tracked frames left out of the estimation (another prior's pose, few matches)
+        self.n_refused = 0  # initialisations, refinements and windows refused as inconsistent
+        self._retry_at = -np.inf
         #: Stretches posed by the IMU alone: [first frame's time, last frame's time, frames].
         self.spans: list[list[float]] = []
         self.n_imu_only = 0
@@ -188,6 +200,12 @@ class InertialPrior(PriorDefaults):
         self.blind_since = None
         if self.first_tracked_t is None:
             self.first_tracked_t = t
+        if outcome.posed_by is not None or outcome.n_inliers < self.cfg.min_inliers:
+            # Posed by another prior (a blurred turn coasted) or on few matches: its pose is
+            # too rough to estimate velocity and biases from; the readings carry them on.
+            self.velocity = pred.v_w if pred is not None else None
+            self.n_weak += 1
+            return
         T_cw = outcome.frame.T_cw
         assert T_cw is not None
         self.history.append((t, self._body(T_cw), pred.v_w if pred is not None else None))
@@ -218,15 +236,25 @@ class InertialPrior(PriorDefaults):
         return times[idx], poses[idx]
 
     def _initialise(self, t: float, index: int, refine: bool = False) -> None:
-        """The inertial initialisation once ``init_s`` is tracked (or a refinement)."""
-        if t - self.history[0][0] < self.cfg.init_s - 1e-9:
+        """The inertial initialisation once ``init_s`` is tracked (or a refinement); one the
+        poses do not fit is refused (tried again ``init_s`` / 2 later; a refinement keeps
+        the estimate it would have replaced)."""
+        if t - self.history[0][0] < self.cfg.init_s - 1e-9 or t < self._retry_at:
             return
         span = self.cfg.refine_window_s if refine else self.cfg.init_s
-        times, poses = self._spaced_history(span, self.cfg.init_step_s)
+        # At most ~30 frames: the solve runs in the tracking thread (0.2 s at 30, 0.7 at 100).
+        times, poses = self._spaced_history(span, max(self.cfg.init_step_s, (t - self.history[0][0]) / MAX_INIT_FRAMES))
         if len(times) < 3 or not self.buffer.covers(times[0], times[-1]):
             return
         samples = self.buffer.window(times[0], times[-1])
         est = initialise(times, poses, samples, self.noise, self.gyro_bias, self.acc_bias)
+        if est.rms > MAX_INIT_RMS:
+            self.n_refused += 1
+            if refine:
+                self.refined += 1
+            else:
+                self._retry_at = t + 0.5 * self.cfg.init_s
+            return
         self.gravity, self.gyro_bias, self.acc_bias = est.gravity_w, est.gyro_bias, est.acc_bias
         self.velocity = est.velocities[-1]
         self.last_window_t = t
@@ -251,8 +279,11 @@ class InertialPrior(PriorDefaults):
         v_first = self._velocity_guess(times, poses)
         est = refine_window(times, poses, self.buffer.window(times[0], times[-1]), self.noise, self.gravity,
                             v_first, self.gyro_bias, self.acc_bias)
-        self.velocity, self.gyro_bias, self.acc_bias = est.velocities[-1], est.gyro_bias, est.acc_bias
         self.last_window_t = t
+        if est.chi2_per_dim > MAX_WINDOW_CHI2:
+            self.n_refused += 1
+            return
+        self.velocity, self.gyro_bias, self.acc_bias = est.velocities[-1], est.gyro_bias, est.acc_bias
 
     def _bridge(self, outcome: FrameOutcome) -> None:
         """The frames the IMU posed alone, re-posed once the features track again: the
@@ -288,5 +319,6 @@ class InertialPrior(PriorDefaults):
                 "imu_init_after_s": round(self.init_after_s, 3), "imu_refinements": self.n_refinements,
                 "imu_only_frames": self.n_imu_only, "imu_only_spans": [list(s) for s in self.spans],
                 "imu_bridged_frames": self.n_bridged, "imu_blind_lost": self.n_blind_lost,
+                "imu_weak_frames": self.n_weak, "imu_refused_solutions": self.n_refused,
                 "imu_gyro_bias": [round(float(b), 6) for b in self.gyro_bias],
                 "imu_acc_bias": [round(float(b), 5) for b in self.acc_bias]}
