@@ -51,6 +51,13 @@ def test_blackout_bridged_by_the_imu(euroc_blackout: Path, tmp_path: Path, senso
     gt = euroc_blackout / "groundtruth_cam0.txt"
     _write_cam0_groundtruth(euroc_blackout, gt)
     ate = evo_ate(gt, tmp_path / "imu" / "trajectory.txt")
+    # Gravity in the map (the first camera's frame) against the render's world z axis.
+    from evo.tools import file_interface
+
+    first = file_interface.read_tum_trajectory_file(str(gt)).poses_se3[0]
+    g_true = first[:3, :3].T @ np.array([0.0, 0.0, -9.81])
+    g = np.array(with_imu["imu_gravity"])
+    assert np.degrees(np.arccos(np.clip(g @ g_true / 9.81**2, -1.0, 1.0))) < 2.0
     ate, ate_without = evo_ate(gt, tmp_path / "imu" / "trajectory.txt"), evo_ate(gt, tmp_path / "vis" / "trajectory.txt")
     bound = {"rgbd": 0.01, "stereo": 0.025}[sensor]  # stereo at 320x240 is 1.6-2.6 cm without a blackout
     assert ate < bound and ate < 1.2 * ate_without, (ate, ate_without)

@@ -320,5 +320,6 @@ class InertialPrior(PriorDefaults):
                 "imu_only_frames": self.n_imu_only, "imu_only_spans": [list(s) for s in self.spans],
                 "imu_bridged_frames": self.n_bridged, "imu_blind_lost": self.n_blind_lost,
                 "imu_weak_frames": self.n_weak, "imu_refused_solutions": self.n_refused,
+                "imu_gravity": None if self.gravity is None else [round(float(g), 5) for g in self.gravity],
                 "imu_gyro_bias": [round(float(b), 6) for b in self.gyro_bias],
                 "imu_acc_bias": [round(float(b), 5) for b in self.acc_bias]}

@@ -1,0 +1,240 @@
+#!/usr/bin/env python
+"""Benchmark: issue 42's visual-inertial targets, on EuRoC-layout renders with a simulated IMU
+(200 Hz, EuRoC's ADIS16448 noise, seeded biases; ``semslam synth --imu --depth
+--stereo-baseline 0.11``) over several seeds and the held-out room layouts.
+
+    python benchmarks/inertial_targets.py [--work out/inertial_targets] [--jobs 2] [--json out.json]
+    python benchmarks/inertial_targets.py --quick          # one seed
+    python benchmarks/inertial_targets.py --no-speed       # accuracy only
+
+Renders per (seed, layout): ``static`` (static_xyz), ``walking`` (walking_xyz, two people),
+``blackout`` (blackout_xyz: the lens covered for 2 s from 2 s while the camera moves) and its
+clean twin (no blackout), ``hard`` (walking_hard's fast turns with motion blur, a rolling
+shutter, auto-exposure swings and a depth-colour delay; the first 300 frames) and its clean
+twin (walking_turns). Each runs ``default`` through the CLI with ``--sequential``
+(deterministic) as RGB-D (cam0 + depth0) and stereo (cam0 + cam1), with the IMU and without
+(``--set imu.use=false``). ATE is SE(3) (evo's convention, on the frames each run posed).
+
+Speed: threaded runs (one at a time) of ``default`` with and without the IMU on the first
+static render, per-frame time (``ms_per_frame.median``).
+
+Prints a JSON document, then markdown tables: per render and the targets with median and
+worst over the renders.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+BASELINE = 0.11
+#: (seed, layout): layout 0 the office, 1 the lounge, 2 a random room (1 and 2 held out).
+PAIRS = [(20, 0), (21, 1), (22, 2)]
+QUICK_PAIRS = [(20, 0)]
+#: kind -> (synth sequence, frames, extra synth flags).
+KINDS: dict[str, tuple[str, int, list[str]]] = {
+    "static": ("static_xyz", 200, []),
+    "walking": ("walking_xyz", 200, []),
+    "blackout": ("blackout_xyz", 180, ["--blackout-start-s", "2.0", "--blackout-s", "2.0"]),
+    "blackout_twin": ("blackout_xyz", 180, ["--blackout-s", "0"]),
+    "hard": ("walking_hard", 300, []),
+    "hard_twin": ("walking_turns", 300, []),
+}
+SENSORS = ("rgbd", "stereo")
+MODES = ("imu", "vis")
+
+
+@dataclass(frozen=True)
+class Render:
+    name: str
+    kind: str
+    path: Path
+    pair: str
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "semslam.cli.main", *args]
+
+
+def _render(work: Path, kind: str, seed: int, layout: int) -> Render:
+    """The render, made now unless ``sequence.json`` shows the same one."""
+    seq, frames, extra = KINDS[kind]
+    pair = f"s{seed}_l{layout}"
+    name = f"{kind}_{pair}"
+    path = work / "data" / name
+    want = {"seed": seed, "layout": layout, "frames": frames, "stereo_baseline": BASELINE, "imu": True,
+            "euroc_depth": True}
+    meta = path / "sequence.json"
+    have = json.loads(meta.read_text()).get("config", {}) if meta.is_file() else {}
+    if any(have.get(k) != v for k, v in want.items()) or not (path / "mav0" / "imu0" / "data.csv").is_file():
+        shutil.rmtree(path, ignore_errors=True)
+        for old in (work / "runs").glob(f"{name}_*"):
+            shutil.rmtree(old, ignore_errors=True)
+        cmd = _cli("synth", str(path), "-s", seq, "-n", str(frames), "--seed", str(seed), "--layout", str(layout),
+                   "--stereo-baseline", str(BASELINE), "--layout-format", "euroc", "--imu", "--depth", "-q", *extra)
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return Render(name, kind, path, pair)
+
+
+def _run(render: Render, sensor: str, mode: str, work: Path, speed: bool = False) -> dict[str, Any] | None:
+    """stats.json of one run (cached); None (and a line on stderr) if it failed."""
+    out = work / ("speed" if speed else "runs") / f"{render.name}_{sensor}_{mode}"
+    if speed or not (out / "stats.json").is_file():
+        flags = ["--preset", "default", "--sensor", sensor] + (["--set", "imu.use=false"] if mode == "vis" else [])
+        extra = [] if speed else ["--sequential", "--map", "none"]
+        cmd = _cli("run", str(render.path), "--out", str(out), *flags, *extra, "--quiet", "--no-report", "--overwrite")
+        done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        if done.returncode != 0:
+            print(f"{render.name} {sensor} {mode}: failed: {done.stderr.strip()[-400:]}", file=sys.stderr)
+            return None
+    return json.loads((out / "stats.json").read_text())
+
+
+def _row(render: Render, sensor: str, mode: str, s: dict[str, Any]) -> dict[str, Any]:
+    return {"render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
+            "ate_cm": s["ate"]["rmse"] * 100 if s.get("ate") else None, "frames": int(s["frames"]),
+            "tracked": int(s["tracked_frames"]), "lost": int(s["lost_frames"]),
+            "uninitialised": int(s.get("uninitialized_frames", 0)), "maps": s.get("maps"),
+            "imu_only_frames": s.get("imu_only_frames"), "imu_init_frame": s.get("imu_init_frame"),
+            "ms_per_frame": s["ms_per_frame"]["median"]}
+
+
+def _dist(values: list[float], worst: str = "max") -> str:
+    if not values:
+        return "-"
+    w = max(values) if worst == "max" else min(values)
+    return f"{np.median(values):.2f} / {w:.2f}"
+
+
+def targets(rows: list[dict[str, Any]], speed: list[dict[str, Any]]) -> list[tuple[str, str, str, str]]:
+    """(target, measured median / worst, bound, PASS / FAIL / reported / n/a)."""
+    at = {(r["kind"], r["pair"], r["sensor"], r["mode"]): r for r in rows}
+
+    def ratios(kind: str, twin: str, sensor: str, mode_a: str = "imu", mode_b: str = "imu") -> list[float]:
+        out = []
+        for (k, pair, s, m), r in at.items():
+            other = at.get((twin, pair, sensor, mode_b))
+            if k == kind and s == sensor and m == mode_a and other and r["ate_cm"] and other["ate_cm"]:
+                out.append(r["ate_cm"] / other["ate_cm"])
+        return out
+
+    def verdict(values: list[float], ok: bool) -> str:
+        return "n/a" if not values else ("PASS" if ok else "FAIL")
+
+    goals: list[tuple[str, str, str, str]] = []
+    for sensor in SENSORS:
+        lost = [float(r["frames"] - r["tracked"]) for r in rows if r["sensor"] == sensor and r["mode"] == "imu"]
+        goals.append((f"{sensor}-inertial: frames without a pose, every render", _dist(lost), "0",
+                      verdict(lost, bool(lost) and max(lost) == 0)))
+        lost_vis = [float(r["frames"] - r["tracked"]) for r in rows if r["sensor"] == sensor and r["mode"] == "vis"]
+        goals.append((f"{sensor} visual only: frames without a pose", _dist(lost_vis), "reported", "reported"))
+    for sensor in SENSORS:
+        b = ratios("blackout", "blackout_twin", sensor)
+        goals.append((f"{sensor}-inertial: 2 s blackout ATE / clean twin's", _dist(b), "<= 1.5",
+                      verdict(b, bool(b) and max(b) <= 1.5)))
+    for sensor in SENSORS:
+        h = ratios("hard", "hard_twin", sensor)
+        goals.append((f"{sensor}-inertial: hard imaging ATE / clean twin's", _dist(h), "<= 1.5",
+                      verdict(h, bool(h) and max(h) <= 1.5)))
+        hv = ratios("hard", "hard_twin", sensor, "vis", "vis")
+        goals.append((f"{sensor} visual only: hard imaging ATE / clean twin's", _dist(hv), "reported", "reported"))
+    st = ratios("static", "static", "stereo", "imu", "vis")
+    goals.append(("stereo-inertial static ATE / stereo alone", _dist(st), "<= 1.0",
+                  verdict(st, bool(st) and max(st) <= 1.0)))
+    rg = ratios("static", "static", "rgbd", "imu", "vis")
+    goals.append(("RGB-D-inertial static ATE / RGB-D alone", _dist(rg), "reported", "reported"))
+    for sensor in SENSORS:
+        w = ratios("walking", "walking", sensor, "imu", "vis")
+        goals.append((f"{sensor}: walking ATE with IMU / without", _dist(w), "reported", "reported"))
+    per_frame = [s["imu_ms"] / s["vis_ms"] for s in speed if s.get("vis_ms")]
+    goals.append(("per-frame time with IMU / visual only (threaded)", _dist(per_frame), "<= 1.3",
+                  verdict(per_frame, bool(per_frame) and max(per_frame) <= 1.3)))
+    goals.append(("mono-inertial: scale error after initialisation; ATE / stereo-inertial", "-", "<= 2 %; <= 2x",
+                  "not built"))
+    return goals
+
+
+def _speed(renders: list[Render], work: Path) -> list[dict[str, Any]]:
+    rows = []
+    for render in renders:
+        for sensor in SENSORS:
+            ms = {}
+            for mode in MODES:
+                s = _run(render, sensor, mode, work, speed=True)
+                if s is not None:
+                    ms[mode] = s["ms_per_frame"]["median"]
+            rows.append({"render": render.name, "sensor": sensor, "imu_ms": ms.get("imu"), "vis_ms": ms.get("vis"),
+                         "load": round(os.getloadavg()[0], 2)})
+    return rows
+
+
+def _markdown(rows: list[dict[str, Any]], speed: list[dict[str, Any]], goals: list[tuple[str, str, str, str]]) -> str:
+    lines = ["ATE (cm, SE(3), `--sequential`, preset `default`); frames without a pose in brackets", "",
+             "| render | RGB-D + IMU | RGB-D | stereo + IMU | stereo | IMU-only frames (RGB-D / stereo) |",
+             "|---|---|---|---|---|---|"]
+    at = {(r["render"], r["sensor"], r["mode"]): r for r in rows}
+    for name in dict.fromkeys(r["render"] for r in rows):
+        cells = []
+        for sensor in SENSORS:
+            for mode in MODES:
+                r = at.get((name, sensor, mode))
+                if r is None:
+                    cells.append("-")
+                    continue
+                cell = "-" if r["ate_cm"] is None else f"{r['ate_cm']:.2f}"
+                missing = r["frames"] - r["tracked"]
+                cells.append(cell + (f" ({missing})" if missing else ""))
+        only = [str((at.get((name, s, "imu")) or {}).get("imu_only_frames", "-")) for s in SENSORS]
+        lines.append(f"| {name} | {' | '.join(cells)} | {' / '.join(only)} |")
+    if speed:
+        lines += ["", "Speed (threaded, one run at a time): ms/frame median", "",
+                  "| render | sensor | with IMU | visual only | load |", "|---|---|---|---|---|"]
+        lines += [f"| {s['render']} | {s['sensor']} | {s['imu_ms']:.1f} | {s['vis_ms']:.1f} | {s['load']} |"
+                  for s in speed if s["imu_ms"] and s["vis_ms"]]
+    lines += ["", "| target | median / worst | bound | result |", "|---|---|---|---|"]
+    lines += [f"| {t} | {m} | {b} | {ok} |" for t, m, b, ok in goals]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--work", type=Path, default=Path("out/inertial_targets"), help="renders and runs (cached)")
+    ap.add_argument("--jobs", type=int, default=2, help="renders / accuracy runs at a time (speed runs: one)")
+    ap.add_argument("--quick", action="store_true", help="one seed")
+    ap.add_argument("--json", type=Path, help="also write the JSON here")
+    ap.add_argument("--no-speed", action="store_true", help="accuracy only")
+    args = ap.parse_args(argv)
+    pairs = QUICK_PAIRS if args.quick else PAIRS
+    chosen = [(kind, seed, layout) for seed, layout in pairs for kind in KINDS]
+    with ThreadPoolExecutor(args.jobs) as pool:
+        renders = list(pool.map(lambda c: _render(args.work, *c), chosen))
+    jobs = [(r, s, m) for r in renders for s in SENSORS for m in MODES]
+    with ThreadPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(lambda j: _run(j[0], j[1], j[2], args.work), jobs))
+    rows = [_row(r, s, m, st) for (r, s, m), st in zip(jobs, results) if st is not None]
+    speed = [] if args.no_speed else _speed([r for r in renders if r.kind == "static"][:1], args.work)
+    goals = targets(rows, speed)
+    doc = {"baseline_m": BASELINE, "cpus": os.cpu_count(), "rows": rows, "speed": speed,
+           "targets": [{"target": t, "median_worst": m, "bound": b, "result": ok} for t, m, b, ok in goals]}
+    text = json.dumps(doc, indent=2)
+    print(text)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(text + "\n")
+    print()
+    print(_markdown(rows, speed, goals))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
