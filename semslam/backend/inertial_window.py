@@ -24,6 +24,11 @@ POSE_SIGMAS = np.array([0.003, 0.003, 0.003, 0.005, 0.005, 0.005])
 VELOCITY_PRIOR_MPS = 0.1
 GYRO_BIAS_PRIOR = 0.001
 ACC_BIAS_PRIOR = 0.01
+#: A bridge's priors: the start velocity as the window knows it (~1-2 cm/s), the biases
+#: about the estimate (the accelerometer's as loose as a short initialisation leaves it).
+BRIDGE_VELOCITY = 0.02
+BRIDGE_ACC_BIAS = 0.05
+BRIDGE_GYRO_BIAS = 0.002
 
 
 @dataclass(frozen=True)
@@ -87,7 +92,10 @@ def bridge(times: Array, T_wb_start: Array, v_start: Array, T_wb_end: Array, sam
     """Body poses at ``times`` (N >= 3) between two tracked ones, the first (with its
     velocity) at ``times[0]`` and the last at ``times[-1]``: the readings' path held at both
     ends (a smoother's answer for frames the IMU posed alone, where the path carried forward
-    from the start drifts with any error in its velocity or biases). Biases stay fixed."""
+    from the start drifts with any error in its velocity or biases). With the start's
+    velocity known, where the path must end tells how far off the accelerometer's bias is:
+    the bias is free about the given one (``BRIDGE_ACC_BIAS``), the start velocity held
+    to the window's accuracy (``BRIDGE_VELOCITY``)."""
     n = len(times)
     params = imu_params(noise, gravity_w)
     bias = bias_from(gyro_bias, acc_bias)
@@ -97,7 +105,7 @@ def bridge(times: Array, T_wb_start: Array, v_start: Array, T_wb_end: Array, sam
     graph.add(gtsam.PriorFactorPose3(_x(0), gtsam.Pose3(np.ascontiguousarray(T_wb_start)), pose_noise))
     graph.add(gtsam.PriorFactorPose3(_x(n - 1), gtsam.Pose3(np.ascontiguousarray(T_wb_end)), pose_noise))
     graph.add(gtsam.PriorFactorVector(_v(0), np.asarray(v_start, dtype=np.float64),
-                                      gtsam.noiseModel.Isotropic.Sigma(3, VELOCITY_PRIOR_MPS)))
+                                      gtsam.noiseModel.Isotropic.Sigma(3, BRIDGE_VELOCITY)))
     T, v = np.asarray(T_wb_start, dtype=np.float64), np.asarray(v_start, dtype=np.float64)
     values.insert(_x(0), gtsam.Pose3(np.ascontiguousarray(T)))
     values.insert(_v(0), v)
@@ -109,6 +117,7 @@ def bridge(times: Array, T_wb_start: Array, v_start: Array, T_wb_end: Array, sam
         values.insert(_v(i), v)
     for i in range(n):
         values.insert(_b(i), bias)
-    graph.add(gtsam.PriorFactorConstantBias(_b(0), bias, gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    graph.add(gtsam.PriorFactorConstantBias(_b(0), bias, gtsam.noiseModel.Diagonal.Sigmas(
+        np.array([BRIDGE_ACC_BIAS] * 3 + [BRIDGE_GYRO_BIAS] * 3))))
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
     return np.array([result.atPose3(_x(i)).matrix() for i in range(n)])

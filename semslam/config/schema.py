@@ -457,8 +457,9 @@ class ImuConfig:
     refine_second_s: float = 10.0
     refine_window_s: float = 10.0
     # Frames whose features do not track (black, blurred, covered) are posed by the IMU
-    # alone for at most this long, then tracking is lost as without an IMU.
-    max_blind_s: float = 3.0
+    # alone for at most this long, then tracking is lost as without an IMU (ORB-SLAM3's
+    # time_recently_lost).
+    max_blind_s: float = 5.0
     # The window of recent tracked frames (and its spacing) the velocity and biases are
     # re-estimated on after each frame (GTSAM CombinedImuFactor, backend/inertial_window.py).
     window_s: float = 1.0

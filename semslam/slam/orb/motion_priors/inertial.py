@@ -113,6 +113,7 @@ class InertialPrior(PriorDefaults):
         self.n_weak = 0  # tracked frames left out of the estimation (another prior's pose, few matches)
         self.n_refused = 0  # initialisations, refinements and windows refused as inconsistent
         self._retry_at = -np.inf
+        self._map_id = 0  # the map the estimates are in (its frame)
         #: Stretches posed by the IMU alone: [first frame's time, last frame's time, frames].
         self.spans: list[list[float]] = []
         self.n_imu_only = 0
@@ -178,9 +179,16 @@ class InertialPrior(PriorDefaults):
         t = outcome.frame.timestamp
         pred = self._pred if self._pred is not None and self._pred.timestamp == t else None
         self._pred = None
-        if outcome.started_map:  # a new map: its frame is the new first camera's
+        ref = outcome.frame.ref_kf
+        map_id = ref.map_id if ref is not None else self._map_id
+        if outcome.started_map or map_id != self._map_id:
+            # A new map (its frame is the new first camera's), a relocalisation into another
+            # map, or a merge that moved this one: gravity and the poses kept are in another
+            # frame now, so the IMU starts over (its biases seed the next initialisation).
             self.gravity, self.velocity, self.init_time, self.refined = None, None, None, 0
             self.history.clear()
+            self._blind_start, self._blind = None, []
+            self._map_id = map_id
         if not outcome.tracked:
             self.velocity, self.blind_since, self._blind_start = None, None, None
             self._blind.clear()
