@@ -39,11 +39,8 @@ class EurocSequence(LayoutSequence):
                  depths: list[Path] | None = None, depth_scale: float = 5000.0,
                  groundtruth_path: Path | None = None, t_bs: NDArray[np.float64] | None = None) -> None:
         super().__init__()
-        self.root = root
-        resolved = root.resolve()
-        self.name = resolved.parent.name if resolved.name == "mav0" else resolved.name
+        self._set_frames(root, timestamps)
         self._images, self._depths = images, depths
-        self._timestamps = np.asarray(timestamps, dtype=np.float64)
         self.has_depth = depths is not None
         self.depth_scale = float(depth_scale)
         self._check_listed_files([images] if depths is None else [images, depths])

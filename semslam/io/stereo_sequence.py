@@ -62,6 +62,13 @@ class LayoutSequence(Sequence):
     evaluation reads it (EuRoC: body poses; KITTI: 3x4 poses with times.txt), and whose
     listed images are checked for existence once (the stereo readers, EuRoC mono / RGB-D)."""
 
+    def _set_frames(self, root: Path, timestamps: NDArray[np.float64]) -> None:
+        """The folder, its name (EuRoC's ``mav0`` is named after its parent) and the frames' times."""
+        self.root = root
+        resolved = root.resolve()
+        self.name = resolved.parent.name if resolved.name == "mav0" else resolved.name
+        self._timestamps = np.asarray(timestamps, dtype=np.float64)
+
     def _set_groundtruth(self, groundtruth_path: Path | None, groundtruth_format: str = "tum",
                          t_bs: NDArray[np.float64] | None = None, times_path: Path | None = None) -> None:
         #: The ground truth file as the layout has it (EuRoC: the body's; KITTI: 3x4 poses).
@@ -114,11 +121,8 @@ class StereoSequence(LayoutSequence):
                  groundtruth_format: str = "tum", t_bs: NDArray[np.float64] | None = None,
                  times_path: Path | None = None) -> None:
         super().__init__()
-        self.root = root
-        resolved = root.resolve()
-        self.name = resolved.parent.name if resolved.name == "mav0" else resolved.name
+        self._set_frames(root, timestamps)
         self._left, self._right = left, right
-        self._timestamps = np.asarray(timestamps, dtype=np.float64)
         self._check_listed_files([self._left, self._right])
         first = next((p for p in left if p.is_file()), None)
         if calibration.rectified_input and calibration.camera.width <= 0 and first is not None:
