@@ -39,6 +39,8 @@ Array = NDArray[np.float64]
 POSITION_SIGMA_M = 0.005
 ROTATION_SIGMA_RAD = np.deg2rad(0.2)
 VELOCITY_SIGMA_MPS = 0.002
+#: Normalised residuals beyond this count as this much in the fit's spread (an outlier pair).
+ROBUST_CLIP = 3.0
 #: Bias priors (ORB-SLAM3 puts a prior on both in its inertial-only optimisation).
 GYRO_BIAS_PRIOR = 0.05  # rad/s
 ACC_BIAS_PRIOR = 0.2  # m/s^2
@@ -146,7 +148,10 @@ def initialise(times: Array, T_wb: Array, samples: ImuSamples, noise: ImuNoise,
 
     v_guess = np.gradient(p, times, axis=0)
     x0 = np.concatenate([[0.0, 0.0], bg0, ba0, v_guess.ravel()])
-    sol = least_squares(residuals, x0, method="trf", x_scale="jac", jac_sparsity=_sparsity(n), max_nfev=200)
+    # Robust (soft L1 beyond one sigma): a frame posed a little off on a blurred turn must
+    # not tilt gravity; the spread below is read on the residuals the fit kept.
+    sol = least_squares(residuals, x0, method="trf", x_scale="jac", jac_sparsity=_sparsity(n), max_nfev=200,
+                        loss="soft_l1")
     g, bias, v = unpack(sol.x)
-    rms = float(np.sqrt(np.mean(sol.fun**2)))  # ~0.3 when poses and readings agree
+    rms = float(np.sqrt(np.mean(np.minimum(sol.fun**2, ROBUST_CLIP**2))))  # ~0.3 when poses and readings agree
     return InertialEstimate(g, v, bias[:3].copy(), bias[3:].copy(), rms)

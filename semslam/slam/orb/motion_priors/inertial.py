@@ -108,6 +108,7 @@ class InertialPrior(PriorDefaults):
         # While blind: the last tracked frame's (timestamp, T_wb, velocity), and the frames
         # posed since as (timestamp, their entry in tracking's trajectory or None).
         self._blind_start: tuple[float, Array, Array] | None = None
+        self._last_tracked: tuple[float, Array, Array] | None = None
         self._blind: list[tuple[float, int | None]] = []
         self.n_bridged = 0
         self.n_weak = 0  # tracked frames left out of the estimation (another prior's pose, few matches)
@@ -130,10 +131,6 @@ class InertialPrior(PriorDefaults):
 
     def _camera(self, T_wb: Array) -> Array:
         return invert(T_wb @ self.T_bc)
-
-    @property
-    def initialised(self) -> bool:
-        return self.gravity is not None
 
     # ------------------------------------------------------------------ the prior's steps
     def predict(self, state: MotionState, images: FrameImages) -> PosePrediction | None:
@@ -187,18 +184,17 @@ class InertialPrior(PriorDefaults):
             # frame now, so the IMU starts over (its biases seed the next initialisation).
             self.gravity, self.velocity, self.init_time, self.refined = None, None, None, 0
             self.history.clear()
-            self._blind_start, self._blind = None, []
+            self._blind_start, self._blind, self._last_tracked = None, [], None
             self._map_id = map_id
         if not outcome.tracked:
-            self.velocity, self.blind_since, self._blind_start = None, None, None
+            self.velocity, self.blind_since, self._blind_start, self._last_tracked = None, None, None, None
             self._blind.clear()
             self.history.clear()
             return
         if outcome.posed_by is self:
             assert pred is not None
-            if not self._blind and self.history and self.velocity is not None:
-                t_a, T_a, _ = self.history[-1]
-                self._blind_start = (t_a, T_a, self.velocity)  # still the last tracked frame's
+            if not self._blind:
+                self._blind_start = self._last_tracked
             self._blind.append((t, outcome.recorded_at))
             if len(self._blind) == 1:
                 self.spans.append([t, t, 0])
@@ -208,13 +204,22 @@ class InertialPrior(PriorDefaults):
         self.blind_since = None
         if self.first_tracked_t is None:
             self.first_tracked_t = t
-        if outcome.posed_by is not None or outcome.n_inliers < self.cfg.min_inliers:
+        # The frame that started the map is its origin (exact, no inliers counted).
+        if outcome.posed_by is not None or (outcome.n_inliers < self.cfg.min_inliers and not outcome.started_map):
             # Posed by another prior (a blurred turn coasted) or on few matches: its pose is
             # too rough to estimate velocity and biases from; the readings carry them on.
             self.velocity = pred.v_w if pred is not None else None
             self.n_weak += 1
-            return
+        else:
+            self._estimate(outcome, pred)
         T_cw = outcome.frame.T_cw
+        # Where a blind stretch after this frame starts from (its pose and velocity).
+        self._last_tracked = None if self.velocity is None or T_cw is None else (t, self._body(T_cw), self.velocity)
+
+    def _estimate(self, outcome: FrameOutcome, pred: _Prediction | None) -> None:
+        """A frame posed by its own features: into the history; a pending blind stretch
+        bridged to it; then the initialisation, a refinement or the window, as due."""
+        t, T_cw = outcome.frame.timestamp, outcome.frame.T_cw
         assert T_cw is not None
         self.history.append((t, self._body(T_cw), pred.v_w if pred is not None else None))
         if self._blind:
