@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from semslam.experiments.bench import emit_json
+
 BASELINE = 0.11
 #: (seed, layout): layout 0 the office, 1 the lounge, 2 a random room (1 and 2 held out).
 PAIRS = [(20, 0), (21, 1), (22, 2)]
@@ -225,13 +227,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = [_row(r, s, m, st) for (r, s, m), st in zip(jobs, results) if st is not None]
     speed = [] if args.no_speed else _speed([r for r in renders if r.kind == "static"][:1], args.work)
     goals = targets(rows, speed)
-    doc = {"baseline_m": BASELINE, "cpus": os.cpu_count(), "rows": rows, "speed": speed,
-           "targets": [{"target": t, "median_worst": m, "bound": b, "result": ok} for t, m, b, ok in goals]}
-    text = json.dumps(doc, indent=2)
-    print(text)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(text + "\n")
+    emit_json({"baseline_m": BASELINE, "cpus": os.cpu_count(), "rows": rows, "speed": speed,
+               "targets": [{"target": t, "median_worst": m, "bound": b, "result": ok} for t, m, b, ok in goals]},
+              args.json)
     print()
     print(_markdown(rows, speed, goals))
     return 0
