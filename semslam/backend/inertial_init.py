@@ -28,7 +28,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
-from semslam.backend.imu_preintegration import bias_from, imu_params, preintegrate
+from semslam.backend.imu_preintegration import bias_from, imu_params, interpolate_readings, preintegrate
 from semslam.core.imu import GRAVITY, ImuNoise, ImuSamples
 from semslam.geometry.se3 import so3_exp
 
@@ -61,7 +61,7 @@ class InertialEstimate:
 def gravity_direction_guess(T_wb: Array, samples: ImuSamples, times: Array) -> Array:
     """Gravity's direction from the mean specific force seen in the world (a slowly moving
     IMU measures -g): the starting point of the optimisation."""
-    acc = np.stack([np.interp(times, samples.t, samples.acc[:, k]) for k in range(3)], axis=1)
+    _, acc = interpolate_readings(samples, times)
     f_w = np.einsum("nij,nj->ni", T_wb[:, :3, :3], acc).mean(axis=0)
     return -f_w / max(np.linalg.norm(f_w), 1e-9)
 

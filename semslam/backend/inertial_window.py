@@ -53,14 +53,33 @@ def _b(i: int) -> int:
     return gtsam.symbol("b", i)
 
 
+def _imu_chain(times: Array, samples: ImuSamples, noise: ImuNoise, gravity_w: Array,
+               bias: gtsam.imuBias.ConstantBias, v_first: Array, velocity_sigma: float, acc_bias_sigma: float,
+               gyro_bias_sigma: float) -> tuple[gtsam.NonlinearFactorGraph, list[gtsam.PreintegratedCombinedMeasurements]]:
+    """A graph of ``CombinedImuFactor`` between consecutive ``times`` (keys x/v/b per frame),
+    with priors on the first velocity and bias; and the preintegrations it was built from."""
+    params = imu_params(noise, gravity_w)
+    graph = gtsam.NonlinearFactorGraph()
+    pims = []
+    for i in range(1, len(times)):
+        pim = preintegrate(params, bias, samples.bracketing(times[i - 1], times[i]), times[i - 1], times[i])
+        graph.add(gtsam.CombinedImuFactor(_x(i - 1), _v(i - 1), _x(i), _v(i), _b(i - 1), _b(i), pim))
+        pims.append(pim)
+    graph.add(gtsam.PriorFactorVector(_v(0), np.asarray(v_first, dtype=np.float64),
+                                      gtsam.noiseModel.Isotropic.Sigma(3, velocity_sigma)))
+    graph.add(gtsam.PriorFactorConstantBias(_b(0), bias, gtsam.noiseModel.Diagonal.Sigmas(
+        np.array([acc_bias_sigma] * 3 + [gyro_bias_sigma] * 3))))
+    return graph, pims
+
+
 def refine_window(times: Array, T_wb: Array, samples: ImuSamples, noise: ImuNoise, gravity_w: Array,
                   v_first: Array, gyro_bias: Array, acc_bias: Array) -> WindowEstimate:
     """Velocities at ``times`` (body poses ``T_wb``, N >= 2) and the biases, starting from
     (and weakly held to) the first frame's velocity ``v_first`` and the given biases."""
     n = len(times)
-    params = imu_params(noise, gravity_w)
     bias0 = bias_from(gyro_bias, acc_bias)
-    graph = gtsam.NonlinearFactorGraph()
+    graph, _ = _imu_chain(times, samples, noise, gravity_w, bias0, v_first, VELOCITY_PRIOR_MPS,
+                          ACC_BIAS_PRIOR, GYRO_BIAS_PRIOR)
     values = gtsam.Values()
     pose_noise = gtsam.noiseModel.Diagonal.Sigmas(POSE_SIGMAS)
     v = np.asarray(v_first, dtype=np.float64).copy()
@@ -70,15 +89,9 @@ def refine_window(times: Array, T_wb: Array, samples: ImuSamples, noise: ImuNois
         values.insert(_x(i), pose)
         values.insert(_b(i), bias0)
         if i > 0:
-            pim = preintegrate(params, bias0, samples.bracketing(times[i - 1], times[i]), times[i - 1], times[i])
-            graph.add(gtsam.CombinedImuFactor(_x(i - 1), _v(i - 1), _x(i), _v(i), _b(i - 1), _b(i), pim))
             dt = times[i] - times[i - 1]
             v = (T_wb[i, :3, 3] - T_wb[i - 1, :3, 3]) / dt if dt > 0 else v
         values.insert(_v(i), v)
-    graph.add(gtsam.PriorFactorVector(_v(0), np.asarray(v_first, dtype=np.float64),
-                                      gtsam.noiseModel.Isotropic.Sigma(3, VELOCITY_PRIOR_MPS)))
-    graph.add(gtsam.PriorFactorConstantBias(_b(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([ACC_BIAS_PRIOR] * 3 + [GYRO_BIAS_PRIOR] * 3))))
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
     vel = np.array([result.atVector(_v(i)) for i in range(n)])
     b = result.atConstantBias(_b(n - 1))
@@ -97,27 +110,19 @@ def bridge(times: Array, T_wb_start: Array, v_start: Array, T_wb_end: Array, sam
     the bias is free about the given one (``BRIDGE_ACC_BIAS``), the start velocity held
     to the window's accuracy (``BRIDGE_VELOCITY``)."""
     n = len(times)
-    params = imu_params(noise, gravity_w)
     bias = bias_from(gyro_bias, acc_bias)
-    graph = gtsam.NonlinearFactorGraph()
+    graph, pims = _imu_chain(times, samples, noise, gravity_w, bias, v_start, BRIDGE_VELOCITY,
+                             BRIDGE_ACC_BIAS, BRIDGE_GYRO_BIAS)
     values = gtsam.Values()
     pose_noise = gtsam.noiseModel.Diagonal.Sigmas(POSE_SIGMAS)
     graph.add(gtsam.PriorFactorPose3(_x(0), gtsam.Pose3(np.ascontiguousarray(T_wb_start)), pose_noise))
     graph.add(gtsam.PriorFactorPose3(_x(n - 1), gtsam.Pose3(np.ascontiguousarray(T_wb_end)), pose_noise))
-    graph.add(gtsam.PriorFactorVector(_v(0), np.asarray(v_start, dtype=np.float64),
-                                      gtsam.noiseModel.Isotropic.Sigma(3, BRIDGE_VELOCITY)))
     T, v = np.asarray(T_wb_start, dtype=np.float64), np.asarray(v_start, dtype=np.float64)
-    values.insert(_x(0), gtsam.Pose3(np.ascontiguousarray(T)))
-    values.insert(_v(0), v)
-    for i in range(1, n):
-        pim = preintegrate(params, bias, samples.bracketing(times[i - 1], times[i]), times[i - 1], times[i])
-        graph.add(gtsam.CombinedImuFactor(_x(i - 1), _v(i - 1), _x(i), _v(i), _b(i - 1), _b(i), pim))
-        T, v = predict(pim, T, v, bias)
+    for i in range(n):
+        if i > 0:  # the readings carried forward: where the solver starts
+            T, v = predict(pims[i - 1], T, v, bias)
         values.insert(_x(i), gtsam.Pose3(np.ascontiguousarray(T)))
         values.insert(_v(i), v)
-    for i in range(n):
         values.insert(_b(i), bias)
-    graph.add(gtsam.PriorFactorConstantBias(_b(0), bias, gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([BRIDGE_ACC_BIAS] * 3 + [BRIDGE_GYRO_BIAS] * 3))))
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
     return np.array([result.atPose3(_x(i)).matrix() for i in range(n)])

@@ -104,7 +104,6 @@ class InertialPrior(PriorDefaults):
         self.last_window_t = -np.inf
         self.blind_since: float | None = None  # the last visually tracked frame's time, while blind
         self._pred: _Prediction | None = None
-        self._first_velocity: Array | None = None  # of the last spaced history's first frame
         # While blind: the last tracked frame's (timestamp, T_wb, velocity), and the frames
         # posed since as (timestamp, their entry in tracking's trajectory or None).
         self._blind_start: tuple[float, Array, Array] | None = None
@@ -239,14 +238,15 @@ class InertialPrior(PriorDefaults):
             self._refine_window(t)
 
     # ------------------------------------------------------------------ estimation
-    def _spaced_history(self, span_s: float, step_s: float) -> tuple[Array, Array]:
+    def _spaced_history(self, span_s: float, step_s: float) -> tuple[Array, Array, Array | None]:
+        """The last ``span_s`` of the history about ``step_s`` apart: times, body poses, and the
+        velocity estimated when the first of them came (None if none was)."""
         t_last = self.history[-1][0]
         recent = [(t, T, v) for t, T, v in self.history if t_last - t <= span_s + 1e-9]
         times = np.array([t for t, _, _ in recent])
         poses = np.array([T for _, T, _ in recent])
         idx = spaced(times, step_s)
-        self._first_velocity = recent[int(idx[0])][2]
-        return times[idx], poses[idx]
+        return times[idx], poses[idx], recent[int(idx[0])][2]
 
     def _initialise(self, t: float, index: int, refine: bool = False) -> None:
         """The inertial initialisation once ``init_s`` is tracked (or a refinement); one the
@@ -256,7 +256,7 @@ class InertialPrior(PriorDefaults):
             return
         span = self.cfg.refine_window_s if refine else self.cfg.init_s
         # At most ~30 frames: the solve runs in the tracking thread (0.2 s at 30, 0.7 at 100).
-        times, poses = self._spaced_history(span, max(self.cfg.init_step_s, (t - self.history[0][0]) / MAX_INIT_FRAMES))
+        times, poses, _ = self._spaced_history(span, max(self.cfg.init_step_s, (t - self.history[0][0]) / MAX_INIT_FRAMES))
         if len(times) < 3 or not self.buffer.covers(times[0], times[-1]):
             return
         samples = self.buffer.window(times[0], times[-1])
@@ -285,11 +285,12 @@ class InertialPrior(PriorDefaults):
         """Velocity and biases on the last ``window_s`` of tracked frames."""
         if len(self.history) < 2:
             return
-        times, poses = self._spaced_history(self.cfg.window_s, self.cfg.window_step_s)
+        times, poses, v_first = self._spaced_history(self.cfg.window_s, self.cfg.window_step_s)
         if len(times) < 2 or not self.buffer.covers(times[0], times[-1]):
             return
         assert self.gravity is not None
-        v_first = self._velocity_guess(times, poses)
+        if v_first is None:  # finite differences of the window's first poses
+            v_first = (poses[1, :3, 3] - poses[0, :3, 3]) / max(times[1] - times[0], 1e-6)
         est = refine_window(times, poses, self.buffer.window(times[0], times[-1]), self.noise, self.gravity,
                             v_first, self.gyro_bias, self.acc_bias)
         self.last_window_t = t
@@ -319,13 +320,6 @@ class InertialPrior(PriorDefaults):
             ref = trajectory[at][1]
             trajectory[at] = (t, ref, self._camera(T_wb) @ invert(ref.T_cw))
             self.n_bridged += 1
-
-    def _velocity_guess(self, times: Array, poses: Array) -> Array:
-        """The window's first velocity to start from: as estimated when that frame came, else
-        finite differences of the window's first poses."""
-        if self._first_velocity is not None:
-            return self._first_velocity
-        return (poses[1, :3, 3] - poses[0, :3, 3]) / max(times[1] - times[0], 1e-6)
 
     def counters(self) -> dict[str, Any]:
         return {"imu_initialisations": self.n_inits, "imu_init_frame": self.init_frame,
