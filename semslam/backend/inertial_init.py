@@ -72,6 +72,8 @@ MAX_RELINEARISATIONS = 3
 #: Finite-difference steps for the deltas' bias Jacobians (gyro rad/s, accelerometer m/s^2):
 #: the curvature's error (~1e-6 relative) and the rounding's (~1e-11) both negligible.
 JACOBIAN_STEPS = np.array([1e-4] * 3 + [1e-3] * 3)
+#: How far (a factor, either way) a monocular scale may move from the closed-form guess.
+MAX_SCALE_CHANGE = 10.0
 
 
 @dataclass(frozen=True)
@@ -251,14 +253,20 @@ def initialise(times: Array, T_wb: Array, samples: ImuSamples, noise: ImuNoise,
     # Robust (soft L1 beyond one sigma): a frame posed a little off on a blurred turn must
     # not tilt gravity; the spread below is read on the residuals the fit kept.
     sparsity = _sparsity(n, free)
+    # A monocular map's scale kept within MAX_SCALE_CHANGE of the linear guess either way: on
+    # poses the readings do not fit, the log-scale would run off to where exp overflows.
+    lower = np.full(len(x0), -np.inf)
+    upper = np.full(len(x0), np.inf)
+    if free:
+        lower[-1], upper[-1] = x0[-1] - np.log(MAX_SCALE_CHANGE), x0[-1] + np.log(MAX_SCALE_CHANGE)
     sol = least_squares(residuals, x0, method="trf", x_scale="jac", jac_sparsity=sparsity, max_nfev=200,
-                        loss="soft_l1")
+                        loss="soft_l1", bounds=(lower, upper))
     for _ in range(MAX_RELINEARISATIONS):
         if not model.far_from(sol.x[2:8]):
             break
         model.relinearise(sol.x[2:8])
         sol = least_squares(residuals, sol.x, method="trf", x_scale="jac", jac_sparsity=sparsity, max_nfev=200,
-                            loss="soft_l1")
+                            loss="soft_l1", bounds=(lower, upper))
     g, bias, v, scale = unpack(sol.x)
     rms = float(np.sqrt(np.mean(np.minimum(sol.fun**2, ROBUST_CLIP**2))))  # ~0.3 when poses and readings agree
     return InertialEstimate(g, v, bias[:3].copy(), bias[3:].copy(), rms, scale,
