@@ -46,8 +46,6 @@ def preintegrate(params: gtsam.PreintegrationCombinedParams, bias: gtsam.imuBias
                  samples: ImuSamples, t0: float, t1: float) -> gtsam.PreintegratedCombinedMeasurements:
     """The readings' preintegration from ``t0`` to ``t1``; ``samples`` should bracket the
     span (readings outside it only serve the interpolation at its ends)."""
-    if t1 <= t0:
-        return gtsam.PreintegratedCombinedMeasurements(params, bias)
     return preintegrate_chain(params, [bias], samples, np.array([t0, t1], dtype=np.float64))[0][0]
 
 

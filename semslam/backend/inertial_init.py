@@ -221,8 +221,7 @@ def initialise(times: Array, T_wb: Array, samples: ImuSamples, noise: ImuNoise,
     model = _FirstOrderDeltas(params, samples, times, np.concatenate([bg0, ba0]))
 
     if free:
-        _, dv0, dp0 = model.at(model.b0)
-        scale0, g_lin, v_guess = _linear_guess(c, lever, R, dts, dv0, dp0)
+        scale0, g_lin, v_guess = _linear_guess(c, lever, R, dts, model.dv0, model.dp0)
         scale0 = scale0 if scale0 > 0 else 1.0
         g_dir = g_lin / max(np.linalg.norm(g_lin), 1e-9)
     else:
