@@ -37,6 +37,7 @@ from semslam.slam.orb.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.orb.atlas import MergeHint
 from semslam.slam.orb.merge_check import COVISIBLES, MIN_PROJECTED, PENDING_MISSES, MergeVerifier, PendingMerge, enough
 from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.map_scaling import rescale_frame_records
 from semslam.slam.orb.point_store import MapPoint
 from semslam.slam.orb.map_batch import normals_and_depths
 from semslam.geometry.projection import project
@@ -72,37 +73,6 @@ def _point_positions(kf: KeyFrame) -> NDArray[np.float64]:
         if p is not None and not p.bad:
             pos[i] = p.pos
     return pos
-
-
-def rescale_frame_records(records: list[tuple[float, KeyFrame, NDArray[np.float64]]],
-                          factors: dict[KeyFrame, float]) -> int:
-    """Tracked frames' poses relative to their reference keyframe (``T_c_ref``, tracking's
-    ``trajectory_refs``) after a Sim(3) correction scaled the map around that keyframe by
-    ``factors[kf]``: their translations (and the ``T_cp`` of culled keyframes between a record
-    and its live keyframe) scale with it, so the frames keep their place in the corrected map
-    (ORB-SLAM keeps the rigid relative poses, which then sit off by the scale change times the
-    distance to the keyframe). Returns the records changed."""
-    scaled: set[int] = set()
-    n = 0
-    for i in range(len(records)):  # tracking may append meanwhile: the entries so far
-        t, ref, T = records[i]
-        chain, k = [], ref
-        while k.bad and k.parent is not None and k.T_cp is not None:
-            chain.append(k)
-            k = k.parent
-        f = factors.get(k)
-        if f is None or f == 1.0:
-            continue
-        T = T.copy()
-        T[:3, 3] *= f
-        records[i] = (t, ref, T)
-        n += 1
-        for c in chain:
-            if c.id not in scaled and c.T_cp is not None:
-                scaled.add(c.id)
-                c.T_cp = c.T_cp.copy()
-                c.T_cp[:3, 3] *= f
-    return n
 
 
 def _neighbourhood_points(kf: KeyFrame) -> list[MapPoint]:

@@ -34,6 +34,14 @@ def update_normals_and_depths(points: list[MapPoint], scale_factors: Array) -> N
     normals_and_depths(points, scale_factors).write()
 
 
+def good_point_rows(store: PointStore, kfs: "list[KeyFrame]") -> NDArray[np.intp]:
+    """Store rows of the good points the keyframes observe, each once (a map moved or scaled
+    as a whole moves these)."""
+    rows = np.unique(np.concatenate([k.points.rows for k in kfs] or [np.zeros(0, np.intp)]))
+    rows = rows[rows >= 0]
+    return rows[~store.bad[rows]]
+
+
 @dataclass(eq=False)
 class KeyFrame:
     """A frame kept in the map, with its features and their map points."""

@@ -32,7 +32,7 @@ from semslam.geometry.se3 import invert
 from semslam.slam.orb.atlas import Atlas
 from semslam.slam.orb.fusion import PointArrays, PointFusion, adopt_matched_points
 from semslam.slam.orb.local_mapping import apply_in_slices
-from semslam.slam.orb.map import KeyFrame, Map
+from semslam.slam.orb.map import KeyFrame, Map, good_point_rows
 from semslam.slam.orb.point_store import MapPoint
 
 log = logging.getLogger(__name__)
@@ -143,10 +143,8 @@ class MapMerger:
         with self.map.lock:
             self.map.generation += 1  # a local BA computed before the move is discarded
             kfs = self.atlas.keyframes_of(moved)
-            rows = np.unique(np.concatenate([k.points.rows for k in kfs] or [np.zeros(0, np.intp)]))
-            rows = rows[rows >= 0]
-            rows = rows[~self.map.store.bad[rows]]
             store = self.map.store
+            rows = good_point_rows(store, kfs)
             store.pos[rows] = store.pos[rows] @ R.T + t
             store.normal[rows] = store.normal[rows] @ R_normal.T
             for k in kfs:
