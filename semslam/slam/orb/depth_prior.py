@@ -150,6 +150,13 @@ class DepthPrior:
         out[good] = predicted[good] * np.exp(scale)
         return out
 
+    def map_scaled(self, scale: float) -> None:
+        """The map was multiplied by ``scale`` (the IMU made it metric): the running scale
+        and the depths it keeps move with it."""
+        with self._lock:
+            self._kf_ratios = [r + float(np.log(scale)) for r in self._kf_ratios]
+            self._map_depths = [d * scale for d in self._map_depths]
+
     # ---------------------------------------------------------------- bundle adjustment
     def virtual_bf(self) -> float:
         """``bf`` that makes one pixel of the right-coordinate residual one sigma of relative

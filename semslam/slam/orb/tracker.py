@@ -148,6 +148,8 @@ class OrbTracker:
                                  dynamics=inputs.dynamics, atlas=self.atlas if self.atlas.enabled else None,
                                  builder=builder, depth_prior=self.depth_prior, imu=inputs.imu)
         self.closer.frame_records = self.tracking.trajectory_refs  # a monocular loop rescales them
+        if self.threaded and use_mapping:
+            self.tracking.pause_mapping = mapping_inbox.paused  # while a monocular map is made metric
         if slam_map is not None:
             for kf in self.map.all_keyframes():
                 indexer.insert(kf)

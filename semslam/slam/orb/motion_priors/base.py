@@ -17,7 +17,9 @@ local map -> relocalisation -> keyframe decision) and asks its priors at fixed p
 * ``keyframe_wanted(...)``: asked of the prior that posed the frame, instead of ORB-SLAM's
   decision;
 * ``update(outcome)``: once per frame, with what tracking made of it;
-* ``counters()``: what it did so far, for the run's stats.
+* ``counters()``: what it did so far, for the run's stats;
+* ``map_scaled(scale)``: the map was scaled about its origin (a monocular map made metric
+  by the IMU): positions a prior keeps scale with it.
 
 ``MotionState`` is the state the priors predict from: the last frame, whether it was
 tracked, and the velocity (``T_cw`` of this frame = ``velocity @ T_cw`` of the last) over
@@ -150,10 +152,14 @@ class PosePrior(Protocol):
         """What the prior did so far, for the run's stats (names unique across priors)."""
         ...
 
+    def map_scaled(self, scale: float) -> None:
+        """The map's positions were multiplied by ``scale`` (under the map lock)."""
+        ...
+
 
 class PriorDefaults:
     """What a prior does where it has nothing to say (subclass and override the rest):
-    no prediction, no correction, ORB-SLAM's keyframe decision, no counters, nothing kept."""
+    no prediction, no correction, ORB-SLAM's keyframe decision, no counters, no positions kept."""
 
     def predict(self, state: MotionState, images: FrameImages) -> PosePrediction | None:
         return None
@@ -171,3 +177,6 @@ class PriorDefaults:
 
     def counters(self) -> dict[str, Any]:
         return {}
+
+    def map_scaled(self, scale: float) -> None:
+        return None

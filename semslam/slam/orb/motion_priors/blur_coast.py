@@ -234,6 +234,11 @@ class BlurCoast:
         return self._settled
 
     # ------------------------------------------------------------------ after the frame
+    def map_scaled(self, scale: float) -> None:
+        self._steady_centres = deque(((t, c * scale) for t, c in self._steady_centres), maxlen=STEADY_FRAMES)
+        if self._coast_from is not None:
+            self._coast_from = (self._coast_from[0], self._coast_from[1] * scale)
+
     def counters(self) -> dict[str, int]:
         return {"coasted_frames": self.n_coasted_frames, "coast_keyframes": self.n_coast_keyframes,
                 "coasted_on_shift_only": self.n_coast_shift_only}
