@@ -23,6 +23,7 @@ from semslam.errors import ConfigError
 from semslam.features.jit import warm_up as warm_up_kernels
 from semslam.frontend.stereo_depth import StereoDepth
 from semslam.geometry.camera import PinholeCamera
+from semslam.slam.orb.frame_builders import is_monocular
 
 log = logging.getLogger(__name__)
 
@@ -82,13 +83,15 @@ def create_map_stage(config: SystemConfig) -> MapStage | None:
 
 
 def usable_imu(config: SystemConfig, imu: ImuCalibration | None) -> ImuCalibration | None:
-    """The IMU's calibration where tracking uses it: the ORB core with a known scale (stereo,
-    RGB-D); else None, with a warning when the input has one."""
+    """The IMU's calibration where tracking uses it: the ORB core with stereo, RGB-D or
+    monocular geometry (the map's scale then from the IMU); else None, with a warning when the
+    input has one."""
     if imu is None or not config.imu.use:
         return None
-    if config.tracking.method != "orb_slam" or config.sensor == "mono":
-        what = ("monocular-inertial tracking (the map's scale from the IMU) is not built yet"
-                if config.sensor == "mono" else f"tracking.method {config.tracking.method} does not use one")
+    pseudo_rgbd = config.sensor == "mono" and not is_monocular(config)
+    if config.tracking.method != "orb_slam" or pseudo_rgbd:
+        what = ("a depth network's depth sets the monocular map's scale (depth.use: prior lets the IMU set it)"
+                if pseudo_rgbd else f"tracking.method {config.tracking.method} does not use one")
         log.warning("the input has an IMU, but %s: it is ignored (imu.use=false silences this)", what)
         return None
     return imu

@@ -467,6 +467,17 @@ class ImuConfig:
     # Tracked frames the estimation uses: posed by their features with at least this many
     # inliers (a blurred turn's coasted poses are too rough for velocities and biases).
     min_inliers: int = 50
+    # Monocular-inertial: the map's scale is taken from an initialisation or refinement only
+    # when the motion showed it to this relative spread (1 sigma); else tried again later.
+    max_scale_spread: float = 0.05
+    # ... solved on tracked frames at least this far apart: the scale shows in the poses'
+    # second differences, whose noise (sqrt(6) sigma / dt^2: 0.02 m/s^2 for 2 mm at 0.5 s, 0.2
+    # at 0.15 s) must stay well under a hand-held camera's accelerations (0.2-0.5 m/s^2), or
+    # the scale comes out shrunk (errors in the variables).
+    scale_step_s: float = 0.5
+    # ... and re-estimated on the longer history this long after, then at doubling intervals
+    # (each accepted one corrects it).
+    scale_refine_s: float = 1.0
     # Noise overrides (0: the calibration's): continuous-time densities and random walks.
     gyro_noise_density: float = 0.0
     acc_noise_density: float = 0.0

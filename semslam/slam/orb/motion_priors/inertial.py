@@ -18,10 +18,20 @@ the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then 
 
 Frames posed by the IMU alone make no keyframes. The map keeps its frame (the first
 camera's); gravity is a direction in it.
+
+Monocular-inertial (``scale_map`` given): the map's scale is one more unknown of the
+initialisation and its refinements (``initialise(..., scaled=...)``); a solution whose scale
+the motion has not shown yet (relative spread above ``imu.max_scale_spread``, e.g. a slow
+or still start) is refused and tried again on the longer history, as ORB-SLAM3 waits for
+acceleration. An accepted one scales the map, tracking's state and this prior's history
+(``scale_map``), so the map is metric from then on; the refinements re-estimate the scale
+and apply the correction the same way (ORB-SLAM3 refines it in its VI-BA and its scale
+refinements).
 """
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -45,9 +55,13 @@ if TYPE_CHECKING:
     from semslam.slam.orb.frame_state import FrameState
 
 Array = NDArray[np.float64]
+log = logging.getLogger(__name__)
 
 #: Frames an initialisation or refinement solves over, at most (spread over its span).
 MAX_INIT_FRAMES = 30
+#: Frames a monocular scale is solved over, at most: a free scale costs the solver more
+#: (0.2 s at 10 frames, 0.7 s at 20; it runs in the tracking thread).
+MAX_SCALE_FRAMES = 12
 #: Solutions refused as the poses and the readings disagreeing (a frame posed wrong, a
 #: blurred turn): an initialisation or refinement whose normalised residuals' RMS is above
 #: MAX_INIT_RMS (consistent ones: 0.3), a window whose chi2 per dimension is above
@@ -87,8 +101,11 @@ class InertialPrior(PriorDefaults):
 
     name = "inertial"
 
-    def __init__(self, cfg: ImuConfig, calibration: ImuCalibration) -> None:
+    def __init__(self, cfg: ImuConfig, calibration: ImuCalibration,
+                 scale_map: Callable[[float], None] | None = None) -> None:
         self.cfg = cfg
+        # A monocular map: its scale is estimated, and applied through tracking's scale_map.
+        self.scale_map = scale_map
         self.noise = configured_noise(calibration.noise, cfg)
         self.T_bc = np.asarray(calibration.T_bc, dtype=np.float64)
         self.T_cb = invert(self.T_bc)
@@ -123,6 +140,13 @@ class InertialPrior(PriorDefaults):
         self.init_frame = -1
         self.init_after_s = -1.0  # seconds from the first tracked frame to the first initialisation
         self.first_tracked_t: float | None = None
+        self.n_scale_unsure = 0  # monocular solutions refused as the scale's spread was too wide
+        #: Monocular: every scale applied to the map, (time, factor, relative spread).
+        self.scales: list[tuple[float, float, float]] = []
+
+    @property
+    def monocular(self) -> bool:
+        return self.scale_map is not None
 
     # ------------------------------------------------------------------ poses
     def _body(self, T_cw: Array) -> Array:
@@ -130,6 +154,26 @@ class InertialPrior(PriorDefaults):
 
     def _camera(self, T_wb: Array) -> Array:
         return invert(T_wb @ self.T_bc)
+
+    def _scaled_body(self, T_wb: Array, scale: float) -> Array:
+        """A body pose after the map was scaled: its camera centre scales, the metric lever
+        arm between camera and body does not."""
+        out = T_wb.copy()
+        out[:3, 3] = scale * self._centres(T_wb[None])[0] - T_wb[:3, :3] @ self.T_bc[:3, 3]
+        return out
+
+    def map_scaled(self, scale: float) -> None:
+        self.history = deque((t, self._scaled_body(T, scale), v) for t, T, v in self.history)
+        if self._last_tracked is not None:
+            t, T, v = self._last_tracked
+            self._last_tracked = (t, self._scaled_body(T, scale), v)
+        if self._blind_start is not None:
+            t, T, v = self._blind_start
+            self._blind_start = (t, self._scaled_body(T, scale), v)
+
+    def _centres(self, T_wb: Array) -> Array:
+        """The camera centres of body poses (N, 4, 4): what a monocular map's scale multiplies."""
+        return T_wb[:, :3, 3] + T_wb[:, :3, :3] @ self.T_bc[:3, 3]
 
     # ------------------------------------------------------------------ the prior's steps
     def predict(self, state: MotionState, images: FrameImages) -> PosePrediction | None:
@@ -229,8 +273,8 @@ class InertialPrior(PriorDefaults):
             self._initialise(t, outcome.frame.index)
             return
         self.velocity = pred.v_w if pred is not None else None
-        if self.init_time is not None and self.refined < 2:
-            due = self.cfg.refine_first_s if self.refined == 0 else self.cfg.refine_second_s
+        if self.init_time is not None and (self.refined < 2 or self.monocular):
+            due = self._refinement_due()
             if t - self.init_time >= due:
                 self._initialise(t, outcome.frame.index, refine=True)
                 return
@@ -254,20 +298,35 @@ class InertialPrior(PriorDefaults):
         the estimate it would have replaced)."""
         if t - self.history[0][0] < self.cfg.init_s - 1e-9 or t < self._retry_at:
             return
-        span = self.cfg.refine_window_s if refine else self.cfg.init_s
+        # A monocular scale needs motion: its first solve takes all the history there is.
+        span = self.cfg.refine_window_s if refine or self.monocular else self.cfg.init_s
         # At most ~30 frames: the solve runs in the tracking thread (0.2 s at 30, 0.7 at 100).
-        times, poses, _ = self._spaced_history(span, max(self.cfg.init_step_s, (t - self.history[0][0]) / MAX_INIT_FRAMES))
+        step = max(self.cfg.init_step_s, (t - self.history[0][0]) / MAX_INIT_FRAMES)
+        if self.monocular:  # the scale is read in the poses' second differences: see scale_step_s
+            step = max(step, self.cfg.scale_step_s, (t - self.history[0][0]) / MAX_SCALE_FRAMES)
+        times, poses, _ = self._spaced_history(span, step)
         if len(times) < 3 or not self.buffer.covers(times[0], times[-1]):
             return
         samples = self.buffer.window(times[0], times[-1])
-        est = initialise(times, poses, samples, self.noise, self.gyro_bias, self.acc_bias)
-        if est.rms > MAX_INIT_RMS:
+        est = initialise(times, poses, samples, self.noise, self.gyro_bias, self.acc_bias,
+                         scaled=self._centres(poses) if self.monocular else None)
+        unsure = self.monocular and not est.scale_sigma <= self.cfg.max_scale_spread
+        log.debug("inertial %s at %.2f s over %.2f s: rms %.2f, scale %.4f (spread %.4f)",
+                  "refinement" if refine else "initialisation", t, times[-1] - times[0], est.rms, est.scale,
+                  est.scale_sigma)
+        if est.rms > MAX_INIT_RMS or unsure:
             self.n_refused += 1
+            self.n_scale_unsure += int(unsure and est.rms <= MAX_INIT_RMS)
             if refine:
                 self.refined += 1
             else:
                 self._retry_at = t + 0.5 * self.cfg.init_s
             return
+        if self.scale_map is not None:
+            # The map, tracking's state and this prior's history (map_scaled) become metric;
+            # the estimate's velocities already are.
+            self.scale_map(est.scale)
+            self.scales.append((t, est.scale, est.scale_sigma))
         self.gravity, self.gyro_bias, self.acc_bias = est.gravity_w, est.gyro_bias, est.acc_bias
         self.velocity = est.velocities[-1]
         self.last_window_t = t
@@ -280,6 +339,17 @@ class InertialPrior(PriorDefaults):
             if self.init_frame < 0:
                 self.init_frame = index
                 self.init_after_s = t - (self.first_tracked_t if self.first_tracked_t is not None else t)
+
+    def _refinement_due(self) -> float:
+        """Seconds after the initialisation the next refinement is due: ``refine_first_s``
+        and ``refine_second_s`` (ORB-SLAM3's two VI-BA refinements); a monocular map's scale,
+        which only acceleration shows (its first estimate, on the least motion that showed it,
+        is the roughest), after ``scale_refine_s``, then at doubling intervals for as long as
+        the map lives (1, 3, 7, 15 s ...: ORB-SLAM3 refines it at 5 and 15 s, then every 10 s
+        up to 100 s), so a long run spends little on it."""
+        if self.monocular:
+            return (2 ** (self.refined + 1) - 1) * self.cfg.scale_refine_s
+        return self.cfg.refine_first_s if self.refined == 0 else self.cfg.refine_second_s
 
     def _refine_window(self, t: float) -> None:
         """Velocity and biases on the last ``window_s`` of tracked frames."""
@@ -327,6 +397,9 @@ class InertialPrior(PriorDefaults):
                 "imu_only_frames": self.n_imu_only, "imu_only_spans": [list(s) for s in self.spans],
                 "imu_bridged_frames": self.n_bridged, "imu_blind_lost": self.n_blind_lost,
                 "imu_weak_frames": self.n_weak, "imu_refused_solutions": self.n_refused,
+                **({"imu_scale_unsure": self.n_scale_unsure,
+                    "imu_scales": [[round(t, 3), round(f, 5), round(sd, 5)] for t, f, sd in self.scales]}
+                   if self.monocular else {}),
                 "imu_gravity": None if self.gravity is None else [round(float(g), 5) for g in self.gravity],
                 "imu_gyro_bias": [round(float(b), 6) for b in self.gyro_bias],
                 "imu_acc_bias": [round(float(b), 5) for b in self.acc_bias]}
