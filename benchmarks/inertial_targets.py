@@ -14,8 +14,12 @@ Renders per (seed, layout): ``static`` (static_xyz), ``walking`` (walking_xyz, t
 clean twin (no blackout), ``hard`` (walking_hard's fast turns with motion blur, a rolling
 shutter, auto-exposure swings and a depth-colour delay; the first 300 frames) and its clean
 twin (walking_turns). Each runs ``default`` through the CLI with ``--sequential``
-(deterministic) as RGB-D (cam0 + depth0) and stereo (cam0 + cam1), with the IMU and without
-(``--set imu.use=false``). ATE is SE(3) (evo's convention, on the frames each run posed).
+(deterministic) as RGB-D (cam0 + depth0) and stereo (cam0 + cam1), and ``mono_dynamic`` (the
+monocular dynamic front end) on cam0 alone, with the IMU and without (``--set imu.use=false``).
+ATE is SE(3) (evo's convention, on the frames each run posed), but Sim(3) for monocular
+visual only (its map has no metres); a monocular-inertial run's scale error is |1 - s| of the
+Sim(3) alignment of its trajectory (all frames, the ones before the IMU made the map metric
+included: they are scaled with their keyframes).
 
 Speed: threaded runs (one at a time) of ``default`` with and without the IMU on the first
 static render, interleaved ``--speed-repeats`` times: per-frame time (``ms_per_frame.median``)
@@ -55,7 +59,9 @@ KINDS: dict[str, tuple[str, int, list[str]]] = {
     "hard": ("walking_hard", 300, []),
     "hard_twin": ("walking_turns", 300, []),
 }
-SENSORS = ("rgbd", "stereo")
+SENSORS = ("rgbd", "stereo", "mono")
+#: The preset each sensor runs: the dynamic-scene front end of each.
+PRESETS = {"rgbd": "default", "stereo": "default", "mono": "mono_dynamic"}
 MODES = ("imu", "vis")
 
 
@@ -95,7 +101,7 @@ def _run(render: Render, sensor: str, mode: str, work: Path, speed: bool = False
     """stats.json of one run (cached); None (and a line on stderr) if it failed."""
     out = work / ("speed" if speed else "runs") / f"{render.name}_{sensor}_{mode}"
     if speed or not (out / "stats.json").is_file():
-        flags = ["--preset", "default", "--sensor", sensor] + (["--set", "imu.use=false"] if mode == "vis" else [])
+        flags = ["--preset", PRESETS[sensor], "--sensor", sensor] + (["--set", "imu.use=false"] if mode == "vis" else [])
         extra = [] if speed else ["--sequential", "--map", "none"]
         cmd = _cli("run", str(render.path), "--out", str(out), *flags, *extra, "--quiet", "--no-report", "--overwrite")
         done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -105,9 +111,16 @@ def _run(render: Render, sensor: str, mode: str, work: Path, speed: bool = False
     return json.loads((out / "stats.json").read_text())
 
 
+def _ate_cm(s: dict[str, Any], sensor: str, mode: str) -> float | None:
+    """SE(3) ATE, but Sim(3) for monocular visual only (its map has no metres)."""
+    ate = s.get("ate_se3") if sensor == "mono" and mode == "imu" else s.get("ate")
+    return ate["rmse"] * 100 if isinstance(ate, dict) else None
+
+
 def _row(render: Render, sensor: str, mode: str, s: dict[str, Any]) -> dict[str, Any]:
     return {"render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
-            "ate_cm": s["ate"]["rmse"] * 100 if s.get("ate") else None, "frames": int(s["frames"]),
+            "ate_cm": _ate_cm(s, sensor, mode), "sim3_scale": s.get("ate_sim3_scale"),
+            "imu_scales": s.get("imu_scales"), "frames": int(s["frames"]),
             "tracked": int(s["tracked_frames"]), "lost": int(s["lost_frames"]),
             "uninitialised": int(s.get("uninitialized_frames", 0)), "maps": s.get("maps"),
             "imu_only_frames": s.get("imu_only_frames"), "imu_init_frame": s.get("imu_init_frame"),
@@ -136,18 +149,23 @@ def targets(rows: list[dict[str, Any]], speed: list[dict[str, Any]]) -> list[tup
     def verdict(values: list[float], ok: bool) -> str:
         return "n/a" if not values else ("PASS" if ok else "FAIL")
 
+    sensors = [s for s in SENSORS if any(r["sensor"] == s for r in rows)]
     goals: list[tuple[str, str, str, str]] = []
-    for sensor in SENSORS:
+    for sensor in sensors:
         lost = [float(r["frames"] - r["tracked"]) for r in rows if r["sensor"] == sensor and r["mode"] == "imu"]
         goals.append((f"{sensor}-inertial: frames without a pose, every render", _dist(lost), "0",
                       verdict(lost, bool(lost) and max(lost) == 0)))
+        if sensor == "mono":  # the two-view initialisation's frames have no pose in any monocular SLAM
+            after = [float(r["lost"]) for r in rows if r["sensor"] == sensor and r["mode"] == "imu"]
+            goals.append(("mono-inertial: frames lost after the two-view initialisation", _dist(after), "0",
+                          verdict(after, bool(after) and max(after) == 0)))
         lost_vis = [float(r["frames"] - r["tracked"]) for r in rows if r["sensor"] == sensor and r["mode"] == "vis"]
         goals.append((f"{sensor} visual only: frames without a pose", _dist(lost_vis), "reported", "reported"))
-    for sensor in SENSORS:
+    for sensor in sensors:
         b = ratios("blackout", "blackout_twin", sensor)
         goals.append((f"{sensor}-inertial: 2 s blackout ATE / clean twin's", _dist(b), "<= 1.5",
                       verdict(b, bool(b) and max(b) <= 1.5)))
-    for sensor in SENSORS:
+    for sensor in sensors:
         h = ratios("hard", "hard_twin", sensor)
         goals.append((f"{sensor}-inertial: hard imaging ATE / clean twin's", _dist(h), "<= 1.5",
                       verdict(h, bool(h) and max(h) <= 1.5)))
@@ -159,25 +177,35 @@ def targets(rows: list[dict[str, Any]], speed: list[dict[str, Any]]) -> list[tup
                   verdict(st, bool(st) and max(st) <= 1.02)))
     rg = ratios("static", "static", "rgbd", "imu", "vis")
     goals.append(("RGB-D-inertial static ATE / RGB-D alone", _dist(rg), "reported", "reported"))
-    for sensor in SENSORS:
-        w = ratios("walking", "walking", sensor, "imu", "vis")
-        goals.append((f"{sensor}: walking ATE with IMU / without", _dist(w), "reported", "reported"))
+    for sensor in sensors:
+        if sensor != "mono":
+            w = ratios("walking", "walking", sensor, "imu", "vis")
+            goals.append((f"{sensor}: walking ATE with IMU / without", _dist(w), "reported", "reported"))
     per_frame = [s["ratio"] for s in speed]
     goals.append(("per-frame time with IMU / visual only (threaded; median of interleaved repeats)",
                   _dist(per_frame), "<= 1.3",
                   verdict(per_frame, bool(per_frame) and max(per_frame) <= 1.3)))
-    goals.append(("mono-inertial: scale error after initialisation; ATE / stereo-inertial", "-", "<= 2 %; <= 2x",
-                  "not built"))
+    if "mono" in sensors:
+        mono = [r for r in rows if r["sensor"] == "mono" and r["mode"] == "imu"]
+        metric = [r for r in mono if r["imu_scales"] and r["sim3_scale"]]
+        errors = [abs(1.0 - 1.0 / r["sim3_scale"]) * 100 for r in metric]
+        goals.append((f"mono-inertial: scale error after initialisation, % ({len(metric)} of {len(mono)} runs "
+                      "made metric)", _dist(errors), "<= 2 %",
+                      verdict(errors, bool(errors) and len(metric) == len(mono) and max(errors) <= 2.0)))
+        vs = [r["ate_cm"] / other["ate_cm"] for r in mono
+              if (other := at.get((r["kind"], r["pair"], "stereo", "imu"))) and r["ate_cm"] and other["ate_cm"]]
+        goals.append(("mono-inertial ATE (SE(3)) / stereo-inertial's", _dist(vs), "<= 2x",
+                      verdict(vs, bool(vs) and max(vs) <= 2.0)))
     return goals
 
 
-def _speed(renders: list[Render], work: Path, repeats: int) -> list[dict[str, Any]]:
+def _speed(renders: list[Render], work: Path, repeats: int, sensors: list[str]) -> list[dict[str, Any]]:
     """Per render and sensor: ``repeats`` threaded runs with and without the IMU, interleaved
     (a load that comes and goes then falls on both); the per-frame median and the tracking
     thread's CPU per frame of each, and their ratios' median over the repeats."""
     rows = []
     for render in renders:
-        for sensor in SENSORS:
+        for sensor in sensors:
             runs: dict[str, list[tuple[float, float]]] = {m: [] for m in MODES}
             for _ in range(repeats):
                 for mode in MODES:
@@ -199,9 +227,11 @@ def _speed(renders: list[Render], work: Path, repeats: int) -> list[dict[str, An
 
 
 def _markdown(rows: list[dict[str, Any]], speed: list[dict[str, Any]], goals: list[tuple[str, str, str, str]]) -> str:
-    lines = ["ATE (cm, SE(3), `--sequential`, preset `default`); frames without a pose in brackets", "",
-             "| render | RGB-D + IMU | RGB-D | stereo + IMU | stereo | IMU-only frames (RGB-D / stereo) |",
-             "|---|---|---|---|---|---|"]
+    lines = ["ATE (cm, SE(3), `--sequential`; preset `default`, monocular `mono_dynamic`, whose visual-only "
+             "ATE is Sim(3)); frames without a pose in brackets; mono + IMU: the map's scale error", "",
+             "| render | RGB-D + IMU | RGB-D | stereo + IMU | stereo | mono + IMU | mono (Sim(3)) | "
+             "IMU-only frames (RGB-D / stereo / mono) |",
+             "|---|---|---|---|---|---|---|---|"]
     at = {(r["render"], r["sensor"], r["mode"]): r for r in rows}
     for name in dict.fromkeys(r["render"] for r in rows):
         cells = []
@@ -213,7 +243,11 @@ def _markdown(rows: list[dict[str, Any]], speed: list[dict[str, Any]], goals: li
                     continue
                 cell = "-" if r["ate_cm"] is None else f"{r['ate_cm']:.2f}"
                 missing = r["frames"] - r["tracked"]
-                cells.append(cell + (f" ({missing})" if missing else ""))
+                cell += f" ({missing})" if missing else ""
+                if sensor == "mono" and mode == "imu":
+                    cell += (f", scale {100 * abs(1 - 1 / r['sim3_scale']):.1f} %" if r["imu_scales"]
+                             and r["sim3_scale"] else ", not metric")
+                cells.append(cell)
         only = [str((at.get((name, s, "imu")) or {}).get("imu_only_frames", "-")) for s in SENSORS]
         lines.append(f"| {name} | {' | '.join(cells)} | {' / '.join(only)} |")
     if speed:
@@ -236,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="one seed")
     ap.add_argument("--pairs", help="seed:layout pairs instead of the committed ones, e.g. 31:1,32:2 (held-out checks)")
     ap.add_argument("--kinds", help=f"a subset of {','.join(KINDS)}")
+    ap.add_argument("--sensors", help=f"a subset of {','.join(SENSORS)}")
     ap.add_argument("--json", type=Path, help="also write the JSON here")
     ap.add_argument("--no-speed", action="store_true", help="accuracy only")
     ap.add_argument("--speed-repeats", type=int, default=3, help="interleaved speed runs per mode")
@@ -247,15 +282,18 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [k for k in kinds if k not in KINDS]
     if unknown:
         ap.error(f"--kinds: unknown {', '.join(unknown)} (known: {', '.join(KINDS)})")
+    sensors = args.sensors.split(",") if args.sensors else list(SENSORS)
+    if any(s not in SENSORS for s in sensors):
+        ap.error(f"--sensors: known are {', '.join(SENSORS)}")
     chosen = [(kind, seed, layout) for seed, layout in pairs for kind in kinds]
     with ThreadPoolExecutor(args.jobs) as pool:
         renders = list(pool.map(lambda c: _render(args.work, *c), chosen))
-    jobs = [(r, s, m) for r in renders for s in SENSORS for m in MODES]
+    jobs = [(r, s, m) for r in renders for s in sensors for m in MODES]
     with ThreadPoolExecutor(args.jobs) as pool:
         results = list(pool.map(lambda j: _run(j[0], j[1], j[2], args.work), jobs))
     rows = [_row(r, s, m, st) for (r, s, m), st in zip(jobs, results) if st is not None]
     speed = [] if args.no_speed else _speed([r for r in renders if r.kind == "static"][:1], args.work,
-                                           args.speed_repeats)
+                                           args.speed_repeats, sensors)
     goals = targets(rows, speed)
     emit_json({"baseline_m": BASELINE, "cpus": os.cpu_count(), "rows": rows, "speed": speed,
                "targets": [{"target": t, "median_worst": m, "bound": b, "result": ok} for t, m, b, ok in goals]},
