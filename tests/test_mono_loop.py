@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from semslam.geometry.se3 import invert, make_pose, so3_exp
-from semslam.slam.orb.map_scaling import rescale_frame_records
+from semslam.slam.orb.map_alignment import rescale_frame_records
 from tests.conftest import evo_ate, run_cli
 
 

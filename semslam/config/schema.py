@@ -467,6 +467,10 @@ class ImuConfig:
     # Tracked frames the estimation uses: posed by their features with at least this many
     # inliers (a blurred turn's coasted poses are too rough for velocities and biases).
     min_inliers: int = 50
+    # The map rotated about its origin so gravity points down its z axis after the
+    # initialisation and each refinement (ORB-SLAM3's gravity-aligned world); off: the map
+    # keeps the first camera's frame and gravity is a direction in it.
+    gravity_aligned: bool = True
     # Monocular-inertial: the map's scale is taken from an initialisation or refinement only
     # when the motion showed it to this relative spread (1 sigma); else tried again later.
     max_scale_spread: float = 0.05

@@ -70,7 +70,13 @@ class TrackingCounters(Counters):
     imu_weak_frames: int | None = None
     imu_refused_solutions: int | None = None
     imu_blind_lost: int | None = None
-    #: Gravity (m/s^2) in the map's frame (the first camera's, x right, y down, z forward).
+    #: The map turned to gravity at the initialisation and each refinement, [time, degrees];
+    #: a monocular map's scale factors applied, [time, factor, relative spread].
+    imu_gravity_alignments: Sequence[Sequence[float]] | None = None
+    imu_scale_unsure: int | None = None
+    imu_scales: Sequence[Sequence[float]] | None = None
+    #: Gravity (m/s^2) in the map's frame: (0, 0, -g) once the map is turned to it
+    #: (``imu.gravity_aligned``), else in the first camera's (x right, y down, z forward).
     imu_gravity: Sequence[float] | None = None
     imu_gyro_bias: Sequence[float] | None = None
     imu_acc_bias: Sequence[float] | None = None
@@ -209,7 +215,7 @@ STATS_LAYOUT: tuple[str, ...] = (
     "depth_prior_metric_init", "depth_prior_scale", "depth_prior_keyframes", "depth_prior_refused",
     "imu_initialisations", "imu_init_frame", "imu_init_after_s", "imu_refinements", "imu_only_frames",
     "imu_only_spans", "imu_bridged_frames", "imu_weak_frames",
-    "imu_refused_solutions", "imu_blind_lost", "imu_gravity", "imu_gyro_bias", "imu_acc_bias",
+    "imu_refused_solutions", "imu_blind_lost", "imu_gravity_alignments", "imu_scale_unsure", "imu_scales", "imu_gravity", "imu_gyro_bias", "imu_acc_bias",
     *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
     "jit_warmup_s",
 )

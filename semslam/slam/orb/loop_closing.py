@@ -37,7 +37,7 @@ from semslam.slam.orb.loop_consistency import Candidate, LoopConsistency
 from semslam.slam.orb.atlas import MergeHint
 from semslam.slam.orb.merge_check import COVISIBLES, MIN_PROJECTED, PENDING_MISSES, MergeVerifier, PendingMerge, enough
 from semslam.slam.orb.map import KeyFrame, Map
-from semslam.slam.orb.map_scaling import rescale_frame_records
+from semslam.slam.orb.map_alignment import rescale_frame_records
 from semslam.slam.orb.point_store import MapPoint
 from semslam.slam.orb.map_batch import normals_and_depths
 from semslam.geometry.projection import project

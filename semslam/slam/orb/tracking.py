@@ -36,7 +36,7 @@ from semslam.slam.orb.frame_builders import FrameBuilder, MonocularFrameBuilder,
 from semslam.slam.orb.frame_state import FrameState
 from semslam.slam.orb.keyframe_worker import KeyframeSink
 from semslam.slam.orb.map import KeyFrame, Map, update_normals_and_depths
-from semslam.slam.orb.map_scaling import rescale_frame_records, scale_map, scaled_translation
+from semslam.slam.orb.map_alignment import align_map, aligned_pose, rescale_frame_records, scaled_translation
 from semslam.slam.orb.mono_init import MonocularInitializer
 from semslam.slam.orb.motion_priors.base import FrameImages, FrameOutcome, MotionState, PosePrior, PosePrediction, Stage
 from semslam.slam.orb.motion_priors.blur_coast import BlurCoast
@@ -57,7 +57,8 @@ if TYPE_CHECKING:
 
 def pose_priors(config: SystemConfig, camera: PinholeCamera, slam_map: Map, pyramid: ScalePyramid,
                 sharpness: SharpnessHistory, imu: ImuCalibration | None = None,
-                scale_map: Callable[[float], None] | None = None) -> list[PosePrior]:
+                align_map: Callable[[NDArray[np.float64], float], None] | None = None,
+                monocular: bool = False) -> list[PosePrior]:
     """The priors ``config`` turns on, in the order tracking asks them: the rolling shutter
     (keypoints moved before anything), the images' shift on blurred frames (its prediction
     before the others'; its coast before depth odometry), depth odometry, the IMU (its
@@ -73,7 +74,7 @@ def pose_priors(config: SystemConfig, camera: PinholeCamera, slam_map: Map, pyra
     if cfg.depth_odometry != "none":
         priors.append(DepthOdometry(cfg, camera, sharpness))
     if imu is not None:
-        priors.append(InertialPrior(config.imu, imu, scale_map))
+        priors.append(InertialPrior(config.imu, imu, align_map, monocular))
     priors.append(ConstantVelocity())
     return priors
 
@@ -116,7 +117,7 @@ class Tracking:
         self.sharpness = SharpnessHistory()
         self.priors = (priors if priors is not None
                        else pose_priors(config, camera, slam_map, self.pyr, self.sharpness, imu,
-                                        self.scale_map if self.mono else None))
+                                        self.align_map, self.mono))
         self.seed = config.seed
         self.th_depth_m = self.cfg.bf * self.cfg.th_depth / camera.fx
         self.state = TrackingState.NOT_INITIALIZED
@@ -141,10 +142,11 @@ class Tracking:
         # Multi-map atlas (ORB-SLAM3): a new map is wanted once lost long enough.
         self.atlas_follower = AtlasFollower(atlas) if atlas is not None else None
         self.new_map_pending = False
-        # Monocular-inertial: a scale for the map, set by the IMU's estimation during a frame
-        # and applied after its critical section, with local mapping paused by this context
-        # (the assembler's; nothing to pause when local mapping runs inline).
-        self._pending_scale: float | None = None
+        # The IMU's estimation moves the map (gravity down its z axis; a monocular map to
+        # metres) during a frame: (rotation, scale), applied after the frame's critical
+        # section, with local mapping paused by this context (the assembler's; nothing to
+        # pause when local mapping runs inline).
+        self._pending_alignment: tuple[NDArray[np.float64], float] | None = None
         self.pause_mapping: Callable[[], AbstractContextManager[object]] = nullcontext
 
     # ------------------------------------------------------------------ the priors' counters
@@ -229,10 +231,10 @@ class Tracking:
                 prior.update(outcome)
             self.sharpness.end(self.state is TrackingState.OK)
             n_inl = int(((cur.points.rows >= 0) & ~cur.outlier).sum())
-        if self._pending_scale is not None:
+        if self._pending_alignment is not None:
             t0 = time.perf_counter()
-            self._apply_map_scale()
-            timings["scale_map"] = (time.perf_counter() - t0) * 1e3
+            self._apply_map_alignment()
+            timings["align_map"] = (time.perf_counter() - t0) * 1e3
         pose_wc = invert(cur.T_cw) if cur.T_cw is not None and self.state is TrackingState.OK else None
         # count_nonzero: the same value as mean() of the bool mask without its float copy (0.3 ms)
         self.last_dynamic_ratio = np.count_nonzero(dynamic) / dynamic.size if dynamic is not None else 0.0
@@ -368,39 +370,43 @@ class Tracking:
         self.trajectory_refs.append((cur.timestamp, ref, cur.T_cw @ ref.T_wc))
         return len(self.trajectory_refs) - 1
 
-    def scale_map(self, scale: float) -> None:
-        """A monocular map to be made metric (the IMU's scale estimate): applied once the
-        frame's critical section ends (``_apply_map_scale``)."""
-        self._pending_scale = scale * (self._pending_scale if self._pending_scale is not None else 1.0)
+    def align_map(self, rotation: NDArray[np.float64], scale: float) -> None:
+        """The map to be moved by ``x' = scale * rotation @ x`` (the IMU's gravity and, for a
+        monocular map, its scale): applied once the frame's critical section ends
+        (``_apply_map_alignment``), composed with one already pending."""
+        if self._pending_alignment is not None:
+            R0, s0 = self._pending_alignment
+            rotation, scale = rotation @ R0, scale * s0
+        self._pending_alignment = (np.asarray(rotation, dtype=np.float64), float(scale))
 
-    def _apply_map_scale(self) -> None:
-        """The pending scale, with local mapping paused (a keyframe it has in hand was
-        triangulated at the old scale) and under the map lock: the active map, the frames
+    def _apply_map_alignment(self) -> None:
+        """The pending alignment, with local mapping paused (a keyframe it has in hand was
+        triangulated in the old frame) and under the map lock: the active map, the frames
         recorded relative to its keyframes, the last frame, the motion model and the priors'
-        positions, all multiplied by it."""
-        scale, self._pending_scale = self._pending_scale, None
-        if scale is None or self.ref_kf is None:
+        positions."""
+        pending, self._pending_alignment = self._pending_alignment, None
+        if pending is None or self.ref_kf is None:
             return
         with self.pause_mapping(), self.map.lock:
-            self._scale_state(self.ref_kf.map_id, scale)
+            self._align_state(self.ref_kf.map_id, *pending)
 
-    def _scale_state(self, map_id: int, scale: float) -> None:
-        kfs = scale_map(self.map, map_id, scale)
+    def _align_state(self, map_id: int, rotation: NDArray[np.float64], scale: float) -> None:
+        kfs = align_map(self.map, map_id, rotation, scale)
         rescale_frame_records(self.trajectory_refs, dict.fromkeys(kfs, scale))
         if self.last is not None and self.last.T_cw is not None:
-            self.last.T_cw = scaled_translation(self.last.T_cw, scale)
-        if self.velocity is not None:
+            self.last.T_cw = aligned_pose(self.last.T_cw, rotation, scale)
+        if self.velocity is not None:  # camera to camera: only its translation's units change
             self.velocity = scaled_translation(self.velocity, scale)
         follower = self.atlas_follower
         if follower is not None and follower.last_tracked is not None and follower.last_tracked.map_id == map_id:
             last = follower.last_tracked
-            follower.last_tracked = replace(last, T_cw=scaled_translation(last.T_cw, scale),
+            follower.last_tracked = replace(last, T_cw=aligned_pose(last.T_cw, rotation, scale),
                                             velocity=None if last.velocity is None
                                             else scaled_translation(last.velocity, scale))
-        if self.depth_prior is not None:
+        if self.depth_prior is not None and scale != 1.0:
             self.depth_prior.map_scaled(scale)
         for prior in self.priors:
-            prior.map_scaled(scale)
+            prior.map_aligned(rotation, scale)
 
     # ------------------------------------------------------------------ atlas
     def _follow_atlas(self, timestamp: float) -> None:

@@ -18,8 +18,8 @@ local map -> relocalisation -> keyframe decision) and asks its priors at fixed p
   decision;
 * ``update(outcome)``: once per frame, with what tracking made of it;
 * ``counters()``: what it did so far, for the run's stats;
-* ``map_scaled(scale)``: the map was scaled about its origin (a monocular map made metric
-  by the IMU): positions a prior keeps scale with it.
+* ``map_aligned(rotation, scale)``: the map was moved by ``x' = scale * rotation @ x`` (the
+  IMU's gravity alignment, a monocular map made metric): positions a prior keeps move too.
 
 ``MotionState`` is the state the priors predict from: the last frame, whether it was
 tracked, and the velocity (``T_cw`` of this frame = ``velocity @ T_cw`` of the last) over
@@ -152,8 +152,8 @@ class PosePrior(Protocol):
         """What the prior did so far, for the run's stats (names unique across priors)."""
         ...
 
-    def map_scaled(self, scale: float) -> None:
-        """The map's positions were multiplied by ``scale`` (under the map lock)."""
+    def map_aligned(self, rotation: NDArray[np.float64], scale: float) -> None:
+        """The map was moved by ``x' = scale * rotation @ x`` (under the map lock)."""
         ...
 
 
@@ -178,5 +178,5 @@ class PriorDefaults:
     def counters(self) -> dict[str, Any]:
         return {}
 
-    def map_scaled(self, scale: float) -> None:
+    def map_aligned(self, rotation: NDArray[np.float64], scale: float) -> None:
         return None

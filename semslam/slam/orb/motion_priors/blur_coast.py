@@ -234,10 +234,10 @@ class BlurCoast:
         return self._settled
 
     # ------------------------------------------------------------------ after the frame
-    def map_scaled(self, scale: float) -> None:
-        self._steady_centres = deque(((t, c * scale) for t, c in self._steady_centres), maxlen=STEADY_FRAMES)
+    def map_aligned(self, rotation: NDArray[np.float64], scale: float) -> None:
+        self._steady_centres = deque(((t, scale * rotation @ c) for t, c in self._steady_centres), maxlen=STEADY_FRAMES)
         if self._coast_from is not None:
-            self._coast_from = (self._coast_from[0], self._coast_from[1] * scale)
+            self._coast_from = (self._coast_from[0], scale * rotation @ self._coast_from[1])
 
     def counters(self) -> dict[str, int]:
         return {"coasted_frames": self.n_coasted_frames, "coast_keyframes": self.n_coast_keyframes,

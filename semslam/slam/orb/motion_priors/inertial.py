@@ -16,17 +16,20 @@ the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then 
   velocity and biases re-estimated on the last ``imu.window_s`` of tracked frames
   (``backend/inertial_window.py``).
 
-Frames posed by the IMU alone make no keyframes. The map keeps its frame (the first
-camera's); gravity is a direction in it.
+Frames posed by the IMU alone make no keyframes. The map starts in the first camera's
+frame; the initialisation and each refinement rotate it about its origin so gravity points
+down its z axis (``imu.gravity_aligned``; the smallest rotation, so the yaw gravity does not
+show is kept), through tracking's ``align_map``, which moves the map, tracking's state and
+every prior's kept positions (this one's ``map_aligned``), as ORB-SLAM3's
+``ApplyScaledRotation``.
 
-Monocular-inertial (``scale_map`` given): the map's scale is one more unknown of the
-initialisation and its refinements (``initialise(..., scaled=...)``); a solution whose scale
-the motion has not shown yet (relative spread above ``imu.max_scale_spread``, e.g. a slow
-or still start) is refused and tried again on the longer history, as ORB-SLAM3 waits for
-acceleration. An accepted one scales the map, tracking's state and this prior's history
-(``scale_map``), so the map is metric from then on; the refinements re-estimate the scale
-and apply the correction the same way (ORB-SLAM3 refines it in its VI-BA and its scale
-refinements).
+Monocular-inertial: the map's scale is one more unknown of the initialisation and its
+refinements (``initialise(..., scaled=...)``); a solution whose scale the motion has not
+shown yet (relative spread above ``imu.max_scale_spread``, e.g. a slow or still start) is
+refused and tried again on the longer history, as ORB-SLAM3 waits for acceleration. An
+accepted one scales the map with the same ``align_map``, so the map is metric from then on;
+the refinements re-estimate the scale and apply the correction the same way (ORB-SLAM3
+refines it in its VI-BA and its scale refinements).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from semslam.backend.imu_preintegration import ImuBuffer, bias_from, imu_params, preintegrate
 from semslam.backend.imu_preintegration import predict as imu_predict
@@ -47,6 +51,7 @@ from semslam.backend.inertial_window import bridge, refine_window
 from semslam.config.schema import ImuConfig
 from semslam.core.imu import ImuCalibration, ImuNoise
 from semslam.geometry.se3 import invert
+from semslam.slam.orb.map_alignment import gravity_rotation
 from semslam.slam.orb.motion_priors.base import (
     Correction, FrameImages, FrameOutcome, MotionState, PosePrediction, PriorDefaults, Stage, TrackerOps,
 )
@@ -102,10 +107,15 @@ class InertialPrior(PriorDefaults):
     name = "inertial"
 
     def __init__(self, cfg: ImuConfig, calibration: ImuCalibration,
-                 scale_map: Callable[[float], None] | None = None) -> None:
+                 align_map: Callable[[Array, float], None] | None = None, monocular: bool = False) -> None:
         self.cfg = cfg
-        # A monocular map: its scale is estimated, and applied through tracking's scale_map.
-        self.scale_map = scale_map
+        # Tracking's: moves the map (gravity down z, a monocular map's scale). Without it the
+        # map keeps the first camera's frame (a monocular map needs it for its scale).
+        self.align_map = align_map
+        # A monocular map: its scale is estimated too.
+        self.monocular = monocular
+        if monocular and align_map is None:
+            raise ValueError("a monocular map's IMU needs the map's align_map to make it metric")
         self.noise = configured_noise(calibration.noise, cfg)
         self.T_bc = np.asarray(calibration.T_bc, dtype=np.float64)
         self.T_cb = invert(self.T_bc)
@@ -143,10 +153,8 @@ class InertialPrior(PriorDefaults):
         self.n_scale_unsure = 0  # monocular solutions refused as the scale's spread was too wide
         #: Monocular: every scale applied to the map, (time, factor, relative spread).
         self.scales: list[tuple[float, float, float]] = []
-
-    @property
-    def monocular(self) -> bool:
-        return self.scale_map is not None
+        #: Every rotation to gravity applied to the map, (time, degrees).
+        self.alignments: list[tuple[float, float]] = []
 
     # ------------------------------------------------------------------ poses
     def _body(self, T_cw: Array) -> Array:
@@ -155,21 +163,28 @@ class InertialPrior(PriorDefaults):
     def _camera(self, T_wb: Array) -> Array:
         return invert(T_wb @ self.T_bc)
 
-    def _scaled_body(self, T_wb: Array, scale: float) -> Array:
-        """A body pose after the map was scaled: its camera centre scales, the metric lever
-        arm between camera and body does not."""
+    def _aligned_body(self, T_wb: Array, rotation: Array, scale: float) -> Array:
+        """A body pose after the map moved by ``x' = scale * rotation @ x``: its camera centre
+        moves so, the metric lever arm between camera and body does not scale."""
         out = T_wb.copy()
-        out[:3, 3] = scale * self._centres(T_wb[None])[0] - T_wb[:3, :3] @ self.T_bc[:3, 3]
+        out[:3, :3] = rotation @ T_wb[:3, :3]
+        out[:3, 3] = scale * rotation @ self._centres(T_wb[None])[0] - out[:3, :3] @ self.T_bc[:3, 3]
         return out
 
-    def map_scaled(self, scale: float) -> None:
-        self.history = deque((t, self._scaled_body(T, scale), v) for t, T, v in self.history)
+    def map_aligned(self, rotation: Array, scale: float) -> None:
+        """Poses, velocities (metric already: only turned) and gravity into the moved map."""
+        def turned(v: Array | None) -> Array | None:
+            return None if v is None else rotation @ v
+
+        self.history = deque((t, self._aligned_body(T, rotation, scale), turned(v)) for t, T, v in self.history)
         if self._last_tracked is not None:
             t, T, v = self._last_tracked
-            self._last_tracked = (t, self._scaled_body(T, scale), v)
+            self._last_tracked = (t, self._aligned_body(T, rotation, scale), rotation @ v)
         if self._blind_start is not None:
             t, T, v = self._blind_start
-            self._blind_start = (t, self._scaled_body(T, scale), v)
+            self._blind_start = (t, self._aligned_body(T, rotation, scale), rotation @ v)
+        self.velocity = turned(self.velocity)
+        self.gravity = turned(self.gravity)
 
     def _centres(self, T_wb: Array) -> Array:
         """The camera centres of body poses (N, 4, 4): what a monocular map's scale multiplies."""
@@ -322,13 +337,9 @@ class InertialPrior(PriorDefaults):
             else:
                 self._retry_at = t + 0.5 * self.cfg.init_s
             return
-        if self.scale_map is not None:
-            # The map, tracking's state and this prior's history (map_scaled) become metric;
-            # the estimate's velocities already are.
-            self.scale_map(est.scale)
-            self.scales.append((t, est.scale, est.scale_sigma))
         self.gravity, self.gyro_bias, self.acc_bias = est.gravity_w, est.gyro_bias, est.acc_bias
         self.velocity = est.velocities[-1]
+        self._align(t, est.gravity_w, est.scale if self.monocular else 1.0, est.scale_sigma)
         self.last_window_t = t
         if refine:
             self.refined += 1
@@ -339,6 +350,19 @@ class InertialPrior(PriorDefaults):
             if self.init_frame < 0:
                 self.init_frame = index
                 self.init_after_s = t - (self.first_tracked_t if self.first_tracked_t is not None else t)
+
+    def _align(self, t: float, gravity: Array, scale: float, scale_sigma: float) -> None:
+        """The map rotated to ``gravity`` (and a monocular one scaled): asked of tracking,
+        which applies it after the frame and calls ``map_aligned``, which turns this prior's
+        state, set in the old frame, with it."""
+        if self.align_map is None or not (self.monocular or self.cfg.gravity_aligned):
+            return
+        rotation = gravity_rotation(gravity) if self.cfg.gravity_aligned else np.eye(3)
+        if self.monocular:
+            self.scales.append((t, scale, scale_sigma))
+        if self.cfg.gravity_aligned:
+            self.alignments.append((t, float(np.degrees(Rotation.from_matrix(rotation).magnitude()))))
+        self.align_map(rotation, scale)
 
     def _refinement_due(self) -> float:
         """Seconds after the initialisation the next refinement is due: ``refine_first_s``
@@ -400,6 +424,7 @@ class InertialPrior(PriorDefaults):
                 **({"imu_scale_unsure": self.n_scale_unsure,
                     "imu_scales": [[round(t, 3), round(f, 5), round(sd, 5)] for t, f, sd in self.scales]}
                    if self.monocular else {}),
+                "imu_gravity_alignments": [[round(t, 3), round(deg, 3)] for t, deg in self.alignments],
                 "imu_gravity": None if self.gravity is None else [round(float(g), 5) for g in self.gravity],
                 "imu_gyro_bias": [round(float(b), 6) for b in self.gyro_bias],
                 "imu_acc_bias": [round(float(b), 5) for b in self.acc_bias]}
