@@ -117,8 +117,22 @@ def _ate_cm(s: dict[str, Any], sensor: str, mode: str) -> float | None:
     return ate["rmse"] * 100 if isinstance(ate, dict) else None
 
 
-def _row(render: Render, sensor: str, mode: str, s: dict[str, Any]) -> dict[str, Any]:
-    return {"render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
+def _tilt_deg(render: Render, sensor: str, mode: str, work: Path) -> float | None:
+    """Degrees between an IMU run's map z axis and the render's gravity (the map is turned
+    to gravity after the inertial initialisation); None for a visual-only run."""
+    if mode != "imu":
+        return None
+    from semslam.eval.gravity import gravity_tilt_deg
+    from semslam.io.sequence import open_sequence
+    from semslam.io.trajectory import read_tum
+
+    gt = open_sequence(render.path, kind="rgbd").groundtruth()
+    assert gt is not None
+    return gravity_tilt_deg(gt, read_tum(work / "runs" / f"{render.name}_{sensor}_{mode}" / "trajectory.txt"))
+
+
+def _row(render: Render, sensor: str, mode: str, s: dict[str, Any], work: Path) -> dict[str, Any]:
+    return {"tilt_deg": _tilt_deg(render, sensor, mode, work), "render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
             "ate_cm": _ate_cm(s, sensor, mode), "sim3_scale": s.get("ate_sim3_scale"),
             "imu_scales": s.get("imu_scales"), "frames": int(s["frames"]),
             "tracked": int(s["tracked_frames"]), "lost": int(s["lost_frames"]),
@@ -171,6 +185,10 @@ def targets(rows: list[dict[str, Any]], speed: list[dict[str, Any]]) -> list[tup
                       verdict(h, bool(h) and max(h) <= 1.5)))
         hv = ratios("hard", "hard_twin", sensor, "vis", "vis")
         goals.append((f"{sensor} visual only: hard imaging ATE / clean twin's", _dist(hv), "reported", "reported"))
+    for sensor in sensors:
+        tilt = [r["tilt_deg"] for r in rows if r["sensor"] == sensor and r["tilt_deg"] is not None]
+        goals.append((f"{sensor}-inertial: map's z axis to the render's gravity (degrees)", _dist(tilt),
+                      "reported", "reported"))
     st = ratios("static", "static", "stereo", "imu", "vis")
     # "No worse": the same frames tracked from another search start differ in the 4th digit.
     goals.append(("stereo-inertial static ATE / stereo alone", _dist(st), "<= 1.0 (to 2 %)",
@@ -291,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(r, s, m) for r in renders for s in sensors for m in MODES]
     with ThreadPoolExecutor(args.jobs) as pool:
         results = list(pool.map(lambda j: _run(j[0], j[1], j[2], args.work), jobs))
-    rows = [_row(r, s, m, st) for (r, s, m), st in zip(jobs, results) if st is not None]
+    rows = [_row(r, s, m, st, args.work) for (r, s, m), st in zip(jobs, results) if st is not None]
     speed = [] if args.no_speed else _speed([r for r in renders if r.kind == "static"][:1], args.work,
                                            args.speed_repeats, sensors)
     goals = targets(rows, speed)

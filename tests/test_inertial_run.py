@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from semslam.eval.gravity import gravity_tilt_deg
+from semslam.io.trajectory import read_tum
 from tests.conftest import evo_ate, run_cli
 
 FRAMES = 150
@@ -60,7 +62,7 @@ def test_blackout_bridged_by_the_imu(euroc_blackout: Path, tmp_path: Path, senso
     g_first = first[:3, :3].T @ np.array([0.0, 0.0, -1.0])
     assert with_imu["imu_gravity_alignments"][0][1] == pytest.approx(np.degrees(np.arccos(-g_first[2])), abs=2.0)
     np.testing.assert_allclose(with_imu["imu_gravity"], [0.0, 0.0, -9.81], atol=0.2)
-    assert _tilt_deg(gt, tmp_path / "imu" / "trajectory.txt") < 2.0
+    assert gravity_tilt_deg(read_tum(gt), read_tum(tmp_path / "imu" / "trajectory.txt")) < 2.0
     assert without.get("imu_gravity_alignments") is None
     ate, ate_without = evo_ate(gt, tmp_path / "imu" / "trajectory.txt"), evo_ate(gt, tmp_path / "vis" / "trajectory.txt")
     bound = {"rgbd": 0.01, "stereo": 0.025}[sensor]  # stereo at 320x240 is 1.6-2.6 cm without a blackout
@@ -80,21 +82,6 @@ def _write_cam0_groundtruth(root: Path, dest: Path) -> None:
     body = file_interface.read_euroc_csv_trajectory(str(root / "mav0" / "state_groundtruth_estimate0" / "data.csv"))
     body.transform(T_BS_CAM0, right_mul=True)
     file_interface.write_tum_trajectory_file(str(dest), body)
-
-
-def _tilt_deg(gt_path: Path, est_path: Path) -> float:
-    """Degrees between the estimate's -z and the render's gravity (its -z), the two worlds
-    related by the mean of the frames' orientation differences (a short path's positions
-    pin the rotation between them less well than its orientations do)."""
-    from evo.core import sync
-    from evo.tools import file_interface
-    from scipy.spatial.transform import Rotation
-
-    ref, est = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt_path)),
-                                           file_interface.read_tum_trajectory_file(str(est_path)), max_diff=0.02)
-    turns = [g[:3, :3] @ e[:3, :3].T for g, e in zip(ref.poses_se3, est.poses_se3)]  # est world -> render's
-    down = Rotation.from_matrix(np.array(turns)).mean().apply([0.0, 0.0, -1.0])
-    return float(np.degrees(np.arccos(np.clip(-down[2], -1.0, 1.0))))
 
 
 def _blind_error(gt_path: Path, est_path: Path, span: list[float]) -> float:
