@@ -160,6 +160,7 @@ RULES: dict[type, dict[str, Rule]] = {
         "window_step_s": POSITIVE,
         "min_inliers": NON_NEGATIVE,
         "max_scale_spread": POSITIVE,
+        "provisional_scale_spread": POSITIVE,
         "scale_step_s": POSITIVE,
         "scale_refine_s": POSITIVE,
         "gyro_noise_density": NON_NEGATIVE,

@@ -127,7 +127,12 @@ class InertialPrior(PriorDefaults):
         self.acc_bias = np.zeros(3)
         self.velocity: Array | None = None  # the body's, at the last frame
         self.init_time: float | None = None
-        self.refined = 0
+        self.refined = 0  # refinements since the initialisation (monocular: since the scale was sure)
+        self.last_solve_t = -np.inf
+        # Monocular: the applied scale's relative spread (inf: none yet), and when it first
+        # was under imu.max_scale_spread (a provisional one is replaced by better ones).
+        self.scale_spread = np.inf
+        self.sure_time: float | None = None
         self.last_window_t = -np.inf
         self.blind_since: float | None = None  # the last visually tracked frame's time, while blind
         self._pred: _Prediction | None = None
@@ -241,6 +246,7 @@ class InertialPrior(PriorDefaults):
             # map, or a merge that moved this one: gravity and the poses kept are in another
             # frame now, so the IMU starts over (its biases seed the next initialisation).
             self.gravity, self.velocity, self.init_time, self.refined = None, None, None, 0
+            self.scale_spread, self.sure_time = np.inf, None
             self.history.clear()
             self._blind_start, self._blind, self._last_tracked = None, [], None
             self._map_id = map_id
@@ -288,11 +294,10 @@ class InertialPrior(PriorDefaults):
             self._initialise(t, outcome.frame.index)
             return
         self.velocity = pred.v_w if pred is not None else None
-        if self.init_time is not None and (self.refined < 2 or self.monocular):
-            due = self._refinement_due()
-            if t - self.init_time >= due:
-                self._initialise(t, outcome.frame.index, refine=True)
-                return
+        due = self._refinement_at()
+        if due is not None and t >= due:
+            self._initialise(t, outcome.frame.index, refine=True)
+            return
         if self.velocity is None or t - self.last_window_t >= self.cfg.window_step_s:
             self._refine_window(t)
 
@@ -325,7 +330,8 @@ class InertialPrior(PriorDefaults):
         samples = self.buffer.window(times[0], times[-1])
         est = initialise(times, poses, samples, self.noise, self.gyro_bias, self.acc_bias,
                          scaled=self._centres(poses) if self.monocular else None)
-        unsure = self.monocular and not est.scale_sigma <= self.cfg.max_scale_spread
+        self.last_solve_t = t
+        unsure = self.monocular and not est.scale_sigma <= self._scale_spread_accepted()
         log.debug("inertial %s at %.2f s over %.2f s: rms %.2f, scale %.4f (spread %.4f)",
                   "refinement" if refine else "initialisation", t, times[-1] - times[0], est.rms, est.scale,
                   est.scale_sigma)
@@ -350,6 +356,10 @@ class InertialPrior(PriorDefaults):
             if self.init_frame < 0:
                 self.init_frame = index
                 self.init_after_s = t - (self.first_tracked_t if self.first_tracked_t is not None else t)
+        if self.monocular:
+            self.scale_spread = est.scale_sigma
+            if self.sure_time is None and est.scale_sigma <= self.cfg.max_scale_spread:
+                self.sure_time, self.refined = t, 0  # the doubling schedule starts now
 
     def _align(self, t: float, gravity: Array, scale: float, scale_sigma: float) -> None:
         """The map rotated to ``gravity`` (and a monocular one scaled): asked of tracking,
@@ -364,16 +374,31 @@ class InertialPrior(PriorDefaults):
             self.alignments.append((t, float(np.degrees(Rotation.from_matrix(rotation).magnitude()))))
         self.align_map(rotation, scale)
 
-    def _refinement_due(self) -> float:
-        """Seconds after the initialisation the next refinement is due: ``refine_first_s``
-        and ``refine_second_s`` (ORB-SLAM3's two VI-BA refinements); a monocular map's scale,
-        which only acceleration shows (its first estimate, on the least motion that showed it,
-        is the roughest), after ``scale_refine_s``, then at doubling intervals for as long as
-        the map lives (1, 3, 7, 15 s ...: ORB-SLAM3 refines it at 5 and 15 s, then every 10 s
-        up to 100 s), so a long run spends little on it."""
+    def _scale_spread_accepted(self) -> float:
+        """The widest relative spread a monocular scale solve may have to be applied: a first,
+        provisional scale up to ``imu.provisional_scale_spread`` (the IMU then predicts and
+        bridges blackouts in roughly metric units instead of not at all), then only better
+        shown ones until one is under ``imu.max_scale_spread``, then only such ones."""
+        if self.scale_spread <= self.cfg.max_scale_spread:
+            return self.cfg.max_scale_spread
+        return min(self.scale_spread, max(self.cfg.provisional_scale_spread, self.cfg.max_scale_spread))
+
+    def _refinement_at(self) -> float | None:
+        """When the next refinement is due (None: no more): ``refine_first_s`` and
+        ``refine_second_s`` after the initialisation (ORB-SLAM3's two VI-BA refinements); a
+        monocular map's scale, which only acceleration shows, every half ``init_s`` while
+        provisional, then from the time it was sure ``scale_refine_s`` later and at doubling
+        intervals for as long as the map lives (1, 3, 7, 15 s ...: ORB-SLAM3 refines it at 5
+        and 15 s, then every 10 s up to 100 s), so a long run spends little on it."""
+        if self.init_time is None:
+            return None
         if self.monocular:
-            return (2 ** (self.refined + 1) - 1) * self.cfg.scale_refine_s
-        return self.cfg.refine_first_s if self.refined == 0 else self.cfg.refine_second_s
+            if self.sure_time is None:
+                return self.last_solve_t + 0.5 * self.cfg.init_s
+            return self.sure_time + (2 ** (self.refined + 1) - 1) * self.cfg.scale_refine_s
+        if self.refined >= 2:
+            return None
+        return self.init_time + (self.cfg.refine_first_s if self.refined == 0 else self.cfg.refine_second_s)
 
     def _refine_window(self, t: float) -> None:
         """Velocity and biases on the last ``window_s`` of tracked frames."""
