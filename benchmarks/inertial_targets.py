@@ -141,6 +141,12 @@ def _row(render: Render, sensor: str, mode: str, s: dict[str, Any], work: Path) 
             "ms_per_frame": s["ms_per_frame"]["median"]}
 
 
+def _sure(row: dict[str, Any]) -> bool:
+    """A monocular-inertial run whose map got a sure scale (spread under imu.max_scale_spread,
+    5 %), not only a provisional one."""
+    return any(spread <= 0.05 for _, _, spread in row["imu_scales"] or [])
+
+
 def _dist(values: list[float], worst: str = "max") -> str:
     if not values:
         return "-"
@@ -205,7 +211,7 @@ def targets(rows: list[dict[str, Any]], speed: list[dict[str, Any]]) -> list[tup
                   verdict(per_frame, bool(per_frame) and max(per_frame) <= 1.3)))
     if "mono" in sensors:
         mono = [r for r in rows if r["sensor"] == "mono" and r["mode"] == "imu"]
-        metric = [r for r in mono if r["imu_scales"] and r["sim3_scale"]]
+        metric = [r for r in mono if _sure(r) and r["sim3_scale"]]
         errors = [abs(1.0 - 1.0 / r["sim3_scale"]) * 100 for r in metric]
         goals.append((f"mono-inertial: scale error after initialisation, % ({len(metric)} of {len(mono)} runs "
                       "made metric)", _dist(errors), "<= 2 %",
@@ -263,8 +269,8 @@ def _markdown(rows: list[dict[str, Any]], speed: list[dict[str, Any]], goals: li
                 missing = r["frames"] - r["tracked"]
                 cell += f" ({missing})" if missing else ""
                 if sensor == "mono" and mode == "imu":
-                    cell += (f", scale {100 * abs(1 - 1 / r['sim3_scale']):.1f} %" if r["imu_scales"]
-                             and r["sim3_scale"] else ", not metric")
+                    cell += (f", scale {100 * abs(1 - 1 / r['sim3_scale']):.1f} %" if _sure(r) and r["sim3_scale"]
+                             else ", not metric")
                 cells.append(cell)
         only = [str((at.get((name, s, "imu")) or {}).get("imu_only_frames", "-")) for s in SENSORS]
         lines.append(f"| {name} | {' | '.join(cells)} | {' / '.join(only)} |")

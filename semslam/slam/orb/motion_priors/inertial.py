@@ -24,12 +24,13 @@ every prior's kept positions (this one's ``map_aligned``), as ORB-SLAM3's
 ``ApplyScaledRotation``.
 
 Monocular-inertial: the map's scale is one more unknown of the initialisation and its
-refinements (``initialise(..., scaled=...)``); a solution whose scale the motion has not
-shown yet (relative spread above ``imu.max_scale_spread``, e.g. a slow or still start) is
-refused and tried again on the longer history, as ORB-SLAM3 waits for acceleration. An
-accepted one scales the map with the same ``align_map``, so the map is metric from then on;
-the refinements re-estimate the scale and apply the correction the same way (ORB-SLAM3
-refines it in its VI-BA and its scale refinements).
+refinements (``initialise(..., scaled=...)``), with its relative spread (how well the motion
+showed it). The first solution shown to ``imu.provisional_scale_spread`` is applied as a
+provisional scale, so the IMU predicts and bridges from then on; it is re-solved every half
+``init_s`` and replaced by each better shown one until one is under ``imu.max_scale_spread``
+(ORB-SLAM3 instead waits for enough acceleration before any). Each accepted one scales the
+map with the same ``align_map``; the sure scale is refined at doubling intervals and
+corrected the same way (ORB-SLAM3 refines it in its VI-BA and its scale refinements).
 """
 
 from __future__ import annotations
