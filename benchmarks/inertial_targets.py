@@ -117,10 +117,11 @@ def _ate_cm(s: dict[str, Any], sensor: str, mode: str) -> float | None:
     return ate["rmse"] * 100 if isinstance(ate, dict) else None
 
 
-def _tilt_deg(render: Render, sensor: str, mode: str, work: Path) -> float | None:
+def _tilt_deg(render: Render, sensor: str, mode: str, s: dict[str, Any], work: Path) -> float | None:
     """Degrees between an IMU run's map z axis and the render's gravity (the map is turned
-    to gravity after the inertial initialisation); None for a visual-only run."""
-    if mode != "imu":
+    to gravity after the inertial initialisation); None for a visual-only run or one whose
+    map was never turned (a monocular scale never shown)."""
+    if mode != "imu" or not s.get("imu_gravity_alignments"):
         return None
     from semslam.eval.gravity import gravity_tilt_deg
     from semslam.io.sequence import open_sequence
@@ -132,7 +133,7 @@ def _tilt_deg(render: Render, sensor: str, mode: str, work: Path) -> float | Non
 
 
 def _row(render: Render, sensor: str, mode: str, s: dict[str, Any], work: Path) -> dict[str, Any]:
-    return {"tilt_deg": _tilt_deg(render, sensor, mode, work), "render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
+    return {"tilt_deg": _tilt_deg(render, sensor, mode, s, work), "render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
             "ate_cm": _ate_cm(s, sensor, mode), "sim3_scale": s.get("ate_sim3_scale"),
             "imu_scales": s.get("imu_scales"), "frames": int(s["frames"]),
             "tracked": int(s["tracked_frames"]), "lost": int(s["lost_frames"]),
