@@ -25,10 +25,11 @@ every prior's kept positions (this one's ``map_aligned``), as ORB-SLAM3's
 
 Monocular-inertial: the map's scale is one more unknown of the initialisation and its
 refinements (``initialise(..., scaled=...)``), with its relative spread (how well the motion
-showed it). The first solution shown to ``imu.provisional_scale_spread`` is applied as a
-provisional scale, so the IMU predicts and bridges from then on; it is re-solved every half
-``init_s`` and replaced by each better shown one until one is under ``imu.max_scale_spread``
-(ORB-SLAM3 instead waits for enough acceleration before any). Each accepted one scales the
+showed it): the first one under ``imu.max_scale_spread`` is applied (ORB-SLAM3 waits for enough
+acceleration likewise), solutions tried every half ``init_s`` until then. With
+``imu.provisional_scale_spread`` above that, a first, provisional scale shown that well is
+applied, so the IMU predicts and bridges from then on, and replaced by each better shown one
+until one is sure (opt-in: it dead-reckons on biases from little motion). Each accepted one scales the
 map with the same ``align_map``; the sure scale is refined at doubling intervals and
 corrected the same way (ORB-SLAM3 refines it in its VI-BA and its scale refinements).
 """
