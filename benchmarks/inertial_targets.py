@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from semslam.config.schema import ImuConfig
 from semslam.experiments.bench import emit_json
 
 BASELINE = 0.11
@@ -63,6 +64,8 @@ SENSORS = ("rgbd", "stereo", "mono")
 #: The preset each sensor runs: the dynamic-scene front end of each.
 PRESETS = {"rgbd": "default", "stereo": "default", "mono": "mono_dynamic"}
 MODES = ("imu", "vis")
+#: A monocular scale this well shown is sure (the config's default, which the runs use).
+SURE_SPREAD = ImuConfig().max_scale_spread
 
 
 @dataclass(frozen=True)
@@ -133,8 +136,9 @@ def _tilt_deg(render: Render, sensor: str, mode: str, s: dict[str, Any], work: P
 
 
 def _row(render: Render, sensor: str, mode: str, s: dict[str, Any], work: Path) -> dict[str, Any]:
-    return {"tilt_deg": _tilt_deg(render, sensor, mode, s, work), "render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
-            "ate_cm": _ate_cm(s, sensor, mode), "sim3_scale": s.get("ate_sim3_scale"),
+    return {"render": render.name, "kind": render.kind, "pair": render.pair, "sensor": sensor, "mode": mode,
+            "ate_cm": _ate_cm(s, sensor, mode), "tilt_deg": _tilt_deg(render, sensor, mode, s, work),
+            "sim3_scale": s.get("ate_sim3_scale"),
             "imu_scales": s.get("imu_scales"), "frames": int(s["frames"]),
             "tracked": int(s["tracked_frames"]), "lost": int(s["lost_frames"]),
             "uninitialised": int(s.get("uninitialized_frames", 0)), "maps": s.get("maps"),
@@ -143,9 +147,9 @@ def _row(render: Render, sensor: str, mode: str, s: dict[str, Any], work: Path) 
 
 
 def _sure(row: dict[str, Any]) -> bool:
-    """A monocular-inertial run whose map got a sure scale (spread under imu.max_scale_spread,
-    5 %), not only a provisional one."""
-    return any(spread <= 0.05 for _, _, spread in row["imu_scales"] or [])
+    """A monocular-inertial run whose map got a sure scale (spread under imu.max_scale_spread),
+    not only a provisional one."""
+    return any(spread <= SURE_SPREAD for _, _, spread in row["imu_scales"] or [])
 
 
 def _dist(values: list[float], worst: str = "max") -> str:
