@@ -178,3 +178,41 @@ def test_kernel_input_normalisation():
 
 def test_warm_up_runs():
     warm_up()
+
+
+def _prior_residuals(T0: np.ndarray, pw: np.ndarray, uv: np.ndarray, Tp: np.ndarray, info: np.ndarray):
+    """The pose prior's cost as plain residuals for scipy: reprojections of mono points and
+    the prior's (Log(dR), dt) of ``Tp T^-1`` whitened by ``info``."""
+    from scipy.spatial.transform import Rotation
+
+    L = np.linalg.cholesky(info).T
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        T = se3_exp(x) @ T0
+        pc = pw @ T[:3, :3].T + T[:3, 3]
+        proj = np.column_stack([FX * pc[:, 0] / pc[:, 2] + CX, FY * pc[:, 1] / pc[:, 2] + CY])
+        D = Tp @ np.linalg.inv(T)
+        return np.r_[(uv - proj).ravel(), L @ np.r_[Rotation.from_matrix(D[:3, :3]).as_rotvec(), D[:3, 3]]]
+    return fun
+
+
+def test_pose_prior_minimises_the_prior_cost():
+    """With a prior the kernel's pose is the least-squares solution of reprojections plus the
+    prior (scipy on the same residuals, an independent solver); as its information grows the
+    pose goes to the prior's, as it vanishes to the pose without it."""
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(3)
+    T0, pw, uv, _, _ = problem(rng, 25, 2.0, 0.0, 1.0)
+    ur = -np.ones(len(pw))
+    Tp = se3_exp(np.r_[0.01, -0.02, 0.005, 0.03, -0.02, 0.01]) @ T0
+    info = np.diag([1e5] * 3 + [1e4] * 3)
+    got = optimize_pose(T0, pw, uv, ur, 1.0, *CAM, rounds=1, robust_rounds=0, prior=(Tp, info))
+    x = least_squares(_prior_residuals(T0, pw, uv, Tp, info), np.zeros(6), xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    np.testing.assert_allclose(got.T_cw, se3_exp(x) @ T0, atol=1e-7)
+    free = optimize_pose(T0, pw, uv, ur, 1.0, *CAM, rounds=1, robust_rounds=0)
+    assert np.abs(free.T_cw - got.T_cw).max() > 1e-3  # the prior moved it
+    tight = optimize_pose(T0, pw, uv, ur, 1.0, *CAM, rounds=1, robust_rounds=0, prior=(Tp, info * 1e8))
+    np.testing.assert_allclose(tight.T_cw, Tp, atol=1e-5)
+    loose = optimize_pose(T0, pw, uv, ur, 1.0, *CAM, rounds=1, robust_rounds=0, prior=(Tp, info * 1e-12))
+    np.testing.assert_allclose(loose.T_cw, free.T_cw, atol=1e-8)

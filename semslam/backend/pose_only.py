@@ -240,6 +240,7 @@ def optimize_pose(
     rounds: int = 4,
     iterations: int = 10,
     robust_rounds: int = 3,
+    prior: tuple[Array, Array] | None = None,
 ) -> PoseResult:
     """ORB-SLAM2 PoseOptimization: ``rounds`` x (LM, then inlier/outlier classification).
 
@@ -259,11 +260,19 @@ def optimize_pose(
     inside the loop); at convergence the result is the same and the later rounds cost one or two
     iterations instead of a full re-solve.  Fewer than 3 usable observations return the input
     pose with no inliers (ORB-SLAM returns 0 correspondences).
+
+    ``prior = (T_cw, information)`` adds a Gaussian prior on the pose to every round's cost
+    (ORB-SLAM3's inertial tracking marginalised to the pose: the IMU's prediction with its
+    spread). Its residual is ``(Log(dR), dt)`` of ``dT = T_prior T_cw^-1``, the information
+    6x6 on (rotation, translation) of that residual, in the camera's frame.
     """
     T, pts, uv, ur, info, fixed = _prepare(T_cw0, pts_w, uv, ur, inv_sigma2, fixed_outliers)
+    Tp, Lp = (np.eye(4), np.zeros((6, 6))) if prior is None else prior
     T, inliers, n_inliers, chi2 = optimize_pose_kernel(
         T, pts, uv, ur, info, fixed, float(fx), float(fy), float(cx), float(cy), float(bf),
-        int(rounds), int(iterations), int(robust_rounds), _DELTA2_MONO, _DELTA2_STEREO)
+        int(rounds), int(iterations), int(robust_rounds), _DELTA2_MONO, _DELTA2_STEREO,
+        np.ascontiguousarray(Tp, dtype=np.float64), np.ascontiguousarray(Lp, dtype=np.float64),
+        prior is not None)
     return PoseResult(T, inliers, int(n_inliers), chi2)
 
 

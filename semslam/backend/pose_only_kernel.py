@@ -121,6 +121,45 @@ def _matmul4(A: Array, B: Array, out: Array) -> None:
 
 
 @numba.njit(cache=True, nogil=True)
+def _prior_terms(T: Array, Tp: Array, Lp: Array, H: Array, g: Array, add: bool) -> float:
+    """Cost ``e^T Lp e`` of a Gaussian prior on the pose, with ``e`` = (Log(dR), dt) of
+    ``dT = Tp T^-1`` (rotation on SO(3), translation in the camera's frame); with ``add``
+    its terms go into the normal equations. For ``T <- exp(xi) T``, ``dT <- dT exp(-xi)``:
+    ``de/d(omega) = -Jr^-1(phi) ~ -(I + [phi]x / 2)``, ``de/dv = -dR``."""
+    dR = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            dR[i, j] = Tp[i, 0] * T[j, 0] + Tp[i, 1] * T[j, 1] + Tp[i, 2] * T[j, 2]
+    e = np.empty(6)
+    for i in range(3):
+        e[3 + i] = Tp[i, 3] - (dR[i, 0] * T[0, 3] + dR[i, 1] * T[1, 3] + dR[i, 2] * T[2, 3])
+    c = min(max(0.5 * (dR[0, 0] + dR[1, 1] + dR[2, 2] - 1.0), -1.0), 1.0)
+    th = math.acos(c)
+    k = 0.5 if th < 1e-8 else 0.5 * th / math.sin(th)
+    e[0] = k * (dR[2, 1] - dR[1, 2])
+    e[1] = k * (dR[0, 2] - dR[2, 0])
+    e[2] = k * (dR[1, 0] - dR[0, 1])
+    cost = 0.0
+    for i in range(6):
+        for j in range(6):
+            cost += e[i] * Lp[i, j] * e[j]
+    if not add:
+        return cost
+    J = np.zeros((6, 6))  # de / dxi
+    J[0, 0] = J[1, 1] = J[2, 2] = -1.0
+    J[0, 1], J[0, 2] = 0.5 * e[2], -0.5 * e[1]
+    J[1, 0], J[1, 2] = -0.5 * e[2], 0.5 * e[0]
+    J[2, 0], J[2, 1] = 0.5 * e[1], -0.5 * e[0]
+    for i in range(3):
+        for j in range(3):
+            J[3 + i, 3 + j] = -dR[i, j]
+    LJ = Lp @ J
+    H += J.T @ LJ
+    g -= LJ.T @ e
+    return cost
+
+
+@numba.njit(cache=True, nogil=True)
 def _evaluate(T: Array, P: Array, oc: Array, sf: Array, info: Array, fx: float, fy: float,
               bf: float, ev: Array, front: NDArray[np.bool_], chi2: Array) -> None:
     """Residuals at pose ``T`` (``_Evaluator.evaluate``, the same arithmetic): ``ev`` rows iz,
@@ -299,9 +338,10 @@ def _solve6(A: Array, b: Array, x: Array) -> bool:
 def _lm(T: Array, active: NDArray[np.bool_], robust: bool, iterations: int, P: Array,
         oc: Array, sf: Array, info: Array, delta: Array, delta2: Array,
         fx: float, fy: float, bf: float, ev: Array, front: NDArray[np.bool_], chi2: Array,
-        act: NDArray[np.bool_], buf: Array) -> bool:
-    """``pose_only._lm``: LM over the ``active`` observations in front of the camera; ``T``
-    and the evaluation (``ev``, ``front``, ``chi2``) updated in place; returns converged."""
+        act: NDArray[np.bool_], buf: Array, Tp: Array, Lp: Array, prior: bool) -> bool:
+    """``pose_only._lm``: LM over the ``active`` observations in front of the camera (and the
+    pose prior ``Tp``, information ``Lp``, when ``prior``); ``T`` and the evaluation (``ev``,
+    ``front``, ``chi2``) updated in place; returns converged."""
     n = P.shape[1]
     n_act = 0
     for k in range(n):
@@ -313,6 +353,8 @@ def _lm(T: Array, active: NDArray[np.bool_], robust: bool, iterations: int, P: A
     cost = _cost(chi2, act, robust, delta, delta2, buf)
     H = np.empty((6, 6))
     g = np.empty(6)
+    if prior:
+        cost += _prior_terms(T, Tp, Lp, H, g, False)
     Hd = np.empty((6, 6))
     gd = np.empty(6)
     dx = np.empty(6)
@@ -323,6 +365,8 @@ def _lm(T: Array, active: NDArray[np.bool_], robust: bool, iterations: int, P: A
         # the evaluation is at T here: the weights of the last accepted step are recomputed
         _irls_weights(chi2, act, info, robust, delta, delta2, buf)
         _normal_equations(ev, buf, sf, fx, fy, bf, H, g)
+        if prior:
+            _prior_terms(T, Tp, Lp, H, g, True)
         accepted = False
         for _try in range(10):
             for i in range(6):
@@ -350,6 +394,8 @@ def _lm(T: Array, active: NDArray[np.bool_], robust: bool, iterations: int, P: A
                 n_new += act[k] and front[k]
             if n_new == n_act:
                 cost_new = _cost(chi2, act, robust, delta, delta2, buf)
+                if prior:
+                    cost_new += _prior_terms(T_new, Tp, Lp, H, g, False)
                 if cost_new <= cost * (1.0 + 1e-10):
                     T[:, :] = T_new
                     cost = cost_new
@@ -369,12 +415,14 @@ def _lm(T: Array, active: NDArray[np.bool_], robust: bool, iterations: int, P: A
 def optimize_pose_kernel(T0: Array, pts: Array, uv: Array, ur: Array, info: Array,
                          fixed: NDArray[np.bool_], fx: float, fy: float, cx: float, cy: float,
                          bf: float, rounds: int, iterations: int, robust_rounds: int,
-                         thr_mono: float, thr_stereo: float
+                         thr_mono: float, thr_stereo: float, Tp: Array, Lp: Array, prior: bool
                          ) -> tuple[Array, NDArray[np.bool_], int, Array]:
     """``pose_only.optimize_pose_numpy`` compiled: returns ``(T_cw, inliers, n_inliers, chi2)``.
 
     Inputs are contiguous float64 (``fixed`` bool); ``thr_*`` are the chi2 thresholds, which
-    are also the Huber ``delta^2``.
+    are also the Huber ``delta^2``. With ``prior`` every round's cost also has the Gaussian
+    prior ``Tp`` (a ``T_cw``) with information ``Lp`` (6x6, tangent (omega, v) of ``T_cw``'s
+    left increment), an extension the numpy reference does not have.
     """
     n = pts.shape[0]
     T = T0.copy()
@@ -425,7 +473,7 @@ def optimize_pose_kernel(T0: Array, pts: Array, uv: Array, ur: Array, info: Arra
                     break
         if not same:
             converged = _lm(T, active, robust, iterations, P, oc, sf, info, delta, delta2,
-                            fx, fy, bf, ev, front, chi2, act, buf)
+                            fx, fy, bf, ev, front, chi2, act, buf, Tp, Lp, prior)
             have_solved = converged
             if converged:
                 solved[:] = active
