@@ -76,6 +76,12 @@ class BAProblem:
     cx: float
     cy: float
     bf: float
+    # Relative-pose links between keyframes (the IMU's motion between consecutive ones):
+    # ``poses_cw[link_pose[l, 1]] ~ link_T[l] @ poses_cw[link_pose[l, 0]]`` with information
+    # ``link_info[l]`` (6x6 on the residual (Log(dR), dt) of ``link_T T_a T_b^-1``, in b's frame).
+    link_pose: NDArray[np.intp] = field(default_factory=lambda: np.zeros((0, 2), np.intp))
+    link_T: Array = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    link_info: Array = field(default_factory=lambda: np.zeros((0, 6, 6)))
 
 
 @dataclass
@@ -132,7 +138,10 @@ def _normalized(p: BAProblem) -> BAProblem:
         uv=np.asarray(p.uv, dtype=np.float64).reshape(m, 2),
         ur=np.asarray(p.ur, dtype=np.float64).reshape(m),
         inv_sigma2=np.broadcast_to(np.asarray(p.inv_sigma2, dtype=np.float64), (m,)),
-        fx=float(p.fx), fy=float(p.fy), cx=float(p.cx), cy=float(p.cy), bf=float(p.bf))
+        fx=float(p.fx), fy=float(p.fy), cx=float(p.cx), cy=float(p.cy), bf=float(p.bf),
+        link_pose=np.asarray(p.link_pose, dtype=np.intp).reshape(-1, 2),
+        link_T=np.asarray(p.link_T, dtype=np.float64).reshape(-1, 4, 4),
+        link_info=np.asarray(p.link_info, dtype=np.float64).reshape(-1, 6, 6))
 
 
 def _chi2_threshold(problem: BAProblem) -> Array:
@@ -195,6 +204,10 @@ def _build_graph(problem: BAProblem, active: NDArray[np.bool_], robust: bool,
 
     used = np.zeros(K, bool)
     used[problem.obs_pose[active]] = True
+    for (a, b), Z, info in zip(problem.link_pose.tolist(), problem.link_T, problem.link_info):
+        if used[a] and used[b]:  # T_wc_a^-1 T_wc_b = Z^-1: GTSAM's residual is Log of the same dT
+            graph.push_back(gtsam.BetweenFactorPose3(a, b, gtsam.Pose3(invert(Z)),
+                                                     gtsam.noiseModel.Gaussian.Information(info)))
     prior = gtsam.noiseModel.Isotropic.Sigma(6, _FIXED_SIGMA)
     for k in np.flatnonzero(used & problem.pose_fixed).tolist():
         graph.push_back(gtsam.PriorFactorPose3(k, gtsam.Pose3(invert(problem.poses_cw[k])), prior))
@@ -295,7 +308,9 @@ def _optimize_schur(problem: BAProblem, poses_cw: Array, points_w: Array,
         np.ascontiguousarray(problem.uv[obs]), np.ascontiguousarray(problem.ur[obs]),
         np.ascontiguousarray(problem.inv_sigma2[obs]), problem.fx, problem.fy, problem.cx,
         problem.cy, problem.bf, robust, float(np.sqrt(CHI2_MONO)), float(np.sqrt(CHI2_STEREO)),
-        pose_var, free.astype(np.intp), pt_ptr, pt_obs, int(iterations))
+        pose_var, free.astype(np.intp), pt_ptr, pt_obs, int(iterations), problem.link_pose,
+        np.ascontiguousarray(problem.link_T[:, :3, :3]), np.ascontiguousarray(problem.link_T[:, :3, 3]),
+        np.ascontiguousarray(problem.link_info))
     clock.ms["iterations"] += n_it
     clock.lap("optimize")
     if not ok:

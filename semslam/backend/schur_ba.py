@@ -182,6 +182,81 @@ def _linearize(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp], opoint: 
     return total
 
 
+@numba.njit(cache=True, nogil=True)
+def _link_residual(Ra: Array, ta: Array, Rb: Array, tb: Array, RZ: Array, tZ: Array, dR: Array,
+                   e: Array) -> None:
+    """Residual of a relative-pose link ``T_b ~ Z T_a``: ``e = (Log(dR), dt)`` of
+    ``dT = Z T_a T_b^-1`` (``dR`` is written too)."""
+    M = Ra @ Rb.T
+    dR[:, :] = RZ @ M
+    d = RZ @ (ta - M @ tb) + tZ
+    c = min(max(0.5 * (dR[0, 0] + dR[1, 1] + dR[2, 2] - 1.0), -1.0), 1.0)
+    th = np.arccos(c)
+    k = 0.5 if th < 1e-8 else 0.5 * th / np.sin(th)
+    e[0] = k * (dR[2, 1] - dR[1, 2])
+    e[1] = k * (dR[0, 2] - dR[2, 0])
+    e[2] = k * (dR[1, 0] - dR[0, 1])
+    e[3], e[4], e[5] = d[0], d[1], d[2]
+
+
+@numba.njit(cache=True, nogil=True)
+def _links_cost(Rs: Array, ts: Array, lpose: NDArray[np.intp], lR: Array, lt: Array,
+                linfo: Array) -> float:
+    """Sum of ``e^T info e`` over the links (no robust kernel: the IMU's are not outliers)."""
+    dR = np.empty((3, 3))
+    e = np.empty(6)
+    total = 0.0
+    for m in range(lpose.shape[0]):
+        _link_residual(Rs[lpose[m, 0]], ts[lpose[m, 0]], Rs[lpose[m, 1]], ts[lpose[m, 1]], lR[m], lt[m], dR, e)
+        total += e @ (linfo[m] @ e)
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
+def _linearize_links(Rs: Array, ts: Array, lpose: NDArray[np.intp], lR: Array, lt: Array,
+                     linfo: Array, pose_var: NDArray[np.intp], Hpp: Array, bp: Array,
+                     Hab: Array) -> float:
+    """The links' terms added to the pose blocks (``Hpp``, ``bp``, after ``_linearize``) and
+    their pose-pose blocks into ``Hab``; returns their cost. With left increments
+    ``T <- exp(xi) T``: ``dT <- exp(Ad_Z xi_a) dT`` and ``dT <- dT exp(-xi_b)``, so
+    ``de/dxi_a = [[Jl^-1(phi), 0], [-[dt]x, I]] Ad_Z`` and ``de/dxi_b = [[-Jr^-1(phi), 0],
+    [0, -dR]]``, with ``J^-1(phi) = I -+ [phi]x / 2`` (first order in the residual)."""
+    dR = np.empty((3, 3))
+    e = np.empty(6)
+    total = 0.0
+    for m in range(lpose.shape[0]):
+        a, b = lpose[m, 0], lpose[m, 1]
+        _link_residual(Rs[a], ts[a], Rs[b], ts[b], lR[m], lt[m], dR, e)
+        L = linfo[m]
+        total += e @ (L @ e)
+        phi = np.array([[0.0, -e[2], e[1]], [e[2], 0.0, -e[0]], [-e[1], e[0], 0.0]])
+        tx = np.array([[0.0, -e[5], e[4]], [e[5], 0.0, -e[3]], [-e[4], e[3], 0.0]])
+        Gl = np.zeros((6, 6))  # de / d(left increment of dT)
+        Gl[:3, :3] = np.eye(3) - 0.5 * phi
+        Gl[3:, :3] = -tx
+        Gl[3:, 3:] = np.eye(3)
+        RZ, tZ = lR[m], lt[m]
+        Ad = np.zeros((6, 6))
+        Ad[:3, :3] = RZ
+        Ad[3:, 3:] = RZ
+        Ad[3:, :3] = np.array([[0.0, -tZ[2], tZ[1]], [tZ[2], 0.0, -tZ[0]], [-tZ[1], tZ[0], 0.0]]) @ RZ
+        Ja = Gl @ Ad
+        Jb = np.zeros((6, 6))
+        Jb[:3, :3] = -(np.eye(3) + 0.5 * phi)
+        Jb[3:, 3:] = -dR
+        fa, fb = pose_var[a], pose_var[b]
+        LJa = L @ Ja
+        LJb = L @ Jb
+        if fa >= 0:
+            Hpp[fa] += Ja.T @ LJa
+            bp[fa] -= LJa.T @ e
+        if fb >= 0:
+            Hpp[fb] += Jb.T @ LJb
+            bp[fb] -= LJb.T @ e
+        Hab[m] = Ja.T @ LJb
+    return total
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _mirror_upper(H: Array) -> None:
     """Copy the upper triangle of each square block ``H[i]`` onto its lower triangle."""
@@ -248,8 +323,10 @@ def _cholesky_solve(S: Array, g: Array, x: Array) -> bool:
 @numba.njit(cache=True, nogil=True)
 def _solve_damped(lam: float, Hpp: Array, bp: Array, Hll: Array, bl: Array, Hpl: Array,
                   opose: NDArray[np.intp], pose_var: NDArray[np.intp], pt_ptr: NDArray[np.intp],
-                  pt_obs: NDArray[np.intp], dp: Array, dl: Array) -> bool:
-    """Step of (H + lam I) delta = b by the Schur complement on the points."""
+                  pt_obs: NDArray[np.intp], dp: Array, dl: Array, lpose: NDArray[np.intp],
+                  Hab: Array) -> bool:
+    """Step of (H + lam I) delta = b by the Schur complement on the points (the links'
+    pose-pose blocks ``Hab`` added to the reduced system)."""
     n_f = Hpp.shape[0]
     n_p = Hll.shape[0]
     S = np.zeros((6 * n_f, 6 * n_f))
@@ -298,6 +375,16 @@ def _solve_damped(lam: float, Hpp: Array, bp: Array, Hll: Array, bl: Array, Hpl:
                         rb = 6 * fb + b
                         for a in range(6):
                             S[rb, 6 * fa + a] -= W[a, 0] * Pb[b, 0] + W[a, 1] * Pb[b, 1] + W[a, 2] * Pb[b, 2]
+    for m in range(lpose.shape[0]):  # the links' blocks, into the upper block triangle
+        fa, fb = pose_var[lpose[m, 0]], pose_var[lpose[m, 1]]
+        if fa < 0 or fb < 0:
+            continue
+        for a in range(6):
+            for b in range(6):
+                if fa < fb:
+                    S[6 * fa + a, 6 * fb + b] += Hab[m, a, b]
+                else:
+                    S[6 * fb + b, 6 * fa + a] += Hab[m, a, b]
     for f in range(n_f):  # the diagonal blocks were filled in full from Hpp: mirror the rest
         for g2 in range(f + 1, n_f):
             for a in range(6):
@@ -374,10 +461,14 @@ def levenberg_marquardt(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp],
                         fy: float, cx: float, cy: float, bf: float, robust: bool, d_mono: float,
                         d_st: float, pose_var: NDArray[np.intp], free_poses: NDArray[np.intp],
                         pt_ptr: NDArray[np.intp], pt_obs: NDArray[np.intp],
-                        max_iterations: int) -> tuple[Array, Array, Array, int, bool, float, float]:
+                        max_iterations: int, lpose: NDArray[np.intp], lR: Array, lt: Array,
+                        linfo: Array) -> tuple[Array, Array, Array, int, bool, float, float]:
     """LM over the free poses (``pose_var[k] >= 0``) and all points of ``X``.
 
     ``opoint`` indexes ``X``; ``pt_ptr``/``pt_obs`` list each point's observations (CSR).
+    Links ``m`` (none: empty arrays) hold ``T[lpose[m, 1]] ~ Z T[lpose[m, 0]]``, ``Z = (lR[m],
+    lt[m])``, with information ``linfo[m]`` (6x6 on (rotation, translation)): the IMU's
+    relative motion between consecutive keyframes.
     Returns (R, t, X, iterations, success, initial cost, final cost); success is False when
     no step could be computed at all (every damped system indefinite).
     """
@@ -394,24 +485,26 @@ def levenberg_marquardt(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp],
     Rn = np.empty_like(Rs)
     tn = np.empty_like(ts)
     Xn = np.empty_like(X)
+    Hab = np.zeros((lpose.shape[0], 6, 6))
     Rs = Rs.copy()
     ts = ts.copy()
     X = X.copy()
     lam = LAMBDA_INITIAL
     solved = False
     cost0 = _total_cost(Rs, ts, X, opose, opoint, uv, ur, is2, fx, fy, cx, cy, bf, robust,
-                        d_mono, d_st)
+                        d_mono, d_st) + _links_cost(Rs, ts, lpose, lR, lt, linfo)
     cost = cost0
     it = 0
     while it < max_iterations:
         it += 1
         cost = _linearize(Rs, ts, X, opose, opoint, uv, ur, is2, fx, fy, cx, cy, bf, robust,
                           d_mono, d_st, pose_var, Hpp, bp, Hll, bl, Hpl)
+        cost += _linearize_links(Rs, ts, lpose, lR, lt, linfo, pose_var, Hpp, bp, Hab)
         accepted = False
         stop = False
         while True:
             if not _solve_damped(lam, Hpp, bp, Hll, bl, Hpl, opose, pose_var, pt_ptr, pt_obs,
-                                 dp, dl):
+                                 dp, dl, lpose, Hab):
                 lam *= LAMBDA_FACTOR
                 if lam >= LAMBDA_UPPER:
                     stop = True
@@ -432,7 +525,7 @@ def levenberg_marquardt(Rs: Array, ts: Array, X: Array, opose: NDArray[np.intp],
             lin = 0.5 * (db + lam * dd)
             _retract(Rs, ts, X, free_poses, dp, dl, Rn, tn, Xn)
             new_cost = _total_cost(Rn, tn, Xn, opose, opoint, uv, ur, is2, fx, fy, cx, cy, bf,
-                                   robust, d_mono, d_st)
+                                   robust, d_mono, d_st) + _links_cost(Rn, tn, lpose, lR, lt, linfo)
             if lin > 1e-300 and (cost - new_cost) / lin > MIN_MODEL_FIDELITY:
                 accepted = True
                 break
