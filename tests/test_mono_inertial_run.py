@@ -79,6 +79,10 @@ def test_monocular_map_made_metric_by_the_imu(euroc_mono: Path, tmp_path: Path) 
     # By default only sure scales (spread <= 5 %) are applied.
     assert all(spread <= 0.05 for _, _, spread in with_imu["imu_scales"])
     assert with_imu["lost_frames"] == 0
+    # Keyframes made once the map is metric are linked by the IMU's motion (the first ones,
+    # before the scale, are not), and local BA holds them to it.
+    assert with_imu["imu_keyframe_links"] >= 4 and with_imu["local_ba_links"] >= with_imu["imu_keyframe_links"]
+    assert "imu_keyframe_links" not in without and without["local_ba_links"] == 0
     gt = _cam0_groundtruth(euroc_mono, tmp_path / "gt.txt")
     traj = tmp_path / "imu" / "trajectory.txt"
     scale = _sim3_scale(gt, traj)

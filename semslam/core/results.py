@@ -80,6 +80,8 @@ class TrackingCounters(Counters):
     imu_gravity: Sequence[float] | None = None
     imu_gyro_bias: Sequence[float] | None = None
     imu_acc_bias: Sequence[float] | None = None
+    #: Keyframes linked to the one before by the IMU's motion (``imu.keyframe_links``).
+    imu_keyframe_links: int | None = None
     tracking_edges: int | None = None
     reanchors: int | None = None
     fallback_reference: int | None = None
@@ -99,6 +101,8 @@ class MappingCounters(Counters):
     map_points: int | None = None
     local_ba: int | None = None
     local_ba_failed: int | None = None
+    #: The IMU's keyframe links in all local BAs together (each BA counts the links it held).
+    local_ba_links: int | None = None
     local_ba_ms_median: float | None = None
     #: The local mapping thread's CPU ms: ``total``, ``per_keyframe`` and one entry per step.
     local_mapping_cpu_ms: Mapping[str, float] | None = None
@@ -204,7 +208,7 @@ BLOCKS: dict[str, type[Counters]] = {
 STATS_LAYOUT: tuple[str, ...] = (
     "map_points", "loops", "loop_pairs", "relocalisations", "depth_odometry_frames", "coasted_frames",
     "coast_keyframes", "coasted_on_shift_only", "depth_odometry_runs", "local_ba", "local_ba_failed",
-    "local_ba_ms_median", "local_mapping_cpu_ms", "global_ba", "global_ba_failed",
+    "local_ba_links", "local_ba_ms_median", "local_mapping_cpu_ms", "global_ba", "global_ba_failed",
     "tracking_edges", "reanchors", "fallback_reference", "global_rounds", "global_pairs_tried", "global_constraints",
     "pose_graph_failed",
     "alignment_kept", "depth_alignment_fits", "depth_alignment_power_p5_p50_p95", "depth_alignment_ratio_p5_p50_p95",
@@ -216,7 +220,7 @@ STATS_LAYOUT: tuple[str, ...] = (
     "imu_initialisations", "imu_init_frame", "imu_init_after_s", "imu_refinements", "imu_only_frames",
     "imu_only_spans", "imu_bridged_frames", "imu_weak_frames",
     "imu_refused_solutions", "imu_blind_lost", "imu_gravity_alignments", "imu_scale_unsure", "imu_scales", "imu_gravity", "imu_gyro_bias", "imu_acc_bias",
-    *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
+    "imu_keyframe_links", *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
     "jit_warmup_s",
 )
 _POSITION = {key: i for i, key in enumerate(STATS_LAYOUT)}

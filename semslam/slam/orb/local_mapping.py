@@ -36,6 +36,7 @@ from semslam.slam.orb.depth_prior import DepthPrior
 from semslam.slam.orb.frame_builders import is_monocular
 from semslam.slam.orb.fusion import PointArrays, PointFusion
 from semslam.slam.orb.keyframe_worker import KeyframeInbox, KeyframeSink, KeyframeWorker
+from semslam.slam.orb.inertial_links import add_links
 from semslam.slam.orb.map import KeyFrame, Map
 from semslam.slam.orb.point_store import MapPoint
 from semslam.slam.orb.map_batch import (distinctive_descriptors, gather_keypoints, normals_and_depths, observation_table,
@@ -57,7 +58,8 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
     """Arrays of a bundle adjustment over the given keyframes and points (observations of
     the points by keyframes outside both lists are left out); observation ``m`` is point
     ``points[obs_point[m]]`` in keyframe ``(kfs_free + kfs_fixed)[obs_pose[m]]``.
-    ``table`` is ``observation_table(points)`` when the caller has it already."""
+    ``table`` is ``observation_table(points)`` when the caller has it already. With an IMU
+    the keyframes' inertial links between them come too (``inertial_links.add_links``)."""
     kfs = kfs_free + kfs_fixed
     if table is None:
         obs_point, obs_pose, kp, _ = observation_table(points, {kf: i for i, kf in enumerate(kfs)})
@@ -71,7 +73,7 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
     if depth_prior is not None:  # monocular: the prior's depths as virtual right coordinates
         bf = depth_prior.virtual_bf()
         ur = depth_prior.virtual_right(uv[:, 0], _prior_depths(kfs, obs_pose, kp), bf)
-    return BAProblem(
+    problem = BAProblem(
         poses_cw=np.stack([kf.T_cw for kf in kfs]),
         pose_fixed=np.array([False] * len(kfs_free) + [True] * len(kfs_fixed)),
         points_w=point_positions(points),
@@ -82,6 +84,8 @@ def build_ba_problem(kfs_free: list[KeyFrame], kfs_fixed: list[KeyFrame], points
         inv_sigma2=pyr.inv_sigma2[octave],
         fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, bf=bf,
     )
+    add_links(problem, kfs)
+    return problem
 
 
 def _prior_depths(kfs: list[KeyFrame], obs_pose: NDArray[np.intp], kp: NDArray[np.intp]) -> NDArray[np.float32]:
@@ -140,8 +144,8 @@ class LocalMapping(KeyframeWorker):
         self.next_stage = next_stage
         self.recent_points: list[MapPoint] = []
         warm_up_kernels()  # never compiled inside a critical section
-        self.stats: dict[str, Any] = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "culled_keyframes": 0,
-                                      "triangulated": 0, "local_ba_split": [], "steps": {}}
+        self.stats: dict[str, Any] = {"local_ba": 0, "local_ba_failed": 0, "local_ba_ms": [], "local_ba_links": 0,
+                                      "culled_keyframes": 0, "triangulated": 0, "local_ba_split": [], "steps": {}}
 
     # ---------------------------------------------------------------- one keyframe
     def process(self, kf: KeyFrame) -> None:
@@ -475,6 +479,7 @@ class LocalMapping(KeyframeWorker):
         t2 = time.perf_counter()
         if not result.converged:
             self.stats["local_ba_failed"] += 1
+        self.stats["local_ba_links"] += int(problem.link_pose.shape[0])
         kfs = free + fixed_list
         outliers = np.flatnonzero(~result.inlier_obs)
         erased: dict[int, set[KeyFrame]] = {}

@@ -42,6 +42,21 @@ def good_point_rows(store: PointStore, kfs: "list[KeyFrame]") -> NDArray[np.intp
     return rows[~store.bad[rows]]
 
 
+@dataclass(frozen=True)
+class InertialLink:
+    """The IMU's motion from an earlier keyframe to this one, ``T_cw(this) ~ T @
+    T_cw(previous)``, with isotropic spreads (radians, metres) on the residual of
+    ``bundle_adjustment.BAProblem``'s links; local BA holds the two poses to it."""
+
+    previous: "KeyFrame"
+    T: Array
+    sigma_rotation: float
+    sigma_translation: float
+
+    def information(self) -> Array:
+        return np.diag([self.sigma_rotation ** -2] * 3 + [self.sigma_translation ** -2] * 3)
+
+
 @dataclass(eq=False)
 class KeyFrame:
     """A frame kept in the map, with its features and their map points."""
@@ -78,6 +93,8 @@ class KeyFrame:
     # (0: none); None without one.
     predicted_depth: NDArray[np.float32] | None = None
     prior_depth: NDArray[np.float32] | None = None
+    # With an IMU: its motion from the keyframe made before this one (None: none measured).
+    inertial_link: InertialLink | None = None
     _tree: Any = None
     _grid: KeypointGrid | None = None
     _center: Array = field(default_factory=lambda: np.zeros(3), repr=False)

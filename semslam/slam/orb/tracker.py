@@ -233,6 +233,7 @@ class OrbTracker:
             **self.tracking.prior_counters(),
             "local_ba": mapper.stats["local_ba"],
             "local_ba_failed": mapper.stats["local_ba_failed"],
+            "local_ba_links": mapper.stats["local_ba_links"],
             "local_ba_ms_median": float(np.median(lba)) if lba else 0.0,
             "local_mapping_cpu_ms": mapper.cpu_ms(),
             "global_ba": closer.stats["global_ba"],

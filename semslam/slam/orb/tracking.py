@@ -34,6 +34,7 @@ from semslam.slam.orb.atlas import AtlasFollower
 from semslam.slam.orb.depth_prior import DepthPrior
 from semslam.slam.orb.frame_builders import FrameBuilder, MonocularFrameBuilder, StereoFrameBuilder, frame_builder
 from semslam.slam.orb.frame_state import FrameState
+from semslam.slam.orb.inertial_links import MotionChain
 from semslam.slam.orb.keyframe_worker import KeyframeSink
 from semslam.slam.orb.map import KeyFrame, Map, update_normals_and_depths
 from semslam.slam.orb.map_alignment import align_map, aligned_pose, rescale_frame_records, scaled_translation
@@ -135,6 +136,13 @@ class Tracking:
         self.n_matches_inliers = 0
         self.n_culled_dynamic_points = 0
         self._dropped: NDArray[np.bool_] | None = None  # keypoints removed as moving, this frame
+        # This frame's pose prior for the pose optimisation: (timestamp, T_cw, information),
+        # from a prediction that came with a covariance (the IMU's).
+        self._pose_prior: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
+        # With an IMU: its motion since the last keyframe, each new keyframe linked by it for
+        # local BA; and this frame's measured motion from the last, (timestamp, motion, covariance).
+        self.motion_chain = MotionChain() if imu is not None and config.imu.keyframe_links else None
+        self._frame_motion: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
         self.last_dynamic_ratio = 0.0
         # Per tracked frame: (timestamp, reference keyframe, T_c_ref) for the trajectory.
         # Lost frames have no pose and are not recorded (ORB-SLAM's SaveTrajectoryTUM skips them).
@@ -156,6 +164,8 @@ class Tracking:
                                   "coasted_on_shift_only", "depth_odometry_runs"), 0)
         for prior in self.priors:
             counters.update(prior.counters())
+        if self.motion_chain is not None:
+            counters["imu_keyframe_links"] = self.motion_chain.n_links
         return counters
 
     def start_lost_in(self, ref_kf: KeyFrame) -> None:
@@ -258,6 +268,15 @@ class Tracking:
         # predicts: the blurred frames' image shift); the first prediction wins.
         predictions = [prior.predict(state, images) for prior in self.priors]
         prediction = next((p for p in predictions if p is not None), None)
+        # The search starts from the first prediction; the pose is held near the first one
+        # that knows its spread (the IMU's, also where the blurred frames' shift is the start).
+        held = next((p for p in predictions if p is not None and p.covariance is not None), None)
+        self._pose_prior = (None if held is None else
+                            (cur.timestamp, held.T_cw, np.linalg.inv(held.covariance)))
+        measured = next((p for p in predictions if p is not None and p.motion_covariance is not None), None)
+        last = self.last
+        self._frame_motion = (None if measured is None or last is None or last.T_cw is None else
+                              (cur.timestamp, measured.T_cw @ invert(last.T_cw), measured.motion_covariance))
         ok = self._track_frame(cur, prediction, timings)
         ok, _ = self._correct(Stage.MATCHED, cur, ok, images, timings)
         timings["track"] = (time.perf_counter() - t0) * 1e3
@@ -287,6 +306,10 @@ class Tracking:
         dropped. True when it made a keyframe."""
         assert cur.T_cw is not None
         last = self.last
+        if self.motion_chain is not None:
+            motion = self._frame_motion
+            self.motion_chain.frame(*((motion[1], motion[2]) if motion is not None and motion[0] == cur.timestamp
+                                      else (None, None)))
         self.velocity = cur.T_cw @ invert(last.T_cw) if last is not None and last.T_cw is not None else None
         self.velocity_dt = cur.timestamp - last.timestamp if last is not None else 0.0
         if self.atlas_follower is not None:
@@ -483,6 +506,9 @@ class Tracking:
         """A map starts with ``keyframes``, the last one this frame's: it is the reference and
         they are the local map."""
         kf = keyframes[-1]
+        if self.motion_chain is not None:
+            self.motion_chain.lost()  # the IMU state starts over with the map
+            self.motion_chain.new_keyframe(kf)
         self.ref_kf = kf
         cur.ref_kf = kf
         self.last_kf_frame = cur.index
@@ -531,15 +557,19 @@ class Tracking:
         return ok
 
     def optimize(self, cur: FrameState) -> int:
-        """Pose-only optimisation over the frame's matched points; marks outliers."""
+        """Pose-only optimisation over the frame's matched points (held near this frame's
+        predicted pose when the prediction came with a covariance); marks outliers."""
         idx = cur.matched_indices(self.map.store)
         if len(idx) < 3:
             return 0
         assert cur.T_cw is not None
         pts = self.map.store.pos[cur.points.rows[idx]]
         oct_ = cur.keypoints.octave[idx]
+        held = self._pose_prior
+        prior = held[1:] if held is not None and held[0] == cur.timestamp else None
         res = optimize_pose(cur.T_cw, pts, cur.xy[idx], cur.ur[idx], self.pyr.inv_sigma2[oct_],
-                            self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy, self.cfg.bf)
+                            self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy, self.cfg.bf,
+                            prior=prior)
         cur.T_cw = orthonormalize(res.T_cw)
         cur.outlier[:] = False
         cur.outlier[idx[~res.inliers]] = True
@@ -771,6 +801,8 @@ class Tracking:
             for i in arr.tolist():
                 kf.points[i] = None
             self._new_points_from_keyframe(kf, cur, arr, cur.world_points(arr, self.camera))
+        if self.motion_chain is not None:
+            self.motion_chain.new_keyframe(kf)
         self.map.add_keyframe(kf)
         self.ref_kf = kf
         cur.ref_kf = kf

@@ -23,11 +23,12 @@ local map -> relocalisation -> keyframe decision) and asks its priors at fixed p
 
 ``MotionState`` is the state the priors predict from: the last frame, whether it was
 tracked, and the velocity (``T_cw`` of this frame = ``velocity @ T_cw`` of the last) over
-``velocity_dt`` seconds. An inertial prior slots in as one more prior: its ``predict``
-integrates the IMU samples since ``state.last`` into a ``PosePrediction`` whose
-``covariance`` (6x6 on se(3), tangent order [rotation, translation]; None = unknown) comes
-from the preintegration, and its ``update`` re-estimates its velocity and biases from the
-tracked pose; ``MotionState`` grows its ``bias`` then.
+``velocity_dt`` seconds. The inertial prior (``inertial.py``) is one more prior: its
+``predict`` integrates the IMU readings since ``state.last`` into a ``PosePrediction`` with
+a ``covariance`` (6x6 on (rotation, translation) of the pose; tracking's pose optimisation
+is held near the first prediction that has one) and a ``motion_covariance`` (the motion
+from the last frame alone; tracking links keyframes by these motions), and its ``update``
+re-estimates its own velocity and biases from the tracked poses.
 """
 
 from __future__ import annotations
@@ -71,8 +72,12 @@ class PosePrediction:
     """A pose to search the frame's features from."""
 
     T_cw: NDArray[np.float64]
-    #: 6x6 on se(3) (rotation, translation); None when the prior cannot say.
+    #: 6x6 on se(3) (rotation, translation); None when the prior cannot say. Tracking's pose
+    #: optimisation holds the frame near ``T_cw`` with it.
     covariance: NDArray[np.float64] | None = None
+    #: 6x6 of the motion from the last frame alone (without the last frame's own error); a
+    #: prior that measures the motion (the IMU) gives it, and keyframes are linked by it.
+    motion_covariance: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)

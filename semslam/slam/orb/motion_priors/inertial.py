@@ -8,7 +8,10 @@ the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then 
 
 * ``predict``: the last frame's pose and velocity carried to this frame by the readings
   between them (GTSAM preintegration): the pose the features are searched from, where the
-  constant velocity model guesses;
+  constant velocity model guesses; with its covariance (``imu.pose_prior``: tracking's pose
+  optimisation is held near it, ORB-SLAM3's inertial tracking with velocity and biases
+  marginalised) and the covariance of the motion alone (tracking links keyframes by it for
+  local BA, ``slam/orb/inertial_links.py``);
 * ``correct`` after the local map: a frame whose features did not track (black, blurred,
   covered, a crowd) keeps the IMU's pose for at most ``imu.max_blind_s`` since the last
   tracked one (counted in ``imu_only_frames``), then tracking is lost as without an IMU;
@@ -75,6 +78,9 @@ MAX_SCALE_FRAMES = 12
 #: MAX_WINDOW_CHI2 (consistent: below 1).
 MAX_INIT_RMS = 2.0
 MAX_WINDOW_CHI2 = 4.0
+#: The gyroscope bias's spread after the window's estimate (rad/s): ten times what a second of
+#: EuRoC's ADIS16448 readings shows (1.7e-4 rad/s/sqrt(Hz)).
+GYRO_BIAS_SPREAD = 2e-3
 
 
 def configured_noise(calibration: ImuNoise, cfg: ImuConfig) -> ImuNoise:
@@ -210,7 +216,23 @@ class InertialPrior(PriorDefaults):
         pim = preintegrate(imu_params(self.noise, self.gravity), bias, self.buffer.window(t0, t1), t0, t1)
         T_wb, v_w = imu_predict(pim, self._body(last.T_cw), self.velocity, bias)
         self._pred = _Prediction(t1, T_wb, v_w, self._camera(T_wb))
-        return PosePrediction(self._pred.T_cw.copy())
+        since = self.blind_since if self.blind_since is not None else t0
+        preint_cov = pim.preintMeasCov()
+        motion = self._motion_covariance(preint_cov, t1 - t0)
+        if not self.cfg.pose_prior:
+            return PosePrediction(self._pred.T_cw.copy(), motion_covariance=motion)
+        floor = np.diag([np.deg2rad(self.cfg.pose_prior_rotation_deg) ** 2] * 3
+                        + [self.cfg.pose_prior_translation_m ** 2] * 3)
+        return PosePrediction(self._pred.T_cw.copy(), floor + self._motion_covariance(preint_cov, t1 - since), motion)
+
+    def _motion_covariance(self, preint_cov: Array, dt: float) -> Array:
+        """The spread of the motion the IMU predicts over ``dt`` seconds, on (rotation,
+        translation) of the camera pose, isotropic per block (so the same in the body's, the
+        camera's and the world's frame): the biases' and the velocity's spreads over ``dt``
+        and the preintegration's own (GTSAM's covariance, rotation then position)."""
+        rot = (GYRO_BIAS_SPREAD * dt) ** 2 + np.trace(preint_cov[:3, :3]) / 3
+        trans = (self.cfg.pose_prior_velocity_m_s * dt) ** 2 + np.trace(preint_cov[3:6, 3:6]) / 3
+        return np.diag([rot] * 3 + [trans] * 3)
 
     def correct(self, stage: Stage, state: MotionState, cur: "FrameState", tracked: bool,
                 images: FrameImages, ops: TrackerOps) -> Correction | None:
