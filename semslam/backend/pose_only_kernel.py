@@ -121,6 +121,18 @@ def _matmul4(A: Array, B: Array, out: Array) -> None:
 
 
 @numba.njit(cache=True, nogil=True)
+def so3_log(R: Array, out: Array) -> None:
+    """``Log`` of a rotation matrix (away from a half turn) into ``out[:3]``: the angle from
+    the trace, the axis from the antisymmetric part (also the bundle adjustment's links')."""
+    c = min(max(0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0), -1.0), 1.0)
+    th = math.acos(c)
+    k = 0.5 if th < 1e-8 else 0.5 * th / math.sin(th)
+    out[0] = k * (R[2, 1] - R[1, 2])
+    out[1] = k * (R[0, 2] - R[2, 0])
+    out[2] = k * (R[1, 0] - R[0, 1])
+
+
+@numba.njit(cache=True, nogil=True)
 def _prior_terms(T: Array, Tp: Array, Lp: Array, H: Array, g: Array, add: bool) -> float:
     """Cost ``e^T Lp e`` of a Gaussian prior on the pose, with ``e`` = (Log(dR), dt) of
     ``dT = Tp T^-1`` (rotation on SO(3), translation in the camera's frame); with ``add``
@@ -133,12 +145,7 @@ def _prior_terms(T: Array, Tp: Array, Lp: Array, H: Array, g: Array, add: bool) 
     e = np.empty(6)
     for i in range(3):
         e[3 + i] = Tp[i, 3] - (dR[i, 0] * T[0, 3] + dR[i, 1] * T[1, 3] + dR[i, 2] * T[2, 3])
-    c = min(max(0.5 * (dR[0, 0] + dR[1, 1] + dR[2, 2] - 1.0), -1.0), 1.0)
-    th = math.acos(c)
-    k = 0.5 if th < 1e-8 else 0.5 * th / math.sin(th)
-    e[0] = k * (dR[2, 1] - dR[1, 2])
-    e[1] = k * (dR[0, 2] - dR[2, 0])
-    e[2] = k * (dR[1, 0] - dR[0, 1])
+    so3_log(dR, e)
     cost = 0.0
     for i in range(6):
         for j in range(6):

@@ -35,6 +35,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from semslam.backend.pose_only_kernel import so3_log
+
 Array = NDArray[np.float64]
 
 # GTSAM LevenbergMarquardtParams defaults.
@@ -190,12 +192,7 @@ def _link_residual(Ra: Array, ta: Array, Rb: Array, tb: Array, RZ: Array, tZ: Ar
     M = Ra @ Rb.T
     dR[:, :] = RZ @ M
     d = RZ @ (ta - M @ tb) + tZ
-    c = min(max(0.5 * (dR[0, 0] + dR[1, 1] + dR[2, 2] - 1.0), -1.0), 1.0)
-    th = np.arccos(c)
-    k = 0.5 if th < 1e-8 else 0.5 * th / np.sin(th)
-    e[0] = k * (dR[2, 1] - dR[1, 2])
-    e[1] = k * (dR[0, 2] - dR[2, 0])
-    e[2] = k * (dR[1, 0] - dR[0, 1])
+    so3_log(dR, e)
     e[3], e[4], e[5] = d[0], d[1], d[2]
 
 

@@ -161,7 +161,7 @@ RULES: dict[type, dict[str, Rule]] = {
         "min_inliers": NON_NEGATIVE,
         "pose_prior_rotation_deg": Num(0.0, 180.0, lo_open=True),
         "pose_prior_translation_m": POSITIVE,
-        "pose_prior_velocity_m_s": NON_NEGATIVE,
+        "velocity_sigma_m_s": NON_NEGATIVE,
         "max_scale_spread": POSITIVE,
         "provisional_scale_spread": POSITIVE,
         "scale_step_s": POSITIVE,

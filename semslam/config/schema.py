@@ -475,8 +475,9 @@ class ImuConfig:
     pose_prior: bool = False
     pose_prior_rotation_deg: float = 0.5
     pose_prior_translation_m: float = 0.01
-    # The velocity's spread (m/s): of the pose prior above and of the keyframe links below.
-    pose_prior_velocity_m_s: float = 0.05
+    # The spread of tracking's velocity estimate (m/s), over the time the IMU predicts across:
+    # in the pose prior above and the keyframe links below.
+    velocity_sigma_m_s: float = 0.05
     # Local BA holds consecutive keyframes to the IMU's motion between them (the frames'
     # predicted motions composed; spreads from the velocity's above and the gyro bias's).
     keyframe_links: bool = True

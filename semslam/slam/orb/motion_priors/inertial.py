@@ -231,7 +231,7 @@ class InertialPrior(PriorDefaults):
         camera's and the world's frame): the biases' and the velocity's spreads over ``dt``
         and the preintegration's own (GTSAM's covariance, rotation then position)."""
         rot = (GYRO_BIAS_SPREAD * dt) ** 2 + np.trace(preint_cov[:3, :3]) / 3
-        trans = (self.cfg.pose_prior_velocity_m_s * dt) ** 2 + np.trace(preint_cov[3:6, 3:6]) / 3
+        trans = (self.cfg.velocity_sigma_m_s * dt) ** 2 + np.trace(preint_cov[3:6, 3:6]) / 3
         return np.diag([rot] * 3 + [trans] * 3)
 
     def correct(self, stage: Stage, state: MotionState, cur: "FrameState", tracked: bool,
