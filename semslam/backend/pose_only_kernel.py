@@ -133,6 +133,22 @@ def so3_log(R: Array, out: Array) -> None:
 
 
 @numba.njit(cache=True, nogil=True)
+def relative_pose_jacobian(dR: Array, e: Array, J: Array) -> None:
+    """``de/dxi`` into ``J`` (6x6) for ``e = (Log(dR), dt)`` of ``dT = Z T^-1`` under
+    ``T <- exp(xi) T`` (so ``dT <- dT exp(-xi)``): ``[[-Jr^-1(phi), 0], [0, -dR]]`` with
+    ``Jr^-1(phi) ~ I + [phi]x / 2`` (first order in the residual). The pose prior's, and the
+    bundle adjustment links' later pose."""
+    J[:, :] = 0.0
+    J[0, 0] = J[1, 1] = J[2, 2] = -1.0
+    J[0, 1], J[0, 2] = 0.5 * e[2], -0.5 * e[1]
+    J[1, 0], J[1, 2] = -0.5 * e[2], 0.5 * e[0]
+    J[2, 0], J[2, 1] = 0.5 * e[1], -0.5 * e[0]
+    for i in range(3):
+        for j in range(3):
+            J[3 + i, 3 + j] = -dR[i, j]
+
+
+@numba.njit(cache=True, nogil=True)
 def _prior_terms(T: Array, Tp: Array, Lp: Array, H: Array, g: Array, add: bool) -> float:
     """Cost ``e^T Lp e`` of a Gaussian prior on the pose, with ``e`` = (Log(dR), dt) of
     ``dT = Tp T^-1`` (rotation on SO(3), translation in the camera's frame); with ``add``
@@ -152,14 +168,8 @@ def _prior_terms(T: Array, Tp: Array, Lp: Array, H: Array, g: Array, add: bool) 
             cost += e[i] * Lp[i, j] * e[j]
     if not add:
         return cost
-    J = np.zeros((6, 6))  # de / dxi
-    J[0, 0] = J[1, 1] = J[2, 2] = -1.0
-    J[0, 1], J[0, 2] = 0.5 * e[2], -0.5 * e[1]
-    J[1, 0], J[1, 2] = -0.5 * e[2], 0.5 * e[0]
-    J[2, 0], J[2, 1] = 0.5 * e[1], -0.5 * e[0]
-    for i in range(3):
-        for j in range(3):
-            J[3 + i, 3 + j] = -dR[i, j]
+    J = np.empty((6, 6))
+    relative_pose_jacobian(dR, e, J)
     LJ = Lp @ J
     H += J.T @ LJ
     g -= LJ.T @ e

@@ -35,7 +35,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from semslam.backend.pose_only_kernel import so3_log
+from semslam.backend.pose_only_kernel import relative_pose_jacobian, so3_log
 
 Array = NDArray[np.float64]
 
@@ -238,9 +238,8 @@ def _linearize_links(Rs: Array, ts: Array, lpose: NDArray[np.intp], lR: Array, l
         Ad[3:, 3:] = RZ
         Ad[3:, :3] = np.array([[0.0, -tZ[2], tZ[1]], [tZ[2], 0.0, -tZ[0]], [-tZ[1], tZ[0], 0.0]]) @ RZ
         Ja = Gl @ Ad
-        Jb = np.zeros((6, 6))
-        Jb[:3, :3] = -(np.eye(3) + 0.5 * phi)
-        Jb[3:, 3:] = -dR
+        Jb = np.empty((6, 6))
+        relative_pose_jacobian(dR, e, Jb)
         fa, fb = pose_var[a], pose_var[b]
         LJa = L @ Ja
         LJb = L @ Jb

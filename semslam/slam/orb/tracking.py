@@ -273,10 +273,11 @@ class Tracking:
         held = next((p for p in predictions if p is not None and p.covariance is not None), None)
         self._pose_prior = (None if held is None else
                             (cur.timestamp, held.T_cw, np.linalg.inv(held.covariance)))
-        measured = next((p for p in predictions if p is not None and p.motion_covariance is not None), None)
-        last = self.last
-        self._frame_motion = (None if measured is None or last is None or last.T_cw is None else
-                              (cur.timestamp, measured.T_cw @ invert(last.T_cw), measured.motion_covariance))
+        if self.motion_chain is not None:
+            measured = next((p for p in predictions if p is not None and p.motion_covariance is not None), None)
+            last = self.last
+            self._frame_motion = (None if measured is None or last is None or last.T_cw is None else
+                                  (cur.timestamp, measured.T_cw @ invert(last.T_cw), measured.motion_covariance))
         ok = self._track_frame(cur, prediction, timings)
         ok, _ = self._correct(Stage.MATCHED, cur, ok, images, timings)
         timings["track"] = (time.perf_counter() - t0) * 1e3
