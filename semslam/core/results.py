@@ -65,6 +65,8 @@ class TrackingCounters(Counters):
     imu_init_after_s: float | None = None
     imu_refinements: int | None = None
     imu_only_frames: int | None = None
+    #: Frames whose local map was searched from the IMU's pose (``imu.local_map_recovery``).
+    imu_local_map_searches: int | None = None
     imu_only_spans: Sequence[Sequence[float]] | None = None
     imu_bridged_frames: int | None = None
     imu_weak_frames: int | None = None
@@ -218,7 +220,7 @@ STATS_LAYOUT: tuple[str, ...] = (
     "merges_rejected", "merge_checks", "mono_init_attempts", "mono_init_refused",
     "depth_prior_metric_init", "depth_prior_scale", "depth_prior_keyframes", "depth_prior_refused",
     "imu_initialisations", "imu_init_frame", "imu_init_after_s", "imu_refinements", "imu_only_frames",
-    "imu_only_spans", "imu_bridged_frames", "imu_weak_frames",
+    "imu_local_map_searches", "imu_only_spans", "imu_bridged_frames", "imu_weak_frames",
     "imu_refused_solutions", "imu_blind_lost", "imu_gravity_alignments", "imu_scale_unsure", "imu_scales", "imu_gravity", "imu_gyro_bias", "imu_acc_bias",
     "imu_keyframe_links", *DynamicsCounters.keys(), *MapBuildingCounters.keys(), *InputHealthCounters.keys(),
     "jit_warmup_s",

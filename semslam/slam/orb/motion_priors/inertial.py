@@ -157,6 +157,7 @@ class InertialPrior(PriorDefaults):
         #: Stretches posed by the IMU alone: [first frame's time, last frame's time, frames].
         self.spans: list[list[float]] = []
         self.n_imu_only = 0
+        self.n_local_map_searches = 0  # frames whose local map was searched from the IMU's pose
         self.n_blind_lost = 0
         self.n_inits = 0
         self.n_refinements = 0
@@ -239,11 +240,11 @@ class InertialPrior(PriorDefaults):
         if stage is Stage.FEATURES:
             self.buffer.add(images.frame.imu)
             return None
-        if stage is not Stage.LOCAL_MAP or tracked:
-            return None
         pred = self._pred
-        if pred is None or pred.timestamp != cur.timestamp or state.last is None:
+        if tracked or pred is None or pred.timestamp != cur.timestamp or state.last is None:
             return None
+        if stage is Stage.MATCHED:
+            return self._search_local_map(cur, pred)
         since = self.blind_since if self.blind_since is not None else state.last.timestamp
         if cur.timestamp - since > self.cfg.max_blind_s:
             self.n_blind_lost += 1
@@ -254,6 +255,19 @@ class InertialPrior(PriorDefaults):
         cur.T_cw = pred.T_cw.copy()
         self.n_imu_only += 1
         return Correction(True, posed=True)
+
+    def _search_local_map(self, cur: "FrameState", pred: _Prediction) -> Correction | None:
+        """The motion model and the reference keyframe found too few matches (a fast turn, the
+        frame after one the IMU posed, whose features were dropped): the local map is searched
+        from the IMU's pose instead (ORB-SLAM3 tracks the local map from its IMU prediction
+        while recently lost)."""
+        if not self.cfg.local_map_recovery:
+            return None
+        cur.clear_points()
+        cur.outlier[:] = False
+        cur.T_cw = pred.T_cw.copy()
+        self.n_local_map_searches += 1
+        return Correction(True)
 
     def keyframe_wanted(self, state: MotionState, cur: "FrameState", ops: TrackerOps,
                         orb_slam_wants: Callable[[], bool]) -> bool:
@@ -467,7 +481,8 @@ class InertialPrior(PriorDefaults):
     def counters(self) -> dict[str, Any]:
         return {"imu_initialisations": self.n_inits, "imu_init_frame": self.init_frame,
                 "imu_init_after_s": round(self.init_after_s, 3), "imu_refinements": self.n_refinements,
-                "imu_only_frames": self.n_imu_only, "imu_only_spans": [list(s) for s in self.spans],
+                "imu_only_frames": self.n_imu_only, "imu_local_map_searches": self.n_local_map_searches,
+                "imu_only_spans": [list(s) for s in self.spans],
                 "imu_bridged_frames": self.n_bridged, "imu_blind_lost": self.n_blind_lost,
                 "imu_weak_frames": self.n_weak, "imu_refused_solutions": self.n_refused,
                 **({"imu_scale_unsure": self.n_scale_unsure,
