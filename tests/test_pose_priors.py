@@ -7,14 +7,16 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from semslam.config.schema import SlamConfig
+from semslam.config.schema import ImuConfig, SlamConfig
+from semslam.core.imu import ADIS16448, ImuCalibration, ImuSamples
 from semslam.core.types import Frame
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.se3 import make_pose, so3_exp
-from semslam.slam.orb.motion_priors.base import FrameImages, MotionState, PosePrior, Stage
+from semslam.slam.orb.motion_priors.base import Correction, FrameImages, MotionState, PosePrior, Stage
 from semslam.slam.orb.motion_priors.blur_coast import BlurCoast
 from semslam.slam.orb.motion_priors.constant_velocity import ConstantVelocity
 from semslam.slam.orb.motion_priors.depth_odometry import DepthOdometry
+from semslam.slam.orb.motion_priors.inertial import InertialPrior
 from semslam.slam.orb.motion_priors.sharpness_history import SharpnessHistory
 
 CAM = PinholeCamera(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
@@ -75,3 +77,58 @@ def test_sharpness_history_compares_with_the_sharpest_counted_frame() -> None:
         history.end(tracked=True)
     history.begin(9.5)
     assert history.is_sharp(gray, 0.9) and not history.is_sharp(gray, 1.0)  # against 10, not 50
+
+
+def _moving_inertial_prior(local_map_recovery: bool) -> tuple[InertialPrior, MotionState, FrameImages, np.ndarray]:
+    """An initialised IMU prior on a body moving at 0.3 m/s along x without turning (camera =
+    body), readings exactly gravity's reaction; the last frame at t = 0.4 at the origin. Also
+    the pose the readings put the camera at t = 0.5."""
+    cfg = ImuConfig(local_map_recovery=local_map_recovery)
+    prior = InertialPrior(cfg, ImuCalibration(ADIS16448))
+    t = np.linspace(0.0, 1.0, 201)
+    prior.buffer.add(ImuSamples(t, np.zeros((t.size, 3)), np.tile([0.0, 0.0, 9.81], (t.size, 1))))
+    prior.gravity, prior.velocity = np.array([0.0, 0.0, -9.81]), np.array([0.3, 0.0, 0.0])
+    state = MotionState(SimpleNamespace(index=4, timestamp=0.4, T_cw=np.eye(4)), True, np.eye(4), 0.1)  # type: ignore[arg-type]
+    rgb = np.zeros((48, 64, 3), np.uint8)
+    return prior, state, FrameImages(Frame(5, 0.5, rgb), None), make_pose(np.eye(3), [-0.03, 0.0, 0.0])
+
+
+def _lost_frame() -> SimpleNamespace:
+    cur = SimpleNamespace(timestamp=0.5, T_cw=np.eye(4), outlier=np.ones(3, bool), cleared=False)
+    cur.clear_points = lambda: setattr(cur, "cleared", True)
+    return cur
+
+
+def test_inertial_prior_searches_the_local_map_from_its_pose_before_posing_alone() -> None:
+    """A frame the motion model and the reference keyframe lost: the IMU's pose (0.03 m on
+    from 0.3 m/s over 0.1 s) is where the local map is searched from, its stale matches
+    dropped, and the frame left to the local map (tracked, not the IMU's pose); only when the
+    local map fails too is it posed by the IMU alone. A tracked frame is left alone."""
+    prior, state, images, expected = _moving_inertial_prior(local_map_recovery=True)
+    prediction = prior.predict(state, images)
+    assert prediction is not None
+    np.testing.assert_allclose(prediction.T_cw, expected, atol=1e-9)
+    ops = SimpleNamespace(n_matches_inliers=0)
+    cur = _lost_frame()
+    assert prior.correct(Stage.MATCHED, state, cur, True, images, ops) is None  # type: ignore[arg-type]
+    assert not cur.cleared
+    searched = prior.correct(Stage.MATCHED, state, cur, False, images, ops)  # type: ignore[arg-type]
+    assert searched == Correction(tracked=True, posed=False)
+    np.testing.assert_allclose(cur.T_cw, expected, atol=1e-9)
+    assert cur.cleared and not cur.outlier.any()
+    assert prior.counters()["imu_local_map_searches"] == 1
+    alone = prior.correct(Stage.LOCAL_MAP, state, cur, False, images, ops)  # type: ignore[arg-type]
+    assert alone == Correction(tracked=True, posed=True)
+    assert prior.counters()["imu_only_frames"] == 1
+
+
+def test_inertial_prior_without_local_map_recovery_poses_lost_frames_itself() -> None:
+    prior, state, images, expected = _moving_inertial_prior(local_map_recovery=False)
+    assert prior.predict(state, images) is not None
+    ops = SimpleNamespace(n_matches_inliers=0)
+    cur = _lost_frame()
+    assert prior.correct(Stage.MATCHED, state, cur, False, images, ops) is None  # type: ignore[arg-type]
+    assert not cur.cleared
+    assert prior.correct(Stage.LOCAL_MAP, state, cur, False, images, ops) == Correction(tracked=True, posed=True)
+    np.testing.assert_allclose(cur.T_cw, expected, atol=1e-9)
+    assert prior.counters()["imu_local_map_searches"] == 0
