@@ -99,16 +99,25 @@ def _lost_frame() -> SimpleNamespace:
     return cur
 
 
-def test_inertial_prior_searches_the_local_map_from_its_pose_before_posing_alone() -> None:
-    """A frame the motion model and the reference keyframe lost: the IMU's pose (0.03 m on
-    from 0.3 m/s over 0.1 s) is where the local map is searched from, its stale matches
-    dropped, and the frame left to the local map (tracked, not the IMU's pose); only when the
-    local map fails too is it posed by the IMU alone. A tracked frame is left alone."""
+def test_inertial_prior_searches_the_local_map_from_its_pose_once_blind() -> None:
+    """A frame lost right after a tracked one is left to the other priors and then posed by the
+    IMU alone (0.03 m on from 0.3 m/s over 0.1 s). The next one lost while blind (the motion
+    model had nothing to match): the IMU's pose is where the local map is searched from, its
+    stale matches dropped, and the frame left to the local map (tracked, not the IMU's pose);
+    only when the local map fails too is it posed by the IMU alone. A tracked frame is left
+    alone."""
     prior, state, images, expected = _moving_inertial_prior(local_map_recovery=True)
+    ops = SimpleNamespace(n_matches_inliers=0)
     prediction = prior.predict(state, images)
     assert prediction is not None
     np.testing.assert_allclose(prediction.T_cw, expected, atol=1e-9)
-    ops = SimpleNamespace(n_matches_inliers=0)
+    first = _lost_frame()
+    assert prior.correct(Stage.MATCHED, state, first, False, images, ops) is None  # type: ignore[arg-type]
+    assert not first.cleared
+    assert prior.correct(Stage.LOCAL_MAP, state, first, False, images, ops) == Correction(tracked=True, posed=True)
+    assert prior.counters()["imu_only_frames"] == 1
+    # The next frame, blind (the same readings and last pose keep the expected pose simple).
+    assert prior.predict(state, images) is not None
     cur = _lost_frame()
     assert prior.correct(Stage.MATCHED, state, cur, True, images, ops) is None  # type: ignore[arg-type]
     assert not cur.cleared
@@ -119,11 +128,12 @@ def test_inertial_prior_searches_the_local_map_from_its_pose_before_posing_alone
     assert prior.counters()["imu_local_map_searches"] == 1
     alone = prior.correct(Stage.LOCAL_MAP, state, cur, False, images, ops)  # type: ignore[arg-type]
     assert alone == Correction(tracked=True, posed=True)
-    assert prior.counters()["imu_only_frames"] == 1
+    assert prior.counters()["imu_only_frames"] == 2
 
 
 def test_inertial_prior_without_local_map_recovery_poses_lost_frames_itself() -> None:
     prior, state, images, expected = _moving_inertial_prior(local_map_recovery=False)
+    prior.blind_since = 0.3  # the frame before was posed by the IMU alone too
     assert prior.predict(state, images) is not None
     ops = SimpleNamespace(n_matches_inliers=0)
     cur = _lost_frame()

@@ -460,9 +460,9 @@ class ImuConfig:
     # alone for at most this long, then tracking is lost as without an IMU (ORB-SLAM3's
     # time_recently_lost).
     max_blind_s: float = 5.0
-    # A frame the motion model and the reference keyframe did not track (a fast turn, the
-    # frame after one the IMU posed) searches the local map from the IMU's pose before the
-    # IMU poses it alone (ORB-SLAM3's recently-lost tracking).
+    # A frame after one the IMU posed alone (whose features were dropped), when the motion
+    # model and the reference keyframe do not track it, searches the local map from the
+    # IMU's pose before the IMU poses it alone too (ORB-SLAM3's recently-lost tracking).
     local_map_recovery: bool = True
     # The window of recent tracked frames (and its spacing) the velocity and biases are
     # re-estimated on after each frame (GTSAM CombinedImuFactor, backend/inertial_window.py).

@@ -257,11 +257,12 @@ class InertialPrior(PriorDefaults):
         return Correction(True, posed=True)
 
     def _search_local_map(self, cur: "FrameState", pred: _Prediction) -> Correction | None:
-        """The motion model and the reference keyframe found too few matches (a fast turn, the
-        frame after one the IMU posed, whose features were dropped): the local map is searched
-        from the IMU's pose instead (ORB-SLAM3 tracks the local map from its IMU prediction
-        while recently lost)."""
-        if not self.cfg.local_map_recovery:
+        """The frame after one the IMU posed alone, whose features were dropped, so the motion
+        model had nothing to match, and the reference keyframe found too few: the local map
+        is searched from the IMU's pose instead (ORB-SLAM3 tracks the local map from its IMU
+        prediction while recently lost). A frame lost after a tracked one is left to the
+        other priors (a blurred turn's coast) and then posed by the IMU."""
+        if not self.cfg.local_map_recovery or self.blind_since is None:
             return None
         cur.clear_points()
         cur.outlier[:] = False
