@@ -156,6 +156,7 @@ RULES: dict[type, dict[str, Rule]] = {
         "refine_second_s": POSITIVE,
         "refine_window_s": POSITIVE,
         "max_blind_s": NON_NEGATIVE,
+        "keyframe_every_s": NON_NEGATIVE,
         "window_s": POSITIVE,
         "window_step_s": POSITIVE,
         "min_inliers": NON_NEGATIVE,

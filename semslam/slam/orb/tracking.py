@@ -75,7 +75,8 @@ def pose_priors(config: SystemConfig, camera: PinholeCamera, slam_map: Map, pyra
     if cfg.depth_odometry != "none":
         priors.append(DepthOdometry(cfg, camera, sharpness))
     if imu is not None:
-        priors.append(InertialPrior(config.imu, imu, align_map, monocular))
+        priors.append(InertialPrior(config.imu, imu, align_map, monocular,
+                                    keyframe_min_depth_points=cfg.min_init_keypoints // 2))
     priors.append(ConstantVelocity())
     return priors
 
@@ -129,6 +130,9 @@ class Tracking:
         self.velocity_dt = 0.0
         self.ref_kf: KeyFrame | None = None
         self.last_kf_frame = -1
+        self.last_kf_time = -np.inf
+        # With an IMU, a keyframe at least this often (ORB-SLAM3's temporal condition; 0: none).
+        self.keyframe_every_s = config.imu.keyframe_every_s if imu is not None else 0.0
         self.last_reloc_frame = -(10**9)
         self.local_kfs: list[KeyFrame] = []
         self.local_rows = np.zeros(0, np.intp)  # store rows of the local map's points
@@ -512,7 +516,7 @@ class Tracking:
             self.motion_chain.new_keyframe(kf)
         self.ref_kf = kf
         cur.ref_kf = kf
-        self.last_kf_frame = cur.index
+        self.last_kf_frame, self.last_kf_time = cur.index, cur.timestamp
         self.local_kfs = keyframes
         self.local_rows = kf.points.rows[kf.points.rows >= 0]
         self.state = TrackingState.OK
@@ -756,7 +760,10 @@ class Tracking:
     def _need_new_keyframe(self, cur: FrameState, mono: bool = False) -> bool:
         """ORB-SLAM2 Tracking::NeedNewKeyFrame for RGB-D, or with ``mono`` for a monocular
         camera (no close points, a 0.9 reference ratio, no c1c, nothing inserted while local
-        mapping is busy)."""
+        mapping is busy); with an IMU also ORB-SLAM3's temporal condition (c3: ``imu.keyframe_every_s``
+        since the last keyframe), which alone suffices: a keyframe whose points few keyframes
+        see (a new view after a turn) leaves the reference ratio at zero and ORB-SLAM2's test
+        would never fire again."""
         n_kfs = len(self.map.keyframes)
         if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_kfs > self.cfg.max_frames:
             return False
@@ -780,7 +787,8 @@ class Tracking:
         c1b = cur.index >= self.last_kf_frame + self.cfg.min_frames and idle
         c1c = not mono and (inl < ref_matches * 0.25 or need_close)
         c2 = (inl < ref_matches * th_ref or need_close) and inl > 15
-        if (c1a or c1b or c1c) and c2:
+        c3 = self.keyframe_every_s > 0 and cur.timestamp - self.last_kf_time >= self.keyframe_every_s
+        if ((c1a or c1b or c1c) and c2) or c3:
             if mono and not idle:
                 return False
             queued = self.keyframes.queue_size()
@@ -807,7 +815,7 @@ class Tracking:
         self.map.add_keyframe(kf)
         self.ref_kf = kf
         cur.ref_kf = kf
-        self.last_kf_frame = cur.index
+        self.last_kf_frame, self.last_kf_time = cur.index, cur.timestamp
         self.keyframes.insert(kf)
 
     # ------------------------------------------------------------------ relocalisation

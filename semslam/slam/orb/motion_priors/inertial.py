@@ -19,7 +19,8 @@ the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then 
   velocity and biases re-estimated on the last ``imu.window_s`` of tracked frames
   (``backend/inertial_window.py``).
 
-Frames posed by the IMU alone make no keyframes. The map starts in the first camera's
+Frames posed by the IMU alone make keyframes as tracking's temporal condition asks
+(``imu.keyframe_every_s``; not monocular, not black frames). The map starts in the first camera's
 frame; the initialisation and each refinement rotate it about its origin so gravity points
 down its z axis (``imu.gravity_aligned``; the smallest rotation, so the yaw gravity does not
 show is kept), through tracking's ``align_map``, which moves the map, tracking's state and
@@ -115,8 +116,12 @@ class InertialPrior(PriorDefaults):
     name = "inertial"
 
     def __init__(self, cfg: ImuConfig, calibration: ImuCalibration,
-                 align_map: Callable[[Array, float], None] | None = None, monocular: bool = False) -> None:
+                 align_map: Callable[[Array, float], None] | None = None, monocular: bool = False,
+                 keyframe_min_depth_points: int = 250) -> None:
         self.cfg = cfg
+        # A frame the IMU posed alone makes a keyframe (its points from depth at the IMU's
+        # pose) only with this many keypoints with a depth: as many as start an RGB-D map.
+        self.keyframe_min_depth_points = keyframe_min_depth_points
         # Tracking's: moves the map (gravity down z, a monocular map's scale). Without it the
         # map keeps the first camera's frame (a monocular map needs it for its scale).
         self.align_map = align_map
@@ -272,7 +277,14 @@ class InertialPrior(PriorDefaults):
 
     def keyframe_wanted(self, state: MotionState, cur: "FrameState", ops: TrackerOps,
                         orb_slam_wants: Callable[[], bool]) -> bool:
-        return False  # a pose from the IMU alone has no features to map
+        """A frame posed by the IMU alone makes a keyframe when tracking's decision wants one
+        (with no matches, only its temporal condition does), as ORB-SLAM3 inserts keyframes
+        while recently lost: its keypoints with depth become points at the IMU's pose, so a
+        view the map never had gets mapped and the next frames track on it. Not monocular
+        (no depth to place points with) and not a frame with too few depths (a black one)."""
+        if self.monocular or int(np.count_nonzero(cur.depth > 0)) < self.keyframe_min_depth_points:
+            return False
+        return orb_slam_wants()
 
     def update(self, outcome: FrameOutcome) -> None:
         t = outcome.frame.timestamp
