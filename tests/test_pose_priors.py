@@ -6,6 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from semslam.config.schema import ImuConfig, SlamConfig
 from semslam.core.imu import ADIS16448, ImuCalibration, ImuSamples
@@ -142,3 +143,21 @@ def test_inertial_prior_without_local_map_recovery_poses_lost_frames_itself() ->
     assert prior.correct(Stage.LOCAL_MAP, state, cur, False, images, ops) == Correction(tracked=True, posed=True)
     np.testing.assert_allclose(cur.T_cw, expected, atol=1e-9)
     assert prior.counters()["imu_local_map_searches"] == 0
+
+
+@pytest.mark.parametrize("monocular", [False, True])
+def test_a_frame_the_imu_posed_makes_a_keyframe_only_with_depths_to_map(monocular: bool) -> None:
+    """Tracking's decision (its temporal condition) for a frame the IMU posed alone, but only
+    with as many keypoints with a depth as start a map, and never monocular."""
+    cfg = ImuConfig()
+    align = (lambda rotation, scale: None) if monocular else None
+    prior = InertialPrior(cfg, ImuCalibration(ADIS16448), align, monocular, keyframe_min_depth_points=250)
+    state = MotionState(None, True, None, 0.0)
+    ops = SimpleNamespace(n_matches_inliers=0)
+    depth = np.zeros(1000, np.float32)
+    depth[:300] = 2.0
+    seen = SimpleNamespace(depth=depth)
+    black = SimpleNamespace(depth=np.where(np.arange(1000) < 100, 2.0, 0.0))
+    for cur, wants in ((seen, True), (seen, False), (black, True)):
+        expected = wants and cur is seen and not monocular
+        assert prior.keyframe_wanted(state, cur, ops, lambda w=wants: w) is expected  # type: ignore[arg-type]
