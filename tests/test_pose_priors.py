@@ -149,7 +149,7 @@ def test_inertial_prior_without_local_map_recovery_poses_lost_frames_itself() ->
 def test_a_frame_the_imu_posed_makes_a_keyframe_only_with_depths_to_map(monocular: bool) -> None:
     """Tracking's decision (its temporal condition) for a frame the IMU posed alone, but only
     with as many keypoints with a depth as start a map, and never monocular."""
-    cfg = ImuConfig()
+    cfg = ImuConfig(keyframe_every_s=0.5)
     align = (lambda rotation, scale: None) if monocular else None
     prior = InertialPrior(cfg, ImuCalibration(ADIS16448), align, monocular, keyframe_min_depth_points=250)
     state = MotionState(None, True, None, 0.0)
@@ -161,3 +161,5 @@ def test_a_frame_the_imu_posed_makes_a_keyframe_only_with_depths_to_map(monocula
     for cur, wants in ((seen, True), (seen, False), (black, True)):
         expected = wants and cur is seen and not monocular
         assert prior.keyframe_wanted(state, cur, ops, lambda w=wants: w) is expected  # type: ignore[arg-type]
+    off = InertialPrior(ImuConfig(), ImuCalibration(ADIS16448), keyframe_min_depth_points=250)
+    assert not off.keyframe_wanted(state, seen, ops, lambda: True)  # type: ignore[arg-type]  # the default: none

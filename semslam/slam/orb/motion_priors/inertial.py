@@ -19,8 +19,8 @@ the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then 
   velocity and biases re-estimated on the last ``imu.window_s`` of tracked frames
   (``backend/inertial_window.py``).
 
-Frames posed by the IMU alone make keyframes as tracking's temporal condition asks
-(``imu.keyframe_every_s``; not monocular, not black frames). The map starts in the first camera's
+Frames posed by the IMU alone make no keyframes, but with ``imu.keyframe_every_s`` (opt-in)
+as tracking's temporal condition asks (not monocular, not black frames). The map starts in the first camera's
 frame; the initialisation and each refinement rotate it about its origin so gravity points
 down its z axis (``imu.gravity_aligned``; the smallest rotation, so the yaw gravity does not
 show is kept), through tracking's ``align_map``, which moves the map, tracking's state and
@@ -282,7 +282,8 @@ class InertialPrior(PriorDefaults):
         while recently lost: its keypoints with depth become points at the IMU's pose, so a
         view the map never had gets mapped and the next frames track on it. Not monocular
         (no depth to place points with) and not a frame with too few depths (a black one)."""
-        if self.monocular or int(np.count_nonzero(cur.depth > 0)) < self.keyframe_min_depth_points:
+        if (self.cfg.keyframe_every_s <= 0 or self.monocular
+                or int(np.count_nonzero(cur.depth > 0)) < self.keyframe_min_depth_points):
             return False
         return orb_slam_wants()
 
