@@ -760,10 +760,10 @@ class Tracking:
     def _need_new_keyframe(self, cur: FrameState, mono: bool = False) -> bool:
         """ORB-SLAM2 Tracking::NeedNewKeyFrame for RGB-D, or with ``mono`` for a monocular
         camera (no close points, a 0.9 reference ratio, no c1c, nothing inserted while local
-        mapping is busy); with an IMU also ORB-SLAM3's temporal condition (c3: ``imu.keyframe_every_s``
-        since the last keyframe), which alone suffices: a keyframe whose points few keyframes
-        see (a new view after a turn) leaves the reference ratio at zero and ORB-SLAM2's test
-        would never fire again."""
+        mapping is busy); with an IMU and ``imu.keyframe_every_s`` set, also ORB-SLAM3's
+        temporal condition (c3: that long since the last keyframe), which alone suffices: a
+        reference keyframe whose points no other keyframe sees (a new view after a turn) leaves
+        ORB-SLAM2's reference count at zero, and its test never fires again."""
         n_kfs = len(self.map.keyframes)
         if cur.index < self.last_reloc_frame + self.cfg.max_frames and n_kfs > self.cfg.max_frames:
             return False

@@ -20,12 +20,12 @@ the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then 
   (``backend/inertial_window.py``).
 
 Frames posed by the IMU alone make no keyframes, but with ``imu.keyframe_every_s`` (opt-in)
-as tracking's temporal condition asks (not monocular, not black frames). The map starts in the first camera's
-frame; the initialisation and each refinement rotate it about its origin so gravity points
-down its z axis (``imu.gravity_aligned``; the smallest rotation, so the yaw gravity does not
-show is kept), through tracking's ``align_map``, which moves the map, tracking's state and
-every prior's kept positions (this one's ``map_aligned``), as ORB-SLAM3's
-``ApplyScaledRotation``.
+as tracking's temporal condition asks (not monocular, not black frames). The map starts in
+the first camera's frame; the initialisation and each refinement rotate it about its origin
+so gravity points down its z axis (``imu.gravity_aligned``; the smallest rotation, so the yaw
+gravity does not show is kept), through tracking's ``align_map``, which moves the map,
+tracking's state and every prior's kept positions (this one's ``map_aligned``), as
+ORB-SLAM3's ``ApplyScaledRotation``.
 
 Monocular-inertial: the map's scale is one more unknown of the initialisation and its
 refinements (``initialise(..., scaled=...)``), with its relative spread (how well the motion
@@ -277,8 +277,9 @@ class InertialPrior(PriorDefaults):
 
     def keyframe_wanted(self, state: MotionState, cur: "FrameState", ops: TrackerOps,
                         orb_slam_wants: Callable[[], bool]) -> bool:
-        """A frame posed by the IMU alone makes a keyframe when tracking's decision wants one
-        (with no matches, only its temporal condition does), as ORB-SLAM3 inserts keyframes
+        """With ``imu.keyframe_every_s`` set (opt-in; else never), a frame posed by the IMU
+        alone makes a keyframe when tracking's decision wants one (with no matches, only its
+        temporal condition does), as ORB-SLAM3 inserts keyframes
         while recently lost: its keypoints with depth become points at the IMU's pose, so a
         view the map never had gets mapped and the next frames track on it. Not monocular
         (no depth to place points with) and not a frame with too few depths (a black one)."""
