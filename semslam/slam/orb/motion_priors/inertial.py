@@ -101,6 +101,13 @@ class _Prediction:
     T_cw: Array
 
 
+def _place_at(cur: "FrameState", pred: _Prediction) -> None:
+    """The frame at the IMU's predicted pose, its matches (to a pose it lost) dropped."""
+    cur.clear_points()
+    cur.outlier[:] = False
+    cur.T_cw = pred.T_cw.copy()
+
+
 def spaced(times: Array, step: float) -> NDArray[np.intp]:
     """Indices of ``times`` (increasing) about ``step`` apart, always keeping the newest."""
     keep = [len(times) - 1]
@@ -255,9 +262,7 @@ class InertialPrior(PriorDefaults):
             self.n_blind_lost += 1
             return None
         self.blind_since = since
-        cur.clear_points()
-        cur.outlier[:] = False
-        cur.T_cw = pred.T_cw.copy()
+        _place_at(cur, pred)
         self.n_imu_only += 1
         return Correction(True, posed=True)
 
@@ -269,9 +274,7 @@ class InertialPrior(PriorDefaults):
         other priors (a blurred turn's coast) and then posed by the IMU."""
         if not self.cfg.local_map_recovery or self.blind_since is None:
             return None
-        cur.clear_points()
-        cur.outlier[:] = False
-        cur.T_cw = pred.T_cw.copy()
+        _place_at(cur, pred)
         self.n_local_map_searches += 1
         return Correction(True)
 
@@ -279,10 +282,10 @@ class InertialPrior(PriorDefaults):
                         orb_slam_wants: Callable[[], bool]) -> bool:
         """With ``imu.keyframe_every_s`` set (opt-in; else never), a frame posed by the IMU
         alone makes a keyframe when tracking's decision wants one (with no matches, only its
-        temporal condition does), as ORB-SLAM3 inserts keyframes
-        while recently lost: its keypoints with depth become points at the IMU's pose, so a
-        view the map never had gets mapped and the next frames track on it. Not monocular
-        (no depth to place points with) and not a frame with too few depths (a black one)."""
+        temporal condition does), as ORB-SLAM3 inserts keyframes while recently lost: its
+        keypoints with depth become points at the IMU's pose, so a view the map never had gets
+        mapped and the next frames track on it. Not monocular (no depth to place points with)
+        and not a frame with too few depths (a black one)."""
         if (self.cfg.keyframe_every_s <= 0 or self.monocular
                 or int(np.count_nonzero(cur.depth > 0)) < self.keyframe_min_depth_points):
             return False
