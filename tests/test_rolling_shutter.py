@@ -106,3 +106,145 @@ def test_frame_state_redoes_the_move_from_the_raw_keypoints() -> None:
     f.to_middle_row(np.eye(4), DT, READOUT, CAM, 40.0)  # a wrong (zero) velocity first
     f.to_middle_row(V, DT, READOUT, CAM, 40.0)  # then the right one: from the raw keypoints
     np.testing.assert_allclose(f.xy, uv, atol=0.05)  # float32 keypoints, rounded depth pixels
+
+
+def test_gyro_rate_is_read_at_the_frame_time_not_where_the_window_mean_lags() -> None:
+    from semslam.core.imu import ImuSamples
+
+    # A turn speeding up at 4000 deg/s^2, read at 200 Hz with ADIS16448-like noise.
+    t = np.arange(0.0, 0.2, 0.005)
+    axis = np.array([0.3, 1.0, 0.1]) / np.linalg.norm([0.3, 1.0, 0.1])
+    truth = np.deg2rad(50.0 + 4000.0 * t)[:, None] * axis
+    noisy = truth + np.random.default_rng(3).normal(0.0, 2.4e-3, truth.shape)
+    samples = ImuSamples(t, noisy, np.zeros_like(noisy))
+    at = 0.151  # between readings: the line through the last 30 ms is read there
+    rate = samples.gyro_rate_at(at, 0.03)
+    want = np.deg2rad(50.0 + 4000.0 * at) * axis
+    lag = np.linalg.norm(noisy[(t > at - 0.03) & (t <= at)].mean(axis=0) - want)
+    assert np.linalg.norm(rate - want) < 0.01 < lag  # the window's mean: 15 ms behind, ~1 rad/s off
+    assert samples.gyro_rate_at(-1.0, 0.03) is None  # no reading before the time
+    np.testing.assert_allclose(samples.gyro_rate_at(0.0, 0.03), noisy[0])  # one reading: itself
+    np.testing.assert_allclose(samples.gyro_rate_at(0.005, 0.03), noisy[:2].mean(axis=0))
+
+
+def test_the_imu_gives_the_camera_motion_in_the_camera_frame() -> None:
+    """Rate: the gyro's less its bias, turned into the camera. Velocity (once initialised): the
+    derivative of the camera centre ``p_b(t) + R_wb(t) t_bc`` of a body sliding at ``v`` and
+    turning at ``w_b``, by finite differences, in the camera frame."""
+    from semslam.config.schema import ImuConfig
+    from semslam.core.imu import ADIS16448, ImuCalibration, ImuSamples
+    from semslam.core.types import Frame
+    from semslam.geometry.se3 import invert, so3_exp
+    from semslam.slam.orb.motion_priors.inertial import InertialPrior
+
+    R_bc = Rotation.from_euler("xyz", [90, 0, 90], degrees=True).as_matrix()  # EuRoC-like mounting
+    T_bc = make_pose(R_bc, [-0.02, -0.06, 0.01])
+    w_b, bias, v_w = np.array([-3.5, 0.9, 0.1]), np.array([0.01, -0.02, 0.005]), np.array([0.3, -0.1, 0.05])
+    t = np.arange(0.0, 0.1, 0.005)
+    gyro = np.tile(w_b + bias, (t.size, 1))
+    frame = Frame(3, 0.1, np.zeros((4, 4, 3), np.uint8), imu=ImuSamples(t, gyro, np.zeros_like(gyro)))
+    prior = InertialPrior(ImuConfig(), ImuCalibration(ADIS16448, T_bc))
+    prior.gyro_bias = bias
+    R_wb0 = Rotation.from_euler("zyx", [30, -10, 5], degrees=True).as_matrix()
+    T_cw = invert(make_pose(R_wb0, [1.0, 2.0, 0.5]) @ T_bc)
+    before = prior.camera_motion(frame, T_cw)  # not initialised: no velocity yet
+    assert before is not None and before.velocity is None
+    np.testing.assert_allclose(before.rate, R_bc.T @ w_b, atol=1e-9)
+    prior.gravity, prior.velocity = np.array([0.0, 0.0, -9.81]), v_w
+    motion = prior.camera_motion(frame, T_cw)
+    assert motion is not None and motion.velocity is not None
+
+    def centre(h: float) -> np.ndarray:
+        return np.array([1.0, 2.0, 0.5]) + v_w * h + R_wb0 @ so3_exp(w_b * h) @ T_bc[:3, 3]
+
+    h = 1e-6
+    want_w = (centre(h) - centre(-h)) / (2 * h)
+    np.testing.assert_allclose(motion.velocity, T_cw[:3, :3] @ want_w, atol=1e-6)
+    assert prior.camera_motion(frame, None).velocity is None  # the last frame not tracked
+    assert prior.camera_motion(Frame(3, 0.1, frame.rgb), T_cw) is None  # no readings
+    assert InertialPrior(ImuConfig(rolling_shutter=False), ImuCalibration(ADIS16448)).camera_motion(frame, T_cw) is None
+
+
+def test_camera_motion_over_an_interval_is_the_velocity_between_the_poses() -> None:
+    """A camera turning at ``w`` and sliding at ``v`` (both in its frame at t = 0) for ``dt``:
+    ``over(dt)`` is ``T_cw(dt) T_cw(0)^-1``."""
+    from semslam.geometry.se3 import invert, so3_exp
+    from semslam.slam.orb.motion_priors.base import CameraMotion
+
+    w, v, dt = np.array([0.4, -3.0, 0.2]), np.array([0.5, 0.1, -0.2]), 0.03
+    T_wc0 = make_pose(Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_matrix(), [1.0, 0.0, 2.0])
+    T_wc1 = make_pose(T_wc0[:3, :3] @ so3_exp(w * dt), T_wc0[:3, 3] + T_wc0[:3, :3] @ v * dt)
+    np.testing.assert_allclose(CameraMotion(w, v).over(dt), invert(T_wc1) @ T_wc0, atol=1e-12)
+    turn_only = CameraMotion(w).over(dt, translation=np.array([0.01, 0.0, 0.0]))
+    np.testing.assert_allclose(turn_only[:3, :3], so3_exp(-w * dt), atol=1e-12)
+    np.testing.assert_allclose(turn_only[:3, 3], [0.01, 0.0, 0.0])
+
+
+def _rs_case(seed: int, speed: float):  # type: ignore[no-untyped-def]
+    """A rolling-shutter frame (keypoints where each row saw the points, their depths then)
+    of a camera turning at 200 deg/s and sliding at ``speed``, its true motion V and the
+    middle-row pixels and depths."""
+    from semslam.core.types import Keypoints
+    from semslam.slam.orb.frame_builders import RgbdFrameBuilder
+
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform([40, 20], [600, 460], (60, 2))
+    z = rng.uniform(1.0, 3.0, 60)
+    V = _velocity(200.0, speed)
+    obs, z_obs = _rolling_observations(V, CAM.backproject(uv, z))
+    kps = Keypoints(xy=obs.astype(np.float32), octave=np.zeros(60, np.int32), angle=np.zeros(60, np.float32),
+                    response=np.ones(60, np.float32), descriptors=np.zeros((60, 32), np.uint8))
+    cur = RgbdFrameBuilder(CAM, 40.0).build(1, DT, kps, np.zeros((480, 640), np.float32))
+    cur.depth = z_obs.astype(np.float32)  # the keypoints' depths when their rows were read
+    return cur, V, uv, z
+
+
+def test_with_the_imu_the_rows_move_once_by_its_motion() -> None:
+    """A turn starting: the motion model's velocity is still (the last interval did not turn).
+    With the IMU's motion the keypoints land at the middle row's pixels and depths before any
+    match, and no refinement redoes it; before the IMU knows a velocity its rotation and the
+    motion model's translation move them, and the refinement runs as without an IMU; without
+    an IMU the motion model leaves them sheared."""
+    from types import SimpleNamespace
+
+    from semslam.config.schema import SlamConfig
+    from semslam.core.types import Frame
+    from semslam.slam.orb.motion_priors.base import CameraMotion, FrameImages, MotionState, Stage
+    from semslam.slam.orb.motion_priors.rolling_shutter import RollingShutter
+
+    cfg = SlamConfig(rolling_shutter_ms=READOUT * 1e3, rolling_shutter_global_depth=False,
+                     rolling_shutter_solve=False)  # the refinement from the tracked pose, no map to fit to
+    images = FrameImages(Frame(1, DT, np.zeros((480, 640, 3), np.uint8)), None)
+    last = SimpleNamespace(timestamp=0.0, T_cw=np.eye(4))
+    still = make_pose(np.eye(3), np.zeros(3))
+    calls: list[str] = []
+    ops = SimpleNamespace(optimize=lambda f: calls.append("optimize") or 0,
+                          discard_outliers=lambda f: calls.append("discard") or 0)
+
+    cur, V, uv, z = _rs_case(4, 0.5)
+    rate = -Rotation.from_matrix(V[:3, :3]).as_rotvec() / DT  # R_c1c0 = exp(-w dt)
+    velocity = -V[:3, :3].T @ V[:3, 3] / DT  # t = -R v dt
+    prior = RollingShutter(cfg, CAM, None, None, lambda frame, T: CameraMotion(rate, velocity))  # type: ignore[arg-type]
+    state = MotionState(last, True, still, DT)  # type: ignore[arg-type]
+    prior.correct(Stage.FEATURES, state, cur, False, images, None)  # type: ignore[arg-type]
+    np.testing.assert_allclose(cur.xy, uv, atol=0.05)
+    np.testing.assert_allclose(cur.depth, z, atol=1e-3)
+    cur.T_cw = still.copy()
+    prior.correct(Stage.MATCHED, state, cur, True, images, ops)  # type: ignore[arg-type]
+    assert calls == [] and np.allclose(cur.xy, uv, atol=0.05)
+
+    cur, V, uv, z = _rs_case(5, 0.5)
+    slide = make_pose(np.eye(3), V[:3, 3])  # the motion model: the slide, not the turn
+    prior = RollingShutter(cfg, CAM, None, None, lambda frame, T: CameraMotion(rate))  # type: ignore[arg-type]
+    state = MotionState(last, True, slide, DT)  # type: ignore[arg-type]
+    prior.correct(Stage.FEATURES, state, cur, False, images, None)  # type: ignore[arg-type]
+    np.testing.assert_allclose(cur.xy, uv, atol=0.05)
+    cur.T_cw = V.copy()
+    prior.correct(Stage.MATCHED, state, cur, True, images, ops)  # type: ignore[arg-type]
+    assert calls == ["optimize", "discard"]
+    np.testing.assert_allclose(cur.xy, uv, atol=0.05)  # redone with the tracked motion: the same
+
+    cur, V, uv, z = _rs_case(6, 0.0)
+    RollingShutter(cfg, CAM, None, None).correct(  # type: ignore[arg-type]
+        Stage.FEATURES, MotionState(last, True, still, DT), cur, False, images, None)  # type: ignore[arg-type]
+    assert np.linalg.norm(cur.xy - uv, axis=1).max() > 20

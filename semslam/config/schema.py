@@ -470,6 +470,11 @@ class ImuConfig:
     # while blind. Off by default: on the 320x240 blackout render of the tests the extra
     # keyframes took the RGB-D-inertial run from 0.58 to 2.3 cm (docs/results/inertial.md).
     keyframe_every_s: float = 0.0
+    # With a rolling shutter (slam.rolling_shutter_ms): the keypoints moved to the middle
+    # row's time by the camera's motion as the IMU measures it at the frame (the gyro's rate,
+    # and the velocity once initialised), not by the visual motion (the last interval's, which
+    # lags a turn that speeds up, or the one fitted to the few matches a blurred frame keeps).
+    rolling_shutter: bool = True
     # The window of recent tracked frames (and its spacing) the velocity and biases are
     # re-estimated on after each frame (GTSAM CombinedImuFactor, backend/inertial_window.py).
     window_s: float = 1.0

@@ -73,6 +73,20 @@ class ImuSamples:
         hi = min(int(np.searchsorted(self.t, t1, "left")) + 1, len(self.t))
         return ImuSamples(self.t[lo:hi], self.gyro[lo:hi], self.acc[lo:hi])
 
+    def gyro_rate_at(self, t: float, window_s: float) -> NDArray[np.float64] | None:
+        """The angular rate (rad/s, in B) at time ``t`` from the readings of the last
+        ``window_s`` before it: a straight line fitted per axis and read at ``t`` (a turn
+        speeding up is read where it is, not where the window's mean lags behind); the mean
+        of two readings, the one reading alone; None without any."""
+        lo, hi = np.searchsorted(self.t, t - window_s, "left"), np.searchsorted(self.t, t, "right")
+        ts, gyro = self.t[lo:hi], self.gyro[lo:hi]
+        if len(ts) == 0:
+            return None
+        if len(ts) < 3:
+            return gyro.mean(axis=0)
+        _, intercept = np.polyfit(ts - t, gyro, 1)
+        return np.asarray(intercept, np.float64)
+
     @staticmethod
     def empty() -> ImuSamples:
         return ImuSamples(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))

@@ -61,22 +61,25 @@ def pose_priors(config: SystemConfig, camera: PinholeCamera, slam_map: Map, pyra
                 align_map: Callable[[NDArray[np.float64], float], None] | None = None,
                 monocular: bool = False) -> list[PosePrior]:
     """The priors ``config`` turns on, in the order tracking asks them: the rolling shutter
-    (keypoints moved before anything), the images' shift on blurred frames (its prediction
-    before the others'; its coast before depth odometry), depth odometry, the IMU (its
-    prediction wherever the blurred frames' shift has none; it poses a frame only when
-    nothing before it could: ahead of the coast it posed blurred turns itself, and their
-    coasted poses are better), and the constant velocity last (the motion model's fallback)."""
+    (keypoints moved before anything; by the IMU's measured motion when there is one), the
+    images' shift on blurred frames (its prediction before the others'; its coast before depth
+    odometry), depth odometry, the IMU (its prediction wherever the blurred frames' shift has
+    none; it poses a frame only when nothing before it could: ahead of the coast it posed
+    blurred turns itself, and their coasted poses are better), and the constant velocity last
+    (the motion model's fallback)."""
     cfg = config.slam
+    inertial = (InertialPrior(config.imu, imu, align_map, monocular, keyframe_min_depth_points=cfg.min_init_keypoints // 2)
+                if imu is not None else None)
     priors: list[PosePrior] = []
     if cfg.rolling_shutter_ms > 0:
-        priors.append(RollingShutter(cfg, camera, slam_map, pyramid))
+        priors.append(RollingShutter(cfg, camera, slam_map, pyramid,
+                                     inertial.camera_motion if inertial is not None else None))
     if cfg.blur_coast_sharp_ratio > 0:
         priors.append(BlurCoast(cfg, camera, slam_map, pyramid, sharpness))
     if cfg.depth_odometry != "none":
         priors.append(DepthOdometry(cfg, camera, sharpness))
-    if imu is not None:
-        priors.append(InertialPrior(config.imu, imu, align_map, monocular,
-                                    keyframe_min_depth_points=cfg.min_init_keypoints // 2))
+    if inertial is not None:
+        priors.append(inertial)
     priors.append(ConstantVelocity())
     return priors
 

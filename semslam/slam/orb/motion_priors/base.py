@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from semslam.core.types import Frame
+from semslam.geometry.se3 import so3_exp
 
 if TYPE_CHECKING:
     from semslam.slam.orb.frame_state import FrameState
@@ -78,6 +79,27 @@ class PosePrediction:
     #: 6x6 of the motion from the last frame alone (without the last frame's own error); a
     #: prior that measures the motion (the IMU) gives it, and keyframes are linked by it.
     motion_covariance: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """How the camera moves at a frame's time, in its own frame: the angular rate (rad/s)
+    and its centre's velocity (m/s; None where unknown). What a rolling shutter's rows
+    were read out along."""
+
+    rate: NDArray[np.float64]
+    velocity: NDArray[np.float64] | None = None
+
+    def over(self, dt: float, translation: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """The motion over ``dt`` seconds as a velocity ``V`` (``T_cw(t + dt) = V T_cw(t)``):
+        ``R = exp(-w dt)``, ``t = -R v dt``; without a velocity, ``translation`` (none: 0)."""
+        V = np.eye(4)
+        V[:3, :3] = so3_exp(-self.rate * dt)
+        if self.velocity is not None:
+            V[:3, 3] = -V[:3, :3] @ self.velocity * dt
+        elif translation is not None:
+            V[:3, 3] = translation
+        return V
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,8 @@ the longer history (``imu.refine_first_s``, ``imu.refine_second_s``). From then 
 * ``correct`` after the local map: a frame whose features did not track (black, blurred,
   covered, a crowd) keeps the IMU's pose for at most ``imu.max_blind_s`` since the last
   tracked one (counted in ``imu_only_frames``), then tracking is lost as without an IMU;
+* ``camera_motion``: the camera's angular rate at a frame's time (the gyro) and its centre's
+  velocity, for the rolling-shutter prior (``imu.rolling_shutter``);
 * ``update``: the velocity carried on by the readings, and every ``imu.window_step_s``
   velocity and biases re-estimated on the last ``imu.window_s`` of tracked frames
   (``backend/inertial_window.py``).
@@ -56,10 +58,11 @@ from semslam.backend.inertial_init import initialise
 from semslam.backend.inertial_window import bridge, refine_window
 from semslam.config.schema import ImuConfig
 from semslam.core.imu import ImuCalibration, ImuNoise
+from semslam.core.types import Frame
 from semslam.geometry.se3 import invert
 from semslam.slam.orb.map_alignment import gravity_rotation
 from semslam.slam.orb.motion_priors.base import (
-    Correction, FrameImages, FrameOutcome, MotionState, PosePrediction, PriorDefaults, Stage, TrackerOps,
+    CameraMotion, Correction, FrameImages, FrameOutcome, MotionState, PosePrediction, PriorDefaults, Stage, TrackerOps,
 )
 
 if TYPE_CHECKING:
@@ -82,6 +85,9 @@ MAX_WINDOW_CHI2 = 4.0
 #: The gyroscope bias's spread after the window's estimate (rad/s): ten times what a second of
 #: EuRoC's ADIS16448 readings shows (1.7e-4 rad/s/sqrt(Hz)).
 GYRO_BIAS_SPREAD = 2e-3
+#: The gyro readings a frame's angular rate is read from (the last ones before its time):
+#: six at 200 Hz, enough for a line through a turn that speeds up, short enough to be one.
+GYRO_RATE_WINDOW_S = 0.03
 
 
 def configured_noise(calibration: ImuNoise, cfg: ImuConfig) -> ImuNoise:
@@ -188,6 +194,26 @@ class InertialPrior(PriorDefaults):
 
     def _camera(self, T_wb: Array) -> Array:
         return invert(T_wb @ self.T_bc)
+
+    def camera_motion(self, frame: Frame, T_cw_last: Array | None) -> CameraMotion | None:
+        """The camera's motion at the frame's time, in its frame: the angular rate from the
+        frame's gyro readings less the gyro bias as estimated so far, and once initialised the
+        centre's velocity (the body's, as the prior carries it, plus the turn about the
+        lever arm), turned into the camera by the last frame's pose ``T_cw_last`` (None: not
+        tracked, no velocity). None without readings, or with ``imu.rolling_shutter`` off:
+        what a rolling shutter's rows are moved by."""
+        if not self.cfg.rolling_shutter or frame.imu is None:
+            return None
+        rate = frame.imu.gyro_rate_at(frame.timestamp, GYRO_RATE_WINDOW_S)
+        if rate is None:
+            return None
+        rate_b = rate - self.gyro_bias
+        rate_c = self.T_cb[:3, :3] @ rate_b
+        if self.velocity is None or self.gravity is None or T_cw_last is None:
+            return CameraMotion(rate_c)
+        R_wb = self._body(T_cw_last)[:3, :3]
+        centre_velocity_w = self.velocity + R_wb @ np.cross(rate_b, self.T_bc[:3, 3])
+        return CameraMotion(rate_c, T_cw_last[:3, :3] @ centre_velocity_w)
 
     def _aligned_body(self, T_wb: Array, rotation: Array, scale: float) -> Array:
         """A body pose after the map moved by ``x' = scale * rotation @ x``: its camera centre

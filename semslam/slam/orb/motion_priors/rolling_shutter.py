@@ -1,8 +1,10 @@
 """A rolling shutter's rows: keypoints moved to the middle row's capture time by the camera's
-velocity, then that velocity refined from the tracked pose (or fitted with it)."""
+velocity, then that velocity refined from the tracked pose (or fitted with it); with an IMU,
+by the camera's motion as the IMU measures it at the frame's time."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -10,12 +12,12 @@ from numpy.typing import NDArray
 
 from semslam.backend.rolling_shutter_pose import solve_rolling_shutter_pose
 from semslam.config.schema import SlamConfig
-from semslam.core.types import ScalePyramid
+from semslam.core.types import Frame, ScalePyramid
 from semslam.geometry.camera import PinholeCamera
 from semslam.geometry.rolling_shutter import row_time_fraction
 from semslam.geometry.se3 import invert
 from semslam.slam.orb.motion_priors.base import (
-    Correction, FrameImages, MotionState, PriorDefaults, Stage, TrackerOps,
+    CameraMotion, Correction, FrameImages, MotionState, PriorDefaults, Stage, TrackerOps,
 )
 
 if TYPE_CHECKING:
@@ -29,25 +31,50 @@ RS_SOLVE_MAX_POINTS = 200
 class RollingShutter(PriorDefaults):
     """``slam.rolling_shutter_ms`` > 0: before matching, the keypoints move by the motion
     model's velocity; after the first match (and with ``slam.rolling_shutter_solve`` again
-    after the local map) by the tracked pose's, and the pose is refitted. Nothing is kept:
-    each frame starts from the motion state's velocity."""
+    after the local map) by the tracked pose's, and the pose is refitted.
+
+    With an IMU (``camera_motion``: the camera's angular rate from the gyro readings at the
+    frame's time, and once the IMU is initialised its centre's velocity) the keypoints move
+    once, before matching, by that motion, and stay: the visual estimates lag a turn that
+    speeds up (the last interval's average) or rest on the few matches a blurred frame keeps
+    (the fit). Before the IMU's initialisation its rotation replaces the motion model's in
+    the first move only; then the refinement as without it. Nothing is kept between frames."""
 
     name = "rolling_shutter"
 
-    def __init__(self, cfg: SlamConfig, camera: PinholeCamera, slam_map: "Map", pyramid: ScalePyramid) -> None:
+    def __init__(self, cfg: SlamConfig, camera: PinholeCamera, slam_map: "Map", pyramid: ScalePyramid,
+                 camera_motion: Callable[[Frame, NDArray[np.float64] | None], CameraMotion | None] | None = None
+                 ) -> None:
         self.cfg = cfg
         self.camera = camera
         self.map = slam_map
         self.pyr = pyramid
+        # The IMU's: (frame, the last frame's T_cw or None) -> the camera's motion at the frame.
+        self.camera_motion = camera_motion
+        self._moved_by_imu = False  # the current frame's keypoints moved by the IMU's motion: final
 
     def correct(self, stage: Stage, state: MotionState, cur: "FrameState", tracked: bool,
                 images: FrameImages, ops: TrackerOps) -> Correction | None:
         if stage is Stage.FEATURES:
-            if state.velocity is not None and state.velocity_dt > 0:
-                self._to_middle_row(cur, state.velocity, state.velocity_dt, images.depth)
-        elif tracked and (stage is Stage.MATCHED or self.cfg.rolling_shutter_solve):
+            self._first_move(state, cur, images)
+        elif tracked and not self._moved_by_imu and (stage is Stage.MATCHED or self.cfg.rolling_shutter_solve):
             self._refine(state, cur, images.depth, ops)
         return None
+
+    def _first_move(self, state: MotionState, cur: "FrameState", images: FrameImages) -> None:
+        """Before matching: by the IMU's motion where it has one (its rotation and the motion
+        model's translation before it knows a velocity), else by the motion model's velocity."""
+        known = state.velocity is not None and state.velocity_dt > 0
+        last_pose = state.last.T_cw if state.tracked and state.last is not None else None
+        motion = self.camera_motion(images.frame, last_pose) if self.camera_motion is not None else None
+        self._moved_by_imu = motion is not None and motion.velocity is not None
+        if motion is not None:
+            dt = state.velocity_dt if known and not self._moved_by_imu else self.cfg.rolling_shutter_ms / 1e3
+            translation = state.velocity[:3, 3] if known and state.velocity is not None else None
+            self._to_middle_row(cur, motion.over(dt, translation), dt, images.depth)
+        elif known:
+            assert state.velocity is not None
+            self._to_middle_row(cur, state.velocity, state.velocity_dt, images.depth)
 
     def _to_middle_row(self, cur: "FrameState", velocity: NDArray[np.float64], dt: float,
                        depth: NDArray[np.float32] | None) -> None:
