@@ -486,7 +486,8 @@ class ImuConfig:
     # tracking, marginalised to the pose): a Gaussian prior whose spread is the last frame's
     # pose error (these two sigmas) plus the velocity's spread over the time since the last
     # frame posed by its features. Off by default: on a held-out hard-imaging render (seed
-    # 31) the IMU then posed 150 frames alone and the run ended 125 cm off (2.7 without it).
+    # 31) the IMU once posed 150 frames alone and the run ended 125 cm off; with the rolling
+    # shutter moved by the IMU it no longer does and helps most runs (docs/results/inertial.md).
     pose_prior: bool = False
     pose_prior_rotation_deg: float = 0.5
     pose_prior_translation_m: float = 0.01
