@@ -211,9 +211,8 @@ class InertialPrior(PriorDefaults):
         rate_c = self.T_cb[:3, :3] @ rate_b
         if self.velocity is None or self.gravity is None or T_cw_last is None:
             return CameraMotion(rate_c)
-        R_wb = self._body(T_cw_last)[:3, :3]
-        centre_velocity_w = self.velocity + R_wb @ np.cross(rate_b, self.T_bc[:3, 3])
-        return CameraMotion(rate_c, T_cw_last[:3, :3] @ centre_velocity_w)
+        lever_arm = self.T_cb[:3, :3] @ np.cross(rate_b, self.T_bc[:3, 3])  # R_cw R_wb = R_cb
+        return CameraMotion(rate_c, T_cw_last[:3, :3] @ self.velocity + lever_arm)
 
     def _aligned_body(self, T_wb: Array, rotation: Array, scale: float) -> Array:
         """A body pose after the map moved by ``x' = scale * rotation @ x``: its camera centre

@@ -64,17 +64,18 @@ class RollingShutter(PriorDefaults):
     def _first_move(self, state: MotionState, cur: "FrameState", images: FrameImages) -> None:
         """Before matching: by the IMU's motion where it has one (its rotation and the motion
         model's translation before it knows a velocity), else by the motion model's velocity."""
-        known = state.velocity is not None and state.velocity_dt > 0
+        velocity = state.velocity if state.velocity_dt > 0 else None
         last_pose = state.last.T_cw if state.tracked and state.last is not None else None
         motion = self.camera_motion(images.frame, last_pose) if self.camera_motion is not None else None
         self._moved_by_imu = motion is not None and motion.velocity is not None
-        if motion is not None:
-            dt = state.velocity_dt if known and not self._moved_by_imu else self.cfg.rolling_shutter_ms / 1e3
-            translation = state.velocity[:3, 3] if known and state.velocity is not None else None
-            self._to_middle_row(cur, motion.over(dt, translation), dt, images.depth)
-        elif known:
-            assert state.velocity is not None
-            self._to_middle_row(cur, state.velocity, state.velocity_dt, images.depth)
+        if motion is not None and (self._moved_by_imu or velocity is None):
+            readout = self.cfg.rolling_shutter_ms / 1e3
+            self._to_middle_row(cur, motion.over(readout), readout, images.depth)
+        elif motion is not None:
+            assert velocity is not None
+            self._to_middle_row(cur, motion.over(state.velocity_dt, velocity[:3, 3]), state.velocity_dt, images.depth)
+        elif velocity is not None:
+            self._to_middle_row(cur, velocity, state.velocity_dt, images.depth)
 
     def _to_middle_row(self, cur: "FrameState", velocity: NDArray[np.float64], dt: float,
                        depth: NDArray[np.float32] | None) -> None:
